@@ -1,0 +1,167 @@
+"""Command line: parses arguments, calls one layer, prints. Exit 2 on usage/config errors."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from rich.console import Console
+from rich.table import Column, Table
+
+from rigtool import __version__
+from rigtool.errors import RigtoolError
+from rigtool.plan import estimate_duration_s
+from rigtool.progress import UNIT_LABEL, default_reporter
+from rigtool.store import DB_ENV, Store, resolve_db_path
+
+# Pipes and logs get wide tables instead of rich's 80-column default.
+out = Console(highlight=False, soft_wrap=True, width=None if sys.stdout.isatty() else 160)
+err = Console(stderr=True, highlight=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
+
+
+def _fmt_duration(seconds: float) -> str:
+    h, rem = divmod(int(round(seconds)), 3600)
+    m, s = divmod(rem, 60)
+    return f"{h} h {m:02d} min" if h else f"{m} min {s:02d} s"
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from rigtool.sweep import open_checked, resolve, run_sweep
+
+    setup = resolve(args.protocol, args.rig, args.sim, args.seed)
+    if args.dry_run:
+        rigset = open_checked(setup)
+        rigset.close()
+        _print_plan(setup, rigset.actuator.info.neutral)
+        return 0
+    store = Store(resolve_db_path(args.db, setup.rig.db))
+    try:
+        outcome = run_sweep(setup, store, default_reporter())
+    finally:
+        store.close()
+    steps = f"{outcome.steps_done}/{len(setup.plan)} points"
+    if outcome.status == "completed":
+        out.print(f"run {outcome.run_id} completed: {steps} stored in {store.path}")
+        return 0
+    err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in "
+              f"{store.path}; actuator at neutral")
+    return 130 if "Ctrl-C" in (outcome.reason or "") else 1
+
+
+def _print_plan(setup, neutral: float) -> None:
+    p, plan = setup.protocol, setup.plan
+    unit = UNIT_LABEL.get(p.command.unit, p.command.unit)
+    depths = sorted({s.depth_m for s in plan})
+    timing = p.timing
+    out.print(f"[bold]{p.name}[/]: {len(plan)} points on rig {setup.rig.name!r}")
+    out.print(f"  commands: {len(p.command.command_values())} values in {unit}, order "
+              f"{p.command.order}, {p.command.repeats} repeat(s)")
+    out.print(f"  depths: {', '.join(f'{d:g} m' for d in depths)} ({p.depth.mode}, loop {p.depth.loop})")
+    out.print(f"  per point: settle {timing.settle.max_seconds():g} s max, acquire "
+              f"{timing.acquire.n_samples} samples at {timing.acquire.rate_hz:g} Hz, rest {timing.rest_s:g} s; "
+              f"tare {timing.tare}")
+    out.print(f"  samples to store: {len(plan) * timing.acquire.n_samples:,}")
+    out.print(f"  estimated duration on the rig: {_fmt_duration(estimate_duration_s(p, plan, neutral))}")
+    table = Table("step", "command", "depth (m)", "repeat", "direction")
+    shown = plan if len(plan) <= 6 else plan[:3] + plan[-3:]
+    for i, s in enumerate(shown):
+        if len(plan) > 6 and i == 3:
+            table.add_row("...", "", "", "", "")
+        table.add_row(str(s.idx), f"{s.command:g} {unit}", f"{s.depth_m:g}", str(s.repeat), s.direction)
+    out.print(table)
+
+
+def cmd_runs(args: argparse.Namespace) -> int:
+    store = Store(resolve_db_path(args.db), create=False)
+    rows = store.runs(limit=args.limit)
+    if not rows:
+        out.print(f"no runs in {store.path}")
+        return 0
+    table = Table("name", "status", "created (UTC)", "points", "unit")
+    table.columns.insert(0, Column("run id", no_wrap=True))
+    for r in rows:
+        table.add_row(r["id"], r["name"], r["status"], r["created_utc"][:16].replace("T", " "),
+                      f"{r['n_steps']}/{r['n_planned']}", r["command_unit"])
+    out.print(table)
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    store = Store(resolve_db_path(args.db), create=False)
+    run_id = store.resolve_run_id(args.run)
+    run = store.run(run_id)
+    steps = store.steps(run_id)
+    out.print(f"[bold]run {run_id}[/]  {run['name']}  status [bold]{run['status']}[/]"
+              + (f" ({run['stop_reason']})" if run["stop_reason"] else ""))
+    out.print(f"  created {run['created_utc']}, finished {run['finished_utc'] or '-'}, "
+              f"host {run['host']}, rigtool {run['tool_version']}, seed {run['seed']}")
+    out.print(f"  rig: {run['rig'].get('name')}  protocol: {run['protocol_path']}")
+    meta = {k: v for k, v in run["metadata"].items() if v not in (None, {}, "")}
+    if meta:
+        out.print("  metadata: " + ", ".join(f"{k}={v}" for k, v in meta.items()))
+    out.print(f"  points: {len(steps)}/{run['n_planned']}, samples: {sum(s['n'] for s in steps):,}")
+    unit = UNIT_LABEL.get(run["command_unit"], run["command_unit"])
+    table = Table("depth (m)", "points", f"command ({unit})", "thrust mean (N)", "speed (r/min)",
+                  "current (A)", title="per-depth summary")
+    for depth in sorted({s["depth_m"] for s in steps}):
+        ds = [s for s in steps if s["depth_m"] == depth]
+        table.add_row(f"{depth:g}", str(len(ds)), _span(ds, "command"), _span(ds, "thrust_n_mean"),
+                      _span(ds, "speed_rpm_mean"), _span(ds, "current_a_mean"))
+    out.print(table)
+    counts: dict[str, int] = {}
+    for ev in store.events(run_id):
+        counts[ev["kind"]] = counts.get(ev["kind"], 0) + 1
+    if counts:
+        out.print("  events: " + ", ".join(f"{k} x{v}" for k, v in sorted(counts.items())))
+    return 0
+
+
+def _span(rows: list[dict], key: str) -> str:
+    vals = [r[key] for r in rows if r[key] is not None]
+    return f"{min(vals):.4g} .. {max(vals):.4g}" if vals else "-"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="rigtool", description="Sweep, calibrate and report on underwater thrusters.")
+    parser.add_argument("--version", action="version", version=f"rigtool {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    db_help = f"run database (default: ${DB_ENV}, the rig file's db, or ./rigtool.sqlite)"
+
+    p = sub.add_parser("sweep", help="run a protocol on a rig and store the run")
+    p.add_argument("protocol", help="protocol YAML file")
+    p.add_argument("--rig", help="rig YAML file (overrides the protocol's `rig:`)")
+    p.add_argument("--sim", action="store_true", help="run on the built-in simulator twin")
+    p.add_argument("--seed", type=int, help="simulator seed (overrides the protocol's)")
+    p.add_argument("--dry-run", action="store_true", help="print the plan and estimated duration only")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("runs", help="list runs in the database")
+    p.add_argument("--limit", type=int, default=50)
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_runs)
+
+    p = sub.add_parser("show", help="metadata and per-depth summary of one run")
+    p.add_argument("run", help="run id, unique prefix, or `last`")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_show)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `rigtool` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except RigtoolError as exc:
+        err.print(f"rigtool: error: {exc}", markup=False)
+        return exc.exit_status
+    except KeyboardInterrupt:
+        err.print("rigtool: interrupted")
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

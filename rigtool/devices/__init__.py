@@ -1,0 +1,1 @@
+"""Device interfaces and drivers (actuators, force sensors, depth stages)."""

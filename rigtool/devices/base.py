@@ -1,0 +1,115 @@
+"""The small interfaces the engine drives, and the sample block they exchange.
+
+Every driver, real or simulated, implements one of these. Units are SI with the
+unit in the name; commands are in the actuator's native unit (percent, PWM
+counts, pulse width in us, r/min or A).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+FT_CHANNELS = ("fx", "fy", "fz", "tx", "ty", "tz")
+COMMAND_UNITS = ("percent", "pwm_counts", "pulse_us", "rpm", "amps")
+
+
+@dataclass
+class ForceBlock:
+    """Samples from a force sensor: times (s, run clock) and six F/T channels (N, N m).
+
+    Sensors with fewer channels fill the others with NaN. `seq` is the device's own
+    sample sequence number where it has one (else a running count), so lost samples
+    can be reconciled.
+    """
+
+    t_s: np.ndarray
+    ft: np.ndarray  # shape (n, 6): fx, fy, fz, tx, ty, tz
+    seq: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+@dataclass
+class FeedbackBlock:
+    """Actuator feedback samples (any field may be None when the driver lacks it)."""
+
+    t_s: np.ndarray
+    speed_rpm: np.ndarray | None = None
+    current_a: np.ndarray | None = None
+    voltage_v: np.ndarray | None = None
+    fault: str | None = None
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+@dataclass(frozen=True)
+class ActuatorInfo:
+    """What the engine needs to know about an actuator's command space."""
+
+    command_unit: str
+    neutral: float
+    command_min: float
+    command_max: float
+    feedback: tuple[str, ...] = field(default=())  # subset of speed_rpm, current_a, voltage_v
+
+
+@runtime_checkable
+class Actuator(Protocol):
+    """Sets a command; can always be put in its safe neutral state."""
+
+    info: ActuatorInfo
+
+    def set_command(self, value: float) -> None:
+        """Command `value` in `info.command_unit`."""
+
+    def neutral(self) -> None:
+        """Go to the safe neutral command. Idempotent, callable from any exit path."""
+
+    def read_feedback(self) -> FeedbackBlock:
+        """Feedback received since the previous call (may be empty)."""
+
+    def close(self) -> None:
+        """Release the transport (after neutral)."""
+
+
+@runtime_checkable
+class ForceSensor(Protocol):
+    """Streams timestamped F/T blocks; can be tared."""
+
+    channels: tuple[str, ...]
+
+    def read(self, n: int, rate_hz: float) -> ForceBlock:
+        """Block until `n` samples at `rate_hz` are available and return them."""
+
+    def set_bias(self, bias: np.ndarray) -> None:
+        """Subtract `bias` (6 values, N and N m) from every later sample."""
+
+    def close(self) -> None:
+        """Release the transport."""
+
+
+@runtime_checkable
+class DepthStage(Protocol):
+    """Puts the propeller centre at a depth below the surface (m)."""
+
+    def move_to(self, depth_m: float) -> float:
+        """Move (or have the operator move) to `depth_m`; return the depth reached."""
+
+    def close(self) -> None:
+        """Release the transport."""
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """Monotonic time source; the simulator injects a virtual one."""
+
+    def now(self) -> float:
+        """Seconds on a monotonic scale."""
+
+    def sleep(self, seconds: float) -> None:
+        """Wait `seconds` (a virtual clock just advances)."""

@@ -1,0 +1,288 @@
+"""Runs a Plan against a RigSet: depth, ramp, settle, acquire, store, rest, with safe exits.
+
+The engine is the single writer of a run. Every exit path (end, exception, Ctrl-C,
+SIGTERM, SIGHUP, limit trip) sends the actuator to neutral and closes the run with a
+status; completed points are already committed, a point in progress is discarded.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from dataclasses import dataclass
+from types import FrameType
+
+import numpy as np
+
+from rigtool.devices.base import FT_CHANNELS, FeedbackBlock
+from rigtool.errors import SafetyTrip
+from rigtool.plan import PlanStep
+from rigtool.progress import SilentReporter
+from rigtool.protocol import Protocol
+from rigtool.rig import RigSet
+from rigtool.safety import LimitMonitor
+from rigtool.store import StepRecord, Store
+
+CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this often
+RAMP_DT_S = 0.05  # command update period while slewing
+FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
+
+
+class StopNow(BaseException):
+    """Raised from a signal handler to stop immediately (second Ctrl-C, SIGTERM, SIGHUP)."""
+
+
+@dataclass
+class Outcome:
+    """How a run ended."""
+
+    run_id: str
+    status: str
+    reason: str | None
+    steps_done: int
+
+
+class _Signals:
+    """First SIGINT asks for a stop after the current point; a second, or SIGTERM/SIGHUP, stops now."""
+
+    def __init__(self, reporter) -> None:
+        self.stop_requested = False
+        self.reporter = reporter
+        self._old: dict[int, object] = {}
+
+    def _on_int(self, signum: int, frame: FrameType | None) -> None:
+        if self.stop_requested:
+            raise StopNow("second Ctrl-C: stopped at once")
+        self.stop_requested = True
+        self.reporter.note("Ctrl-C: finishing the current point, then stopping "
+                           "(Ctrl-C again to stop at once)")
+
+    def _on_term(self, signum: int, frame: FrameType | None) -> None:
+        raise StopNow(f"stopped by {signal.Signals(signum).name}")
+
+    def __enter__(self) -> _Signals:
+        if threading.current_thread() is threading.main_thread():
+            self._old[signal.SIGINT] = signal.signal(signal.SIGINT, self._on_int)
+            for sig in (signal.SIGTERM, signal.SIGHUP):
+                self._old[sig] = signal.signal(sig, self._on_term)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+
+
+class Engine:
+    """Executes plan steps on the devices and commits each finished point to the store."""
+
+    def __init__(self, protocol: Protocol, plan: list[PlanStep], rig: RigSet, store: Store,
+                 run_id: str, reporter=None) -> None:
+        self.protocol = protocol
+        self.plan = plan
+        self.rig = rig
+        self.store = store
+        self.run_id = run_id
+        self.reporter = reporter or SilentReporter()
+        self.clock = rig.clock
+        self.limits = LimitMonitor(protocol.limits)
+        self.unit = rig.actuator.info.command_unit
+        self._command = rig.actuator.info.neutral
+        self._t0 = 0.0
+        self._depth: float | None = None
+        self._fb_last = dict.fromkeys(FEEDBACK_FIELDS, np.nan)
+        self._bias_total = np.zeros(6)
+
+    # -- public ---------------------------------------------------------------------------
+    def run(self, start_idx: int = 0) -> Outcome:
+        """Run steps from `start_idx`; always ends with the actuator at neutral."""
+        status, reason, done = "failed", None, 0
+        self.reporter.start(self.run_id, len(self.plan), self.unit, done=start_idx)
+        try:
+            with _Signals(self.reporter) as signals:
+                self._begin()
+                for step in self.plan[start_idx:]:
+                    self._prepare_depth(step)
+                    self._run_step(step)
+                    done += 1
+                    if signals.stop_requested:
+                        status, reason = "aborted", "stopped by the operator (Ctrl-C)"
+                        break
+                else:
+                    status = "completed"
+        except (KeyboardInterrupt, StopNow) as exc:
+            status, reason = "aborted", str(exc) or "interrupted (Ctrl-C)"
+        except SafetyTrip as exc:
+            status, reason = "aborted", str(exc)
+            self._safe_neutral()
+            self._event("limit_trip", {"message": str(exc)})
+        except BaseException as exc:
+            status, reason = "failed", f"{type(exc).__name__}: {exc}"
+            raise
+        finally:
+            self._safe_neutral()
+            self.reporter.finish()
+            self._close_run(status, reason)
+        return Outcome(self.run_id, status, reason, done)
+
+    # -- phases ---------------------------------------------------------------------------
+    def _begin(self) -> None:
+        self.rig.actuator.neutral()
+        self._command = self.rig.actuator.info.neutral
+        self._t0 = self.clock.now()
+        self._event("run_start", {"rig": self.rig.description, "n_steps": len(self.plan)})
+        if self.protocol.timing.tare == "at_start":
+            self._tare("at_start")
+
+    def _prepare_depth(self, step: PlanStep) -> None:
+        if step.depth_m != self._depth:
+            self._ramp_to(self.rig.actuator.info.neutral)
+            reached = self.rig.depth_stage.move_to(step.depth_m)
+            self._event("depth", {"target_m": step.depth_m, "reached_m": reached}, step.idx)
+            self._depth = step.depth_m
+            if self.protocol.timing.tare == "per_depth":
+                self._tare("per_depth", step.idx)
+        if self.protocol.timing.tare == "per_point":
+            self._tare("per_point", step.idx)
+
+    def _run_step(self, step: PlanStep) -> None:
+        timing = self.protocol.timing
+        rate = timing.acquire.rate_hz
+        t_start = self._now()
+        self._ramp_to(step.command)
+        settle_s, settled = self._settle(step, rate)
+        t_acq = self._now()
+        samples = self._acquire(step, timing.acquire.n_samples, rate)
+        self._ramp_to(self.rig.actuator.info.neutral)
+        record = StepRecord(
+            idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
+            repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
+            t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
+        )
+        self.store.add_step(self.run_id, record, samples)
+        thrust = samples["thrust_n"]
+        self.reporter.step_done(step, float(np.mean(thrust)) if thrust.size else None)
+        if timing.rest_s > 0:
+            self._read_for(timing.rest_s, rate, step)
+
+    # -- helpers --------------------------------------------------------------------------
+    def _now(self) -> float:
+        return self.clock.now() - self._t0
+
+    def _event(self, kind: str, detail: dict, step_idx: int | None = None) -> None:
+        self.store.add_event(self.run_id, kind, detail, t_s=self._now(), step_idx=step_idx)
+
+    def _safe_neutral(self) -> None:
+        """Neutral, whatever state the actuator is in; never raises past the exit path."""
+        try:
+            self.rig.actuator.neutral()
+            self._command = self.rig.actuator.info.neutral
+        except Exception as exc:  # noqa: BLE001 - the run is ending; report, do not mask
+            self.reporter.note(f"WARNING: could not command neutral: {exc}")
+
+    def _close_run(self, status: str, reason: str | None) -> None:
+        for ann in self.rig.annotations():
+            self.store.add_event(self.run_id, ann["kind"], ann["detail"], t_s=ann["t_s"] - self._t0)
+        self.store.finish_run(self.run_id, status, reason)
+
+    def _ramp_to(self, target: float) -> None:
+        """Move the command to `target`, no faster than the protocol's slew limit."""
+        slew = self.protocol.limits.slew_per_s
+        act = self.rig.actuator
+        if slew is not None:
+            max_step = slew * RAMP_DT_S
+            while abs(target - self._command) > max_step:
+                self._command += max_step if target > self._command else -max_step
+                act.set_command(self._command)
+                self.clock.sleep(RAMP_DT_S)
+        if target != self._command or slew is None:
+            act.set_command(target)
+            self._command = target
+
+    def _read(self, n: int, rate: float, step: PlanStep) -> dict[str, np.ndarray]:
+        """Read `n` samples, attach feedback and thrust, check limits."""
+        block = self.rig.sensor.read(n, rate)
+        out: dict[str, np.ndarray] = {"t_s": block.t_s - self._t0}
+        for i, name in enumerate(FT_CHANNELS):
+            out[name] = block.ft[:, i]
+        out["thrust_n"] = self.rig.thrust_sign * block.ft[:, self.rig.thrust_channel]
+        out.update(self._align_feedback(block.t_s, self.rig.actuator.read_feedback()))
+        out["command"] = np.full(len(block), self._command)
+        self.limits.check(out)
+        self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
+        return out
+
+    def _align_feedback(self, t: np.ndarray, fb: FeedbackBlock) -> dict[str, np.ndarray]:
+        """Feedback at each force sample's time: the latest feedback value received (zero-order hold)."""
+        out = {}
+        same_times = len(fb) == len(t) and len(t) and fb.t_s[0] == t[0] and fb.t_s[-1] == t[-1]
+        if same_times:
+            idx = np.arange(len(t))
+        else:
+            idx = np.searchsorted(fb.t_s, t, side="right") - 1 if len(fb) else None
+        for name in FEEDBACK_FIELDS:
+            values = getattr(fb, name)
+            if values is None or idx is None:
+                out[name] = np.full(len(t), self._fb_last[name])
+                continue
+            held = values if same_times else np.where(idx >= 0, values[np.clip(idx, 0, None)],
+                                                      self._fb_last[name])
+            self._fb_last[name] = values[-1]
+            out[name] = held
+        return out
+
+    def _read_for(self, seconds: float, rate: float, step: PlanStep) -> np.ndarray:
+        """Read and discard `seconds` of samples (monitoring limits); return the thrust."""
+        n_total = max(1, round(seconds * rate))
+        chunk = max(1, round(CHUNK_S * rate))
+        thrust = []
+        while n_total > 0:
+            n = min(chunk, n_total)
+            thrust.append(self._read(n, rate, step)["thrust_n"])
+            n_total -= n
+        return np.concatenate(thrust)
+
+    def _settle(self, step: PlanStep, rate: float) -> tuple[float, bool]:
+        """Wait for the point to settle; return (seconds waited, whether the criterion was met)."""
+        settle = self.protocol.timing.settle
+        if settle.seconds is not None:
+            if settle.seconds > 0:
+                self._read_for(settle.seconds, rate, step)
+            return settle.seconds, True
+        crit = settle.until_steady
+        t0 = self._now()
+        if crit.min_s > 0:
+            self._read_for(crit.min_s, rate, step)
+        previous = float(np.mean(self._read_for(crit.window_s, rate, step)))
+        while True:
+            current = float(np.mean(self._read_for(crit.window_s, rate, step)))
+            waited = self._now() - t0
+            if abs(current - previous) < crit.tolerance_n:
+                return waited, True
+            if waited >= crit.timeout_s:
+                self._event("warning", {"message": f"point {step.idx} did not settle within "
+                                        f"{crit.timeout_s:g} s; acquiring anyway"}, step.idx)
+                return waited, False
+            previous = current
+
+    def _acquire(self, step: PlanStep, n_total: int, rate: float) -> dict[str, np.ndarray]:
+        chunk = max(1, round(CHUNK_S * rate))
+        parts = []
+        remaining = n_total
+        while remaining > 0:
+            n = min(chunk, remaining)
+            parts.append(self._read(n, rate, step))
+            remaining -= n
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+    def _tare(self, why: str, step_idx: int | None = None) -> None:
+        """Re-zero the sensor at neutral from `tare_s` seconds of readings."""
+        self._ramp_to(self.rig.actuator.info.neutral)
+        rate = self.protocol.timing.acquire.rate_hz
+        n = max(1, round(self.protocol.timing.tare_s * rate))
+        block = self.rig.sensor.read(n, rate)
+        self.rig.actuator.read_feedback()
+        offset = block.ft.mean(axis=0)
+        self.rig.sensor.set_bias(offset)
+        self._bias_total = self._bias_total + offset
+        self._event("tare", {"why": why, "bias": self._bias_total.tolist(),
+                             "offset": offset.tolist(), "n": n}, step_idx)

@@ -1,0 +1,131 @@
+"""Terminal progress for sweeps: a live bar with ETA on a TTY, sparse plain lines otherwise."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import TextIO
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from rigtool.plan import PlanStep
+
+UNIT_LABEL = {"percent": "%", "pwm_counts": "counts", "pulse_us": "us", "rpm": "r/min", "amps": "A"}
+
+
+def _live_text(step: PlanStep, unit: str, thrust_n: float | None) -> str:
+    thrust = "   --   " if thrust_n is None else f"{thrust_n:8.2f}"
+    return (f"cmd {step.command:8.2f} {UNIT_LABEL.get(unit, unit)}  depth {step.depth_m:5.2f} m  "
+            f"thrust {thrust} N")
+
+
+class RichReporter:
+    """Live progress bar: point i/N, command, depth, live thrust, elapsed and ETA."""
+
+    def __init__(self, console: Console | None = None) -> None:
+        self.console = console or Console(stderr=True)
+        self._progress: Progress | None = None
+        self._task = None
+        self._unit = ""
+        self._last_live = 0.0
+
+    def start(self, run_id: str, n_steps: int, unit: str, done: int = 0) -> None:
+        self._unit = unit
+        self.console.print(f"run [bold]{run_id}[/]: {n_steps} points "
+                           "(Ctrl-C finishes the current point and stops; twice stops now)")
+        self._progress = Progress(
+            TextColumn("[progress.description]{task.description}"), BarColumn(),
+            MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+            console=self.console, transient=False,
+        )
+        self._progress.start()
+        self._task = self._progress.add_task("starting", total=n_steps, completed=done)
+
+    def live(self, step: PlanStep, thrust_n: float | None) -> None:
+        now = time.monotonic()
+        if self._progress is not None and now - self._last_live > 0.1:
+            self._last_live = now
+            self._progress.update(self._task, description=_live_text(step, self._unit, thrust_n))
+
+    def step_done(self, step: PlanStep, thrust_n: float | None) -> None:
+        if self._progress is not None:
+            self._progress.update(self._task, advance=1,
+                                  description=_live_text(step, self._unit, thrust_n))
+
+    def note(self, text: str) -> None:
+        self.console.print(text)
+
+    def finish(self) -> None:
+        if self._progress is not None:
+            self._progress.stop()
+            self._progress = None
+
+
+class PlainReporter:
+    """For logs and pipes: a line at start, every tenth of the run, on notes, and at the end."""
+
+    def __init__(self, stream: TextIO | None = None) -> None:
+        self.stream = stream or sys.stderr
+        self._n = 0
+        self._done = 0
+        self._unit = ""
+        self._t0 = time.monotonic()
+        self._next_report = 0
+
+    def _print(self, text: str) -> None:
+        print(text, file=self.stream, flush=True)
+
+    def start(self, run_id: str, n_steps: int, unit: str, done: int = 0) -> None:
+        self._n, self._done, self._unit = n_steps, done, unit
+        self._t0 = time.monotonic()
+        self._next_report = done + max(1, n_steps // 10)
+        self._print(f"run {run_id}: {n_steps} points")
+
+    def live(self, step: PlanStep, thrust_n: float | None) -> None:
+        return None
+
+    def step_done(self, step: PlanStep, thrust_n: float | None) -> None:
+        self._done += 1
+        if self._done >= self._next_report or self._done == self._n:
+            self._next_report = self._done + max(1, self._n // 10)
+            elapsed = time.monotonic() - self._t0
+            self._print(f"point {self._done}/{self._n}  {_live_text(step, self._unit, thrust_n)}  "
+                        f"elapsed {elapsed:.0f} s")
+
+    def note(self, text: str) -> None:
+        self._print(text)
+
+    def finish(self) -> None:
+        return None
+
+
+class SilentReporter:
+    """Reports nothing (tests, library use)."""
+
+    def start(self, run_id: str, n_steps: int, unit: str, done: int = 0) -> None:
+        return None
+
+    def live(self, step: PlanStep, thrust_n: float | None) -> None:
+        return None
+
+    def step_done(self, step: PlanStep, thrust_n: float | None) -> None:
+        return None
+
+    def note(self, text: str) -> None:
+        return None
+
+    def finish(self) -> None:
+        return None
+
+
+def default_reporter() -> RichReporter | PlainReporter:
+    """Live bar on a terminal, plain lines when stderr is a pipe or file."""
+    return RichReporter() if sys.stderr.isatty() else PlainReporter()

@@ -1,0 +1,1 @@
+"""Simulator twin: thruster physics, device personalities and transport endpoints."""

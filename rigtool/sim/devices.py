@@ -1,0 +1,115 @@
+"""In-process device twins: the physics twin behind the Actuator/ForceSensor/DepthStage interfaces.
+
+These are the embedded simulator used by `rigtool sweep --sim`. They share one clock
+and one ThrusterTwin, so the engine drives them exactly as it drives hardware.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rigtool.devices.base import ActuatorInfo, Clock, FeedbackBlock, ForceBlock
+from rigtool.sim.physics import ThrusterTwin
+
+STAGE_SPEED_M_S = 0.05
+STAGE_SETTLE_S = 2.0
+
+
+class SimWorld:
+    """The shared state of one simulated rig: clock, twin, and feedback waiting to be read."""
+
+    def __init__(self, twin: ThrusterTwin, clock: Clock) -> None:
+        self.twin = twin
+        self.clock = clock
+        self.feedback: list[FeedbackBlock] = []
+
+    def wait_until(self, t: float) -> None:
+        """Let time pass until `t` (instant on a virtual clock)."""
+        delay = t - self.clock.now()
+        if hasattr(self.clock, "advance_to"):
+            self.clock.advance_to(t)
+        elif delay > 0:
+            self.clock.sleep(delay)
+
+
+class SimActuator:
+    """The twin's motor driver: commands in the profile's unit, feedback as the profile allows."""
+
+    def __init__(self, world: SimWorld) -> None:
+        p = world.twin.profile
+        self.world = world
+        self.info = ActuatorInfo(
+            p.command_unit, p.neutral, p.command_min, p.command_max, tuple(p.feedback)
+        )
+        self.command = p.neutral
+
+    def set_command(self, value: float) -> None:
+        self.command = float(value)
+        self.world.twin.set_command(self.world.clock.now(), self.command)
+
+    def neutral(self) -> None:
+        self.set_command(self.info.neutral)
+
+    def read_feedback(self) -> FeedbackBlock:
+        blocks, self.world.feedback = self.world.feedback, []
+        if not blocks:
+            return FeedbackBlock(np.empty(0))
+        t = np.concatenate([b.t_s for b in blocks])
+        fields = {}
+        for name in ("speed_rpm", "current_a", "voltage_v"):
+            fields[name] = (
+                np.concatenate([getattr(b, name) for b in blocks])
+                if name in self.info.feedback
+                else None
+            )
+        return FeedbackBlock(t, **fields)
+
+    def close(self) -> None:
+        return None
+
+
+class SimForceSensor:
+    """The twin's force sensor: six channels at the requested rate, with bias and noise."""
+
+    channels = ("fx", "fy", "fz", "tx", "ty", "tz")
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+        self._bias = np.zeros(6)
+        self._next_t: float | None = None
+        self._seq = 0
+
+    def read(self, n: int, rate_hz: float) -> ForceBlock:
+        now = self.world.clock.now()
+        start = now if self._next_t is None or self._next_t < now else self._next_t
+        t = start + np.arange(n) / rate_hz
+        out = self.world.twin.sample(t)
+        self.world.wait_until(float(t[-1]))
+        self._next_t = float(t[-1]) + 1.0 / rate_hz
+        self.world.feedback.append(FeedbackBlock(t, out.speed_rpm, out.current_a, out.voltage_v))
+        seq = np.arange(self._seq, self._seq + n)
+        self._seq += n
+        return ForceBlock(t, out.ft - self._bias, seq)
+
+    def set_bias(self, bias: np.ndarray) -> None:
+        self._bias = self._bias + np.asarray(bias, dtype=float)
+
+    def close(self) -> None:
+        return None
+
+
+class SimDepthStage:
+    """A motorised truss on the twin: takes time to move, then the twin sees the new depth."""
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+
+    def move_to(self, depth_m: float) -> float:
+        travel = abs(depth_m - self.world.twin.depth_m)
+        if travel > 0:
+            self.world.clock.sleep(travel / STAGE_SPEED_M_S + STAGE_SETTLE_S)
+        self.world.twin.set_depth(self.world.clock.now(), depth_m)
+        return depth_m
+
+    def close(self) -> None:
+        return None

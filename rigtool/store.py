@@ -1,0 +1,402 @@
+"""SQLite run store: schema, migrations, the single writer, and queries.
+
+Fixed tables (runs, steps, samples, events, calibrations) in WAL mode; the schema
+version lives in PRAGMA user_version. Samples are inserted with the step they
+belong to in one transaction, so a crash never leaves half a point.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import socket
+import sqlite3
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import sqlite_utils
+
+from rigtool.errors import StoreError, UsageError
+
+DB_ENV = "RIGTOOL_DB"
+DEFAULT_DB = "rigtool.sqlite"
+
+RUN_STATUSES = ("running", "completed", "aborted", "failed", "interrupted")
+
+SAMPLE_COLUMNS = (
+    "step_id", "t_s", "fx", "fy", "fz", "tx", "ty", "tz",
+    "thrust_n", "speed_rpm", "current_a", "voltage_v", "command",
+)
+
+STAT_FIELDS = ("thrust_n", "speed_rpm", "current_a")
+
+SCHEMA_V1 = """
+CREATE TABLE runs (
+    id TEXT PRIMARY KEY,
+    name TEXT NOT NULL,
+    status TEXT NOT NULL,
+    created_utc TEXT NOT NULL,
+    finished_utc TEXT,
+    tool_version TEXT NOT NULL,
+    host TEXT NOT NULL,
+    pid INTEGER NOT NULL,
+    seed INTEGER,
+    protocol_path TEXT,
+    protocol_json TEXT NOT NULL,
+    rig_json TEXT NOT NULL,
+    plan_json TEXT NOT NULL,
+    metadata_json TEXT NOT NULL,
+    n_planned INTEGER NOT NULL,
+    command_unit TEXT NOT NULL,
+    stop_reason TEXT
+);
+CREATE TABLE steps (
+    id INTEGER PRIMARY KEY,
+    run_id TEXT NOT NULL REFERENCES runs(id),
+    idx INTEGER NOT NULL,
+    command REAL NOT NULL,
+    command_unit TEXT NOT NULL,
+    depth_m REAL,
+    repeat INTEGER NOT NULL,
+    direction TEXT NOT NULL,
+    t_start_s REAL NOT NULL,
+    t_acquire_s REAL NOT NULL,
+    t_end_s REAL NOT NULL,
+    settle_s REAL NOT NULL,
+    settled INTEGER NOT NULL,
+    rate_hz REAL NOT NULL,
+    status TEXT NOT NULL,
+    n INTEGER NOT NULL,
+    thrust_n_mean REAL, thrust_n_std REAL, thrust_n_min REAL, thrust_n_max REAL,
+    speed_rpm_mean REAL, speed_rpm_std REAL, speed_rpm_min REAL, speed_rpm_max REAL,
+    current_a_mean REAL, current_a_std REAL, current_a_min REAL, current_a_max REAL,
+    UNIQUE (run_id, idx)
+);
+CREATE TABLE samples (
+    step_id INTEGER NOT NULL REFERENCES steps(id),
+    t_s REAL NOT NULL,
+    fx REAL, fy REAL, fz REAL, tx REAL, ty REAL, tz REAL,
+    thrust_n REAL,
+    speed_rpm REAL,
+    current_a REAL,
+    voltage_v REAL,
+    command REAL
+);
+CREATE INDEX samples_step ON samples(step_id);
+CREATE TABLE events (
+    id INTEGER PRIMARY KEY,
+    run_id TEXT NOT NULL REFERENCES runs(id),
+    t_s REAL,
+    kind TEXT NOT NULL,
+    step_idx INTEGER,
+    detail_json TEXT NOT NULL
+);
+CREATE INDEX events_run ON events(run_id, kind);
+CREATE TABLE calibrations (
+    id INTEGER PRIMARY KEY,
+    run_id TEXT NOT NULL REFERENCES runs(id),
+    created_utc TEXT NOT NULL,
+    tool_version TEXT NOT NULL,
+    out_dir TEXT NOT NULL,
+    summary_json TEXT NOT NULL
+);
+"""
+
+
+
+def _execute_script(conn: sqlite3.Connection, script: str) -> None:
+    """Run `;`-separated DDL inside the caller's transaction (executescript would commit)."""
+    for statement in script.split(";"):
+        if statement.strip():
+            conn.execute(statement)
+
+
+# Each migration takes the store from version i to i + 1.
+MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [
+    lambda conn: _execute_script(conn, SCHEMA_V1),
+]
+SCHEMA_VERSION = len(MIGRATIONS)
+
+
+def utc_now() -> str:
+    """ISO-8601 UTC timestamp with seconds."""
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def new_run_id() -> str:
+    """Sortable, cross-machine unique id: UTC time to the millisecond plus 24 random bits."""
+    now = datetime.now(timezone.utc)
+    return now.strftime("%Y%m%dT%H%M%S") + f"{now.microsecond // 1000:03d}Z-" + secrets.token_hex(3)
+
+
+def resolve_db_path(cli_value: str | None, rig_value: str | None = None) -> Path:
+    """DB path from --db, then $RIGTOOL_DB, then the rig file, then ./rigtool.sqlite."""
+    return Path(cli_value or os.environ.get(DB_ENV) or rig_value or DEFAULT_DB)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+@dataclass
+class StepRecord:
+    """One completed point, as the engine hands it to the store."""
+
+    idx: int
+    command: float
+    command_unit: str
+    depth_m: float | None
+    repeat: int
+    direction: str
+    t_start_s: float
+    t_acquire_s: float
+    t_end_s: float
+    settle_s: float
+    settled: bool
+    rate_hz: float
+    status: str = "ok"
+
+
+class Store:
+    """The run database. One instance is the single writer of a sweep."""
+
+    def __init__(self, path: str | Path, *, create: bool = True) -> None:
+        self.path = Path(path)
+        if not create and not self.path.exists():
+            raise UsageError(f"no run database at {self.path} (use --db or set ${DB_ENV})")
+        try:
+            if create:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.conn = sqlite3.connect(str(self.path), timeout=10.0, isolation_level=None)
+            self.conn.execute("PRAGMA journal_mode=WAL")
+            self.conn.execute("PRAGMA synchronous=NORMAL")
+            self.conn.execute("PRAGMA foreign_keys=ON")
+            self.db = sqlite_utils.Database(self.conn)
+            self._migrate()
+            self._mark_dead_runs_interrupted()
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"cannot open run database {self.path}: {exc}") from exc
+
+    # -- schema ---------------------------------------------------------------------------
+    @property
+    def version(self) -> int:
+        return self.conn.execute("PRAGMA user_version").fetchone()[0]
+
+    def _migrate(self) -> None:
+        current = self.version
+        if current > SCHEMA_VERSION:
+            raise StoreError(
+                f"{self.path} has schema version {current}; this rigtool knows up to "
+                f"{SCHEMA_VERSION}: upgrade rigtool"
+            )
+        for version in range(current, SCHEMA_VERSION):
+            with self.transaction():
+                MIGRATIONS[version](self.conn)
+                self.conn.execute(f"PRAGMA user_version = {version + 1}")
+
+    def _mark_dead_runs_interrupted(self) -> None:
+        host = socket.gethostname()
+        rows = self.conn.execute(
+            "SELECT id, host, pid FROM runs WHERE status = 'running'"
+        ).fetchall()
+        for run_id, run_host, pid in rows:
+            if run_host == host and not _pid_alive(pid):
+                self.finish_run(run_id, "interrupted", "the sweep process ended without closing the run")
+
+    def transaction(self) -> _Transaction:
+        """Context manager: BEGIN IMMEDIATE ... COMMIT, or ROLLBACK on error."""
+        return _Transaction(self.conn)
+
+    def close(self) -> None:
+        self.conn.close()
+
+    # -- writing --------------------------------------------------------------------------
+    def create_run(
+        self,
+        *,
+        name: str,
+        protocol: dict,
+        protocol_path: str | None,
+        rig: dict,
+        plan: list[dict],
+        metadata: dict,
+        seed: int | None,
+        command_unit: str,
+        tool_version: str,
+    ) -> str:
+        run_id = new_run_id()
+        row = {
+            "id": run_id,
+            "name": name,
+            "status": "running",
+            "created_utc": utc_now(),
+            "finished_utc": None,
+            "tool_version": tool_version,
+            "host": socket.gethostname(),
+            "pid": os.getpid(),
+            "seed": seed,
+            "protocol_path": protocol_path,
+            "protocol_json": json.dumps(protocol),
+            "rig_json": json.dumps(rig),
+            "plan_json": json.dumps(plan),
+            "metadata_json": json.dumps(metadata),
+            "n_planned": len(plan),
+            "command_unit": command_unit,
+            "stop_reason": None,
+        }
+        with self.transaction():
+            self.db["runs"].insert(row)
+        return run_id
+
+    def add_step(
+        self,
+        run_id: str,
+        step: StepRecord,
+        samples: dict[str, np.ndarray],
+    ) -> int:
+        """Insert one point and all its samples in a single transaction; return the step id."""
+        n = len(samples["t_s"])
+        row: dict[str, Any] = {"run_id": run_id, **step.__dict__, "n": n}
+        row["settled"] = int(step.settled)
+        for name in STAT_FIELDS:
+            row.update(_stats(name, samples.get(name)))
+        matrix = np.empty((n, len(SAMPLE_COLUMNS)))
+        for i, c in enumerate(SAMPLE_COLUMNS[1:], start=1):
+            values = samples.get(c)
+            matrix[:, i] = np.nan if values is None else values
+        with self.transaction():
+            cur = self.conn.execute(
+                f"INSERT INTO steps ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
+                list(row.values()),
+            )
+            step_id = cur.lastrowid
+            matrix[:, 0] = step_id
+            # SQLite stores a bound NaN as NULL, so missing channels read back as NULL.
+            self.conn.executemany(
+                f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}) "
+                f"VALUES ({', '.join('?' * len(SAMPLE_COLUMNS))})",
+                matrix.tolist(),
+            )
+        return step_id
+
+    def add_event(
+        self, run_id: str, kind: str, detail: dict | None = None,
+        t_s: float | None = None, step_idx: int | None = None,
+    ) -> None:
+        with self.transaction():
+            self.conn.execute(
+                "INSERT INTO events (run_id, t_s, kind, step_idx, detail_json) VALUES (?, ?, ?, ?, ?)",
+                (run_id, t_s, kind, step_idx, json.dumps(detail or {})),
+            )
+
+    def finish_run(self, run_id: str, status: str, reason: str | None = None) -> None:
+        if status not in RUN_STATUSES:
+            raise ValueError(f"unknown run status {status!r}")
+        with self.transaction():
+            self.conn.execute(
+                "UPDATE runs SET status = ?, finished_utc = ?, stop_reason = ? WHERE id = ?",
+                (status, utc_now(), reason, run_id),
+            )
+
+    def add_calibration(self, run_id: str, out_dir: str, summary: dict, tool_version: str) -> None:
+        with self.transaction():
+            self.db["calibrations"].insert({
+                "run_id": run_id, "created_utc": utc_now(), "tool_version": tool_version,
+                "out_dir": out_dir, "summary_json": json.dumps(summary),
+            })
+
+    # -- reading --------------------------------------------------------------------------
+    def resolve_run_id(self, ref: str) -> str:
+        """Accept a full id, `last`, or an unambiguous id prefix."""
+        if ref == "last":
+            row = self.conn.execute("SELECT id FROM runs ORDER BY id DESC LIMIT 1").fetchone()
+            if row is None:
+                raise UsageError(f"no runs in {self.path} yet: run `rigtool sweep` first")
+            return row[0]
+        rows = self.conn.execute(
+            "SELECT id FROM runs WHERE id LIKE ? ORDER BY id", (ref + "%",)
+        ).fetchall()
+        if not rows:
+            raise UsageError(f"no run {ref!r} in {self.path} (see `rigtool runs`)")
+        if len(rows) > 1:
+            raise UsageError(f"run id prefix {ref!r} is ambiguous: {', '.join(r[0] for r in rows[:5])}")
+        return rows[0][0]
+
+    def run(self, run_id: str) -> dict:
+        row = self.db["runs"].get(run_id)
+        out = dict(row)
+        for key in ("protocol_json", "rig_json", "plan_json", "metadata_json"):
+            out[key.removesuffix("_json")] = json.loads(out.pop(key))
+        return out
+
+    def runs(self, limit: int = 50) -> list[dict]:
+        return list(self.db.query(
+            "SELECT r.id, r.name, r.status, r.created_utc, r.n_planned, r.command_unit, "
+            "(SELECT count(*) FROM steps s WHERE s.run_id = r.id) AS n_steps "
+            "FROM runs r ORDER BY r.id DESC LIMIT ?", [limit]))
+
+    def steps(self, run_id: str) -> list[dict]:
+        return list(self.db.query("SELECT * FROM steps WHERE run_id = ? ORDER BY idx", [run_id]))
+
+    def events(self, run_id: str, kind: str | None = None) -> list[dict]:
+        sql = "SELECT * FROM events WHERE run_id = ?"
+        args: list[Any] = [run_id]
+        if kind:
+            sql += " AND kind = ?"
+            args.append(kind)
+        rows = list(self.db.query(sql + " ORDER BY id", args))
+        for r in rows:
+            r["detail"] = json.loads(r.pop("detail_json"))
+        return rows
+
+    def samples(self, run_id: str, columns: Iterable[str] = SAMPLE_COLUMNS) -> dict[str, np.ndarray]:
+        """All samples of a run as float arrays (NULL -> NaN), ordered by step then time."""
+        cols = list(columns)
+        bad = set(cols) - set(SAMPLE_COLUMNS)
+        if bad:
+            raise ValueError(f"unknown sample columns {sorted(bad)}")
+        cur = self.conn.execute(
+            f"SELECT {', '.join('s.' + c for c in cols)} FROM samples s "
+            "JOIN steps st ON st.id = s.step_id WHERE st.run_id = ? ORDER BY s.rowid",
+            (run_id,),
+        )
+        rows = cur.fetchall()
+        if not rows:
+            return {c: np.empty(0) for c in cols}
+        data = np.array(rows, dtype=float)
+        return {c: data[:, i] for i, c in enumerate(cols)}
+
+
+class _Transaction:
+    def __init__(self, conn: sqlite3.Connection) -> None:
+        self.conn = conn
+
+    def __enter__(self) -> sqlite3.Connection:
+        self.conn.execute("BEGIN IMMEDIATE")
+        return self.conn
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.conn.execute("COMMIT" if exc_type is None else "ROLLBACK")
+
+
+def _stats(name: str, values: np.ndarray | None) -> dict[str, float | None]:
+    keys = [f"{name}_{s}" for s in ("mean", "std", "min", "max")]
+    if values is None:
+        return dict.fromkeys(keys)
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return dict.fromkeys(keys)
+    std = float(v.std(ddof=1)) if v.size > 1 else 0.0
+    return dict(zip(keys, (float(v.mean()), std, float(v.min()), float(v.max())), strict=True))

@@ -1,0 +1,1 @@
+"""rigtool test suite."""

@@ -1,0 +1,203 @@
+"""The engine on the simulator twin: storage, statistics, and safe exits on every path."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from rigtool.engine import Engine
+from rigtool.errors import SafetyTrip
+from rigtool.store import Store
+from rigtool.sweep import open_checked, resolve
+
+from .conftest import SMALL_PROTOCOL
+
+
+class RecordingActuator:
+    """Wraps the twin's actuator and records every command it is sent."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.info = inner.info
+        self.sent: list[float] = []
+
+    def set_command(self, value):
+        self.sent.append(value)
+        self.inner.set_command(value)
+
+    def neutral(self):
+        self.sent.append(self.info.neutral)
+        self.inner.neutral()
+
+    def read_feedback(self):
+        return self.inner.read_feedback()
+
+    def close(self):
+        self.inner.close()
+
+
+class FaultySensor:
+    """Wraps the twin's sensor; on read number `at` it runs `action` (raise, or send a signal)."""
+
+    def __init__(self, inner, at: int, action):
+        self.inner = inner
+        self.channels = inner.channels
+        self.reads = 0
+        self.at = at
+        self.action = action
+
+    def read(self, n, rate_hz):
+        self.reads += 1
+        if self.reads == self.at:
+            self.action()
+        return self.inner.read(n, rate_hz)
+
+    def set_bias(self, bias):
+        self.inner.set_bias(bias)
+
+    def close(self):
+        self.inner.close()
+
+
+def _setup(write_yaml, text=SMALL_PROTOCOL):
+    setup = resolve(write_yaml(text), sim=True)
+    rigset = open_checked(setup)
+    rigset.actuator = RecordingActuator(rigset.actuator)
+    return setup, rigset
+
+
+def _run(setup, rigset, db_path):
+    store = Store(db_path)
+    run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                              metadata={}, seed=1, command_unit="percent", tool_version="test")
+    outcome = Engine(setup.protocol, setup.plan, rigset, store, run_id).run()
+    return store, outcome
+
+
+def test_all_points_stored_and_stats_match_samples(write_yaml, db_path):
+    setup, rigset = _setup(write_yaml)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "completed" and outcome.steps_done == 4
+    steps = store.steps(outcome.run_id)
+    assert [s["command"] for s in steps] == [-50, 0, 50, 100]
+    samples = store.samples(outcome.run_id, ["step_id", "t_s", "thrust_n", "speed_rpm", "current_a", "command"])
+    assert samples["t_s"].size == 4 * 200
+    for s in steps:
+        mask = samples["step_id"] == s["id"]
+        thrust = samples["thrust_n"][mask]
+        assert s["n"] == 200 == mask.sum()
+        assert s["thrust_n_mean"] == pytest.approx(thrust.mean())
+        assert s["thrust_n_std"] == pytest.approx(thrust.std(ddof=1))
+        assert s["thrust_n_max"] == pytest.approx(thrust.max())
+        assert s["speed_rpm_mean"] == pytest.approx(samples["speed_rpm"][mask].mean())
+        assert np.all(samples["command"][mask] == s["command"])
+        assert np.all(np.diff(samples["t_s"][mask]) > 0)
+    # thrust follows the command through the physics: reverse negative, forward positive
+    means = [s["thrust_n_mean"] for s in steps]
+    assert means[0] < -3 and abs(means[1]) < 0.5 and means[3] > means[2] > 3
+    assert rigset.actuator.sent[-1] == 0.0
+    assert [e["kind"] for e in store.events(outcome.run_id)][:3] == ["run_start", "tare", "depth"]
+
+
+def test_slew_limit_ramps_the_command(write_yaml, db_path):
+    setup, rigset = _setup(write_yaml)
+    _run(setup, rigset, db_path)
+    sent = np.array(rigset.actuator.sent)
+    # 400 %/s at 50 ms updates: never more than 20 % between consecutive commands
+    assert np.max(np.abs(np.diff(sent))) <= 20 + 1e-9
+
+
+def test_exception_in_sensor_leaves_neutral_and_marks_failed(write_yaml, db_path):
+    setup, rigset = _setup(write_yaml)
+
+    def boom():
+        raise OSError("sensor cable pulled")
+
+    rigset.sensor = FaultySensor(rigset.sensor, at=25, action=boom)
+    with pytest.raises(OSError):
+        _run(setup, rigset, db_path)
+    store = Store(db_path)
+    run = store.runs()[0]
+    assert run["status"] == "failed"
+    assert rigset.actuator.sent[-1] == 0.0
+    assert rigset.actuator.inner.command == 0.0
+    # completed points are whole: every stored step has all its samples
+    for s in store.steps(run["id"]):
+        assert s["n"] == 200
+
+
+def test_first_ctrl_c_finishes_point_then_aborts(write_yaml, db_path):
+    setup, rigset = _setup(write_yaml)
+    rigset.sensor = FaultySensor(rigset.sensor, at=12,
+                                 action=lambda: os.kill(os.getpid(), signal.SIGINT))
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and "Ctrl-C" in outcome.reason
+    steps = store.steps(outcome.run_id)
+    assert 1 <= len(steps) < 4 and all(s["n"] == 200 for s in steps)
+    assert rigset.actuator.sent[-1] == 0.0
+    assert store.run(outcome.run_id)["status"] == "aborted"
+
+
+def test_second_ctrl_c_stops_at_once(write_yaml, db_path):
+    setup, rigset = _setup(write_yaml)
+
+    def twice():
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    rigset.sensor = FaultySensor(rigset.sensor, at=12, action=twice)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and "second Ctrl-C" in outcome.reason
+    steps = store.steps(outcome.run_id)
+    assert len(steps) == outcome.steps_done and all(s["n"] == 200 for s in steps)
+    assert rigset.actuator.sent[-1] == 0.0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_sigterm_and_sighup_stop_at_neutral(write_yaml, db_path, sig):
+    setup, rigset = _setup(write_yaml)
+    rigset.sensor = FaultySensor(rigset.sensor, at=20, action=lambda: os.kill(os.getpid(), sig))
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and signal.Signals(sig).name in outcome.reason
+    assert rigset.actuator.sent[-1] == 0.0
+    # the handlers are restored afterwards
+    assert signal.getsignal(sig) is not None and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_limit_trip_aborts_with_event(write_yaml, db_path):
+    text = SMALL_PROTOCOL.replace("max_thrust_n: 90", "max_thrust_n: 20")
+    setup, rigset = _setup(write_yaml, text)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and "limit trip" in outcome.reason
+    assert [s["command"] for s in store.steps(outcome.run_id)] == [-50, 0, 50]
+    trips = store.events(outcome.run_id, "limit_trip")
+    assert len(trips) == 1 and "thrust_n" in trips[0]["detail"]["message"]
+    assert rigset.actuator.sent[-1] == 0.0
+
+
+def test_limit_monitor_debounces():
+    from rigtool.protocol import Limits
+    from rigtool.safety import LimitMonitor
+
+    mon = LimitMonitor(Limits(max_thrust_n=10, debounce_samples=3))
+    mon.check({"thrust_n": np.array([0, 11, 11, 0, 11, 0])})  # runs of 2 and 1: no trip
+    mon.check({"thrust_n": np.array([0, 0, 11, 11])})
+    with pytest.raises(SafetyTrip):  # the run continues across blocks: 2 + 1 = 3
+        mon.check({"thrust_n": np.array([-11, 0])})
+    mon.reset()
+    mon.check({"thrust_n": np.array([np.nan] * 10), "current_a": None})
+
+
+def test_until_steady_settling_records_settle_time(write_yaml, db_path):
+    text = SMALL_PROTOCOL.replace(
+        "settle: {seconds: 0.5}",
+        "settle:\n    until_steady: {window_s: 0.2, tolerance_n: 0.5, timeout_s: 3}")
+    setup, rigset = _setup(write_yaml, text)
+    store, outcome = _run(setup, rigset, db_path)
+    steps = store.steps(outcome.run_id)
+    assert outcome.status == "completed"
+    assert all(0.39 <= s["settle_s"] <= 3.5 for s in steps)
+    assert all(s["settled"] == 1 for s in steps)

@@ -1,0 +1,105 @@
+"""The run store: schema and migrations, run ids, run lookup, dead-run detection."""
+
+from __future__ import annotations
+
+import sqlite3
+
+import numpy as np
+import pytest
+
+from rigtool.errors import StoreError, UsageError
+from rigtool.store import SCHEMA_VERSION, StepRecord, Store, new_run_id
+
+
+def _run(store: Store) -> str:
+    return store.create_run(name="r", protocol={"a": 1}, protocol_path="p.yaml", rig={"b": 2},
+                            plan=[{"idx": 0}], metadata={"operator": "x"}, seed=5,
+                            command_unit="percent", tool_version="t")
+
+
+def _step(idx: int) -> StepRecord:
+    return StepRecord(idx=idx, command=10.0 * idx, command_unit="percent", depth_m=1.0, repeat=0,
+                      direction="up", t_start_s=0, t_acquire_s=1, t_end_s=2, settle_s=1,
+                      settled=True, rate_hz=100)
+
+
+def test_new_store_has_current_schema_and_wal(db_path):
+    store = Store(db_path)
+    assert store.version == SCHEMA_VERSION
+    assert store.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    tables = {r[0] for r in store.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    assert {"runs", "steps", "samples", "events", "calibrations"} <= tables
+
+
+def test_reopening_does_not_migrate_again(db_path):
+    Store(db_path).close()
+    store = Store(db_path)
+    assert store.version == SCHEMA_VERSION
+
+
+def test_newer_schema_is_refused(db_path):
+    Store(db_path).close()
+    conn = sqlite3.connect(db_path)
+    conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    conn.close()
+    with pytest.raises(StoreError, match="upgrade rigtool"):
+        Store(db_path)
+
+
+def test_run_ids_sort_by_time_and_are_unique():
+    ids = [new_run_id() for _ in range(200)]
+    assert len(set(ids)) == 200
+    assert ids == sorted(ids, key=lambda i: i.split("-")[0])
+
+
+def test_step_and_samples_roundtrip_with_missing_channels(db_path):
+    store = Store(db_path)
+    run_id = _run(store)
+    n = 50
+    samples = {"t_s": np.arange(n) * 0.01, "fx": np.ones(n), "thrust_n": np.linspace(0, 1, n),
+               "speed_rpm": None, "current_a": np.full(n, 2.0), "command": np.full(n, 10.0)}
+    store.add_step(run_id, _step(1), samples)
+    (step,) = store.steps(run_id)
+    assert step["n"] == n and step["speed_rpm_mean"] is None
+    assert step["thrust_n_mean"] == pytest.approx(0.5)
+    back = store.samples(run_id)
+    assert np.allclose(back["thrust_n"], samples["thrust_n"])
+    assert np.isnan(back["speed_rpm"]).all() and np.isnan(back["fy"]).all()
+    run = store.run(run_id)
+    assert run["protocol"] == {"a": 1} and run["metadata"] == {"operator": "x"} and run["seed"] == 5
+
+
+def test_failed_step_insert_leaves_nothing(db_path):
+    store = Store(db_path)
+    run_id = _run(store)
+    store.add_step(run_id, _step(0), {"t_s": np.zeros(3)})
+    with pytest.raises(sqlite3.IntegrityError):  # same idx twice violates UNIQUE(run_id, idx)
+        store.add_step(run_id, _step(0), {"t_s": np.zeros(3)})
+    assert store.conn.execute("SELECT count(*) FROM samples").fetchone()[0] == 3
+
+
+def test_resolve_last_prefix_and_errors(db_path):
+    store = Store(db_path)
+    with pytest.raises(UsageError, match="no runs"):
+        store.resolve_run_id("last")
+    first = _run(store)
+    second = _run(store)
+    assert store.resolve_run_id("last") == max(first, second)
+    assert store.resolve_run_id(first) == first
+    with pytest.raises(UsageError, match="no run"):
+        store.resolve_run_id("19990101")
+    with pytest.raises(UsageError, match="ambiguous"):
+        store.resolve_run_id(first[:4])
+
+
+def test_run_of_dead_process_reads_as_interrupted(db_path):
+    store = Store(db_path)
+    run_id = _run(store)
+    store.conn.execute("UPDATE runs SET pid = 2147483646 WHERE id = ?", (run_id,))
+    store.close()
+    assert Store(db_path).run(run_id)["status"] == "interrupted"
+
+
+def test_missing_database_for_reading_is_usage_error(tmp_path):
+    with pytest.raises(UsageError, match="no run database"):
+        Store(tmp_path / "none.sqlite", create=False)
