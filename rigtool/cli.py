@@ -10,7 +10,7 @@ from rich.console import Console
 from rich.table import Column, Table
 
 from rigtool import __version__
-from rigtool.errors import RigtoolError
+from rigtool.errors import RigtoolError, UsageError
 from rigtool.plan import estimate_duration_s
 from rigtool.progress import UNIT_LABEL, default_reporter
 from rigtool.store import DB_ENV, Store, resolve_db_path
@@ -27,8 +27,20 @@ def _fmt_duration(seconds: float) -> str:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from rigtool.sweep import open_checked, resolve, run_sweep
+    from rigtool.sweep import open_checked, resolve, resume_sweep, run_sweep
 
+    if args.resume:
+        if args.protocol or args.rig or args.sim or args.dry_run:
+            raise UsageError("--resume RUN_ID takes the protocol and rig stored with the run; "
+                             "give no protocol, --rig, --sim or --dry-run")
+        store = Store(resolve_db_path(args.db), create=False)
+        try:
+            outcome, n_plan = resume_sweep(store, args.resume, default_reporter())
+            return _report_outcome(outcome, n_plan, store)
+        finally:
+            store.close()
+    if not args.protocol:
+        raise UsageError("give a protocol file (or --resume RUN_ID)")
     setup = resolve(args.protocol, args.rig, args.sim, args.seed)
     if args.dry_run:
         rigset = open_checked(setup)
@@ -38,14 +50,18 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     store = Store(resolve_db_path(args.db, setup.rig.db))
     try:
         outcome = run_sweep(setup, store, default_reporter())
+        return _report_outcome(outcome, len(setup.plan), store)
     finally:
         store.close()
-    steps = f"{outcome.steps_done}/{len(setup.plan)} points"
+
+
+def _report_outcome(outcome, n_plan: int, store: Store) -> int:
+    steps = f"{len(store.steps(outcome.run_id))}/{n_plan} points"
     if outcome.status == "completed":
         out.print(f"run {outcome.run_id} completed: {steps} stored in {store.path}")
         return 0
     err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in "
-              f"{store.path}; actuator at neutral")
+              f"{store.path}; actuator at neutral. Continue with: rigtool sweep --resume {outcome.run_id}")
     return 130 if "Ctrl-C" in (outcome.reason or "") else 1
 
 
@@ -130,7 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     db_help = f"run database (default: ${DB_ENV}, the rig file's db, or ./rigtool.sqlite)"
 
     p = sub.add_parser("sweep", help="run a protocol on a rig and store the run")
-    p.add_argument("protocol", help="protocol YAML file")
+    p.add_argument("protocol", nargs="?", help="protocol YAML file")
+    p.add_argument("--resume", metavar="RUN_ID", help="continue a stopped run from its first unfinished point")
     p.add_argument("--rig", help="rig YAML file (overrides the protocol's `rig:`)")
     p.add_argument("--sim", action="store_true", help="run on the built-in simulator twin")
     p.add_argument("--seed", type=int, help="simulator seed (overrides the protocol's)")

@@ -93,13 +93,17 @@ class Engine:
         self._bias_total = np.zeros(6)
 
     # -- public ---------------------------------------------------------------------------
-    def run(self, start_idx: int = 0) -> Outcome:
-        """Run steps from `start_idx`; always ends with the actuator at neutral."""
+    def run(self, start_idx: int = 0, t_offset_s: float = 0.0) -> Outcome:
+        """Run steps from `start_idx`; always ends with the actuator at neutral.
+
+        A resumed run passes the run time already used as `t_offset_s`, so its sample
+        times keep increasing across the interruption.
+        """
         status, reason, done = "failed", None, 0
         self.reporter.start(self.run_id, len(self.plan), self.unit, done=start_idx)
         try:
             with _Signals(self.reporter) as signals:
-                self._begin()
+                self._begin(t_offset_s)
                 for step in self.plan[start_idx:]:
                     self._prepare_depth(step)
                     self._run_step(step)
@@ -125,10 +129,10 @@ class Engine:
         return Outcome(self.run_id, status, reason, done)
 
     # -- phases ---------------------------------------------------------------------------
-    def _begin(self) -> None:
+    def _begin(self, t_offset_s: float) -> None:
         self.rig.actuator.neutral()
         self._command = self.rig.actuator.info.neutral
-        self._t0 = self.clock.now()
+        self._t0 = self.clock.now() - t_offset_s
         self._event("run_start", {"rig": self.rig.description, "n_steps": len(self.plan)})
         if self.protocol.timing.tare == "at_start":
             self._tare("at_start")

@@ -309,6 +309,15 @@ class Store:
                 (status, utc_now(), reason, run_id),
             )
 
+    def reopen_run(self, run_id: str) -> None:
+        """Mark an interrupted/aborted/failed run as running again, owned by this process."""
+        with self.transaction():
+            self.conn.execute(
+                "UPDATE runs SET status = 'running', finished_utc = NULL, stop_reason = NULL, "
+                "host = ?, pid = ? WHERE id = ?",
+                (socket.gethostname(), os.getpid(), run_id),
+            )
+
     def add_calibration(self, run_id: str, out_dir: str, summary: dict, tool_version: str) -> None:
         with self.transaction():
             self.db["calibrations"].insert({

@@ -63,15 +63,57 @@ def check_compatible(setup: SweepSetup, rigset: RigSet) -> None:
         raise ConfigError(problems)
 
 
-def open_checked(setup: SweepSetup) -> RigSet:
+def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
     """Open the rig's devices and check the protocol against them (closing them on failure)."""
-    rigset = open_rig(setup.rig, start_depth_m=setup.plan[0].depth_m)
+    rigset = open_rig(setup.rig, start_depth_m=setup.plan[start_idx].depth_m)
     try:
         check_compatible(setup, rigset)
     except BaseException:
         rigset.close()
         raise
     return rigset
+
+
+RESUMABLE = ("interrupted", "aborted", "failed")
+
+
+def resolve_resume(store: Store, run_ref: str) -> tuple[str, SweepSetup, int, float]:
+    """Rebuild the setup of a stored run; return (run id, setup, first unfinished step, run time used)."""
+    run_id = store.resolve_run_id(run_ref)
+    run = store.run(run_id)
+    if run["status"] not in RESUMABLE:
+        raise UsageError(f"run {run_id} is {run['status']}; only {', '.join(RESUMABLE)} runs resume")
+    protocol = Protocol.model_validate(run["protocol"])
+    rig_data = {k: v for k, v in run["rig"].items() if k not in ("resolved", "host")}
+    rig = Rig.model_validate(rig_data)
+    plan = expand(protocol)
+    if [s.as_dict() for s in plan] != run["plan"]:
+        raise UsageError(f"run {run_id}: its stored plan no longer expands the same way; cannot resume")
+    steps = store.steps(run_id)
+    done = [s["idx"] for s in steps]
+    if done != list(range(len(done))):
+        raise UsageError(f"run {run_id}: stored points are not a prefix of the plan; cannot resume")
+    t_used = max((s["t_end_s"] for s in steps), default=0.0)
+    path = Path(run["protocol_path"] or "protocol")
+    return run_id, SweepSetup(protocol, path, rig, plan), len(done), t_used
+
+
+def resume_sweep(store: Store, run_ref: str, reporter=None) -> tuple[Outcome, int]:
+    """Continue a stopped run from its first unfinished point, in the same run id."""
+    run_id, setup, start_idx, t_used = resolve_resume(store, run_ref)
+    previous = store.run(run_id)["status"]
+    if start_idx >= len(setup.plan):
+        store.finish_run(run_id, "completed", None)
+        return Outcome(run_id, "completed", None, 0), len(setup.plan)
+    rigset = open_checked(setup, start_idx)
+    try:
+        store.reopen_run(run_id)
+        store.add_event(run_id, "resumed", {"from_idx": start_idx, "previous_status": previous},
+                        t_s=t_used)
+        engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter)
+        return engine.run(start_idx, t_offset_s=t_used + 1.0), len(setup.plan)
+    finally:
+        rigset.close()
 
 
 def run_sweep(setup: SweepSetup, store: Store, reporter=None) -> Outcome:

@@ -1,0 +1,113 @@
+"""Crash consistency and resume: kill -9, SIGTERM and Ctrl-C on a real sweep process."""
+
+from __future__ import annotations
+
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rigtool.cli import main
+from rigtool.store import Store
+
+from .conftest import SMALL_PROTOCOL
+
+N_POINTS = 41
+MEDIUM = SMALL_PROTOCOL.replace(
+    "values: [-50, 0, 50, 100]", "range: {start: -100, stop: 100, step: 5}"
+).replace("rest_s: 0.2", "rest_s: 120.0").replace("max_thrust_n: 90", "max_thrust_n: 200")
+
+
+def _start(protocol: Path, db: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "rigtool.cli", "sweep", str(protocol), "--sim", "--db", str(db)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_steps(db: Path, n: int, proc: subprocess.Popen, timeout: float = 60.0) -> int:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, "sweep ended before it could be interrupted"
+        if db.exists():
+            try:
+                conn = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=1)
+                count = conn.execute("SELECT count(*) FROM steps").fetchone()[0]
+                conn.close()
+                if count >= n:
+                    return count
+            except sqlite3.OperationalError:
+                pass
+        time.sleep(0.02)
+    raise AssertionError("sweep made no progress")
+
+
+def _check_whole(store: Store, run_id: str) -> list[dict]:
+    assert store.conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    steps = store.steps(run_id)
+    for s in steps:
+        count = store.conn.execute("SELECT count(*) FROM samples WHERE step_id = ?", (s["id"],)).fetchone()[0]
+        assert count == s["n"] == 200
+    return steps
+
+
+def _resume_and_check(db: Path, capsys) -> None:
+    assert main(["sweep", "--resume", "last", "--db", str(db)]) == 0
+    assert "completed" in capsys.readouterr().out
+    store = Store(db)
+    run_id = store.resolve_run_id("last")
+    steps = _check_whole(store, run_id)
+    assert [s["idx"] for s in steps] == list(range(N_POINTS))
+    assert [s["command"] for s in steps] == [-100 + 5 * i for i in range(N_POINTS)]
+    t = store.samples(run_id, ["t_s"])["t_s"]
+    assert np.all(np.diff(t) > 0), "sample times must keep increasing across the resume"
+    assert len(store.events(run_id, "resumed")) == 1
+    assert store.run(run_id)["status"] == "completed"
+
+
+@pytest.mark.slow
+def test_kill_9_leaves_whole_points_and_resume_completes(write_yaml, tmp_path, capsys):
+    db = tmp_path / "crash.sqlite"
+    proc = _start(write_yaml(MEDIUM), db)
+    _wait_for_steps(db, 5, proc)
+    proc.kill()
+    proc.wait(timeout=10)
+    store = Store(db)  # opening the store notices the dead owner
+    (run,) = store.runs()
+    assert run["status"] == "interrupted"
+    assert 5 <= len(_check_whole(store, run["id"])) < N_POINTS
+    store.close()
+    _resume_and_check(db, capsys)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig, status, reason", [
+    (signal.SIGTERM, 1, "SIGTERM"),
+    (signal.SIGINT, 130, "Ctrl-C"),
+])
+def test_signals_abort_cleanly_and_resume(write_yaml, tmp_path, capsys, sig, status, reason):
+    db = tmp_path / "sig.sqlite"
+    proc = _start(write_yaml(MEDIUM), db)
+    _wait_for_steps(db, 3, proc)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == status, err
+    assert "Traceback" not in err and "actuator at neutral" in err and "--resume" in err
+    store = Store(db)
+    (run,) = store.runs()
+    full = store.run(run["id"])
+    assert full["status"] == "aborted" and reason in full["stop_reason"]
+    _check_whole(store, run["id"])
+    store.close()
+    _resume_and_check(db, capsys)
+
+
+def test_resume_refuses_completed_run(write_yaml, tmp_path, capsys):
+    db = tmp_path / "done.sqlite"
+    assert main(["sweep", str(write_yaml(SMALL_PROTOCOL)), "--sim", "--db", str(db)]) == 0
+    assert main(["sweep", "--resume", "last", "--db", str(db)]) == 2
+    assert "only interrupted, aborted, failed runs resume" in capsys.readouterr().err
