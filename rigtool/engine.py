@@ -15,7 +15,7 @@ from types import FrameType
 import numpy as np
 
 from rigtool.devices.base import FT_CHANNELS, FeedbackBlock
-from rigtool.errors import SafetyTrip
+from rigtool.errors import SafetyTrip, StoreError
 from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
@@ -184,9 +184,14 @@ class Engine:
             self.reporter.note(f"WARNING: could not command neutral: {exc}")
 
     def _close_run(self, status: str, reason: str | None) -> None:
-        for ann in self.rig.annotations():
-            self.store.add_event(self.run_id, ann["kind"], ann["detail"], t_s=ann["t_s"] - self._t0)
-        self.store.finish_run(self.run_id, status, reason)
+        """Record how the run ended; a store that fails here must not mask the original error."""
+        try:
+            for ann in self.rig.annotations():
+                self.store.add_event(self.run_id, ann["kind"], ann["detail"],
+                                     t_s=ann["t_s"] - self._t0)
+            self.store.finish_run(self.run_id, status, reason)
+        except StoreError as exc:
+            self.reporter.note(f"WARNING: could not record the end of the run: {exc}")
 
     def _ramp_to(self, target: float) -> None:
         """Move the command to `target`, no faster than the protocol's slew limit."""

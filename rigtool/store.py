@@ -171,21 +171,21 @@ class StepRecord:
 class Store:
     """The run database. One instance is the single writer of a sweep."""
 
-    def __init__(self, path: str | Path, *, create: bool = True) -> None:
+    def __init__(self, path: str | Path, *, create: bool = True, timeout_s: float = 10.0) -> None:
         self.path = Path(path)
         if not create and not self.path.exists():
             raise UsageError(f"no run database at {self.path} (use --db or set ${DB_ENV})")
         try:
             if create:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.conn = sqlite3.connect(str(self.path), timeout=10.0, isolation_level=None)
+            self.conn = sqlite3.connect(str(self.path), timeout=timeout_s, isolation_level=None)
             self.conn.execute("PRAGMA journal_mode=WAL")
             self.conn.execute("PRAGMA synchronous=NORMAL")
             self.conn.execute("PRAGMA foreign_keys=ON")
             self.db = sqlite_utils.Database(self.conn)
             self._migrate()
             self._mark_dead_runs_interrupted()
-        except sqlite3.DatabaseError as exc:
+        except (sqlite3.DatabaseError, OSError) as exc:
             raise StoreError(f"cannot open run database {self.path}: {exc}") from exc
 
     # -- schema ---------------------------------------------------------------------------
@@ -216,7 +216,7 @@ class Store:
 
     def transaction(self) -> _Transaction:
         """Context manager: BEGIN IMMEDIATE ... COMMIT, or ROLLBACK on error."""
-        return _Transaction(self.conn)
+        return _Transaction(self.conn, self.path)
 
     def close(self) -> None:
         self.conn.close()
@@ -388,15 +388,36 @@ class Store:
 
 
 class _Transaction:
-    def __init__(self, conn: sqlite3.Connection) -> None:
+    """BEGIN IMMEDIATE ... COMMIT; disk-full, locked and read-only errors become StoreError."""
+
+    def __init__(self, conn: sqlite3.Connection, path: Path) -> None:
         self.conn = conn
+        self.path = path
+
+    def _explain(self, exc: sqlite3.Error) -> StoreError:
+        text = str(exc)
+        if "locked" in text or "busy" in text:
+            text += " (another process holds a write lock on it for too long)"
+        return StoreError(f"run database {self.path}: {text}; nothing already committed is lost")
 
     def __enter__(self) -> sqlite3.Connection:
-        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            self.conn.execute("BEGIN IMMEDIATE")
+        except sqlite3.OperationalError as exc:
+            raise self._explain(exc) from exc
         return self.conn
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        self.conn.execute("COMMIT" if exc_type is None else "ROLLBACK")
+        if exc_type is None:
+            try:
+                self.conn.execute("COMMIT")
+                return
+            except sqlite3.OperationalError as commit_exc:
+                exc = commit_exc
+        if self.conn.in_transaction:
+            self.conn.execute("ROLLBACK")
+        if isinstance(exc, sqlite3.OperationalError):
+            raise self._explain(exc) from exc
 
 
 def _stats(name: str, values: np.ndarray | None) -> dict[str, float | None]:
