@@ -60,7 +60,7 @@ def read_yaml(path: Path) -> tuple[Any, dict[Loc, int]]:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark else str(path)
-        problem = getattr(exc, "problem", None) or str(exc)
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
         raise ConfigError([f"{where}: YAML syntax error: {problem}"]) from None
     lines: dict[Loc, int] = {}
     if node is not None:
