@@ -138,6 +138,18 @@ def _span(rows: list[dict], key: str) -> str:
     return f"{min(vals):.4g} .. {max(vals):.4g}" if vals else "-"
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from rigtool.export import export_run
+
+    store = Store(resolve_db_path(args.db), create=False)
+    run_id = store.resolve_run_id(args.run)
+    for path in export_run(store, run_id, Path(args.out), args.format):
+        out.print(str(path))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rigtool", description="Sweep, calibrate and report on underwater thrusters.")
@@ -164,6 +176,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="run id, unique prefix, or `last`")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_show)
+
+    p = sub.add_parser("export", help="write a run's points, samples and events as CSV or Parquet")
+    p.add_argument("run", help="run id, unique prefix, or `last`")
+    p.add_argument("--format", choices=("csv", "parquet"), default="csv")
+    p.add_argument("--out", default="exports", help="output folder (default: ./exports)")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_export)
     return parser
 
 
