@@ -150,6 +150,27 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check(args: argparse.Namespace) -> int:
+    from rigtool.check import run_check
+    from rigtool.rig import load_rig, open_rig
+
+    rig, _ = load_rig(args.rig)
+    rigset = open_rig(rig, start_depth_m=1.0)
+    try:
+        report = run_check(rigset, args.seconds, args.rate, args.command)
+    finally:
+        rigset.close()
+    out.print(f"rig {rig.name!r}: {report.samples} force samples in {report.seconds:.2f} s "
+              f"({report.rate_hz:.1f} Hz); feedback at {report.feedback_rate_hz:.1f} Hz")
+    table = Table("channel", "unit", "n", "mean", "noise (std)")
+    for c in report.channels + report.feedback:
+        table.add_row(c.name, c.unit, str(c.n), f"{c.mean:.4g}", f"{c.std:.3g}")
+    out.print(table)
+    for role, counters in report.counters.items():
+        out.print(f"  {role}: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rigtool", description="Sweep, calibrate and report on underwater thrusters.")
@@ -176,6 +197,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="run id, unique prefix, or `last`")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_show)
+
+    p = sub.add_parser("check", help="open a rig's devices, read for a few seconds, print rates and noise")
+    p.add_argument("rig", help="rig YAML file")
+    p.add_argument("--seconds", type=float, default=3.0)
+    p.add_argument("--rate", type=float, default=1000.0, help="requested sample rate (Hz)")
+    p.add_argument("--command", type=float, help="test command to hold while reading (default: neutral only)")
+    p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("export", help="write a run's points, samples and events as CSV or Parquet")
     p.add_argument("run", help="run id, unique prefix, or `last`")

@@ -1,0 +1,90 @@
+"""Pre-flight check of a rig: open every device, read for a while, summarise what came in.
+
+Commands nothing beyond neutral unless a test command is asked for explicitly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rigtool.devices.base import FT_CHANNELS
+from rigtool.rig import RigSet
+
+FEEDBACK = {"speed_rpm": "r/min", "current_a": "A", "voltage_v": "V"}
+SETTLE_S = 1.0  # after a test command, before measuring
+
+
+@dataclass
+class ChannelStats:
+    """Mean and noise (standard deviation) of one channel over the check."""
+
+    name: str
+    unit: str
+    n: int
+    mean: float
+    std: float
+
+
+@dataclass
+class CheckReport:
+    """What `rigtool check` found."""
+
+    samples: int
+    seconds: float
+    rate_hz: float
+    channels: list[ChannelStats]
+    feedback: list[ChannelStats]
+    feedback_rate_hz: float
+    counters: dict[str, dict] = field(default_factory=dict)
+
+
+def _stats(name: str, unit: str, values: np.ndarray) -> ChannelStats | None:
+    v = values[np.isfinite(values)]
+    if v.size == 0:
+        return None
+    return ChannelStats(name, unit, int(v.size), float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0)
+
+
+def run_check(rigset: RigSet, seconds: float = 3.0, rate_hz: float = 1000.0,
+              command: float | None = None) -> CheckReport:
+    """Read the sensor and feedback for `seconds` (optionally at a test `command`), then neutral."""
+    act, sensor = rigset.actuator, rigset.sensor
+    act.neutral()
+    act.read_feedback()
+    try:
+        chunk = max(1, round(0.1 * rate_hz))
+        if command is not None:
+            act.set_command(command)
+            for _ in range(round(SETTLE_S / 0.1)):
+                sensor.read(chunk, rate_hz)
+            act.read_feedback()
+        blocks, feedback = [], []
+        for _ in range(max(1, round(seconds / 0.1))):
+            blocks.append(sensor.read(chunk, rate_hz))
+            feedback.append(act.read_feedback())
+    finally:
+        act.neutral()
+    t = np.concatenate([b.t_s for b in blocks])
+    ft = np.concatenate([b.ft for b in blocks])
+    span = float(t[-1] - t[0]) if t.size > 1 else 0.0
+    channels = [s for i, name in enumerate(FT_CHANNELS)
+                if (s := _stats(name, "N" if name.startswith("f") else "N m", ft[:, i]))]
+    fb_t = np.concatenate([f.t_s for f in feedback]) if feedback else np.empty(0)
+    fb_stats = []
+    for name, unit in FEEDBACK.items():
+        parts = [getattr(f, name) for f in feedback if getattr(f, name) is not None]
+        if parts and (s := _stats(name, unit, np.concatenate(parts))):
+            fb_stats.append(s)
+    fb_span = float(fb_t[-1] - fb_t[0]) if fb_t.size > 1 else 0.0
+    counters = {}
+    for role, dev in (("actuator", act), ("sensor", sensor), ("depth stage", rigset.depth_stage)):
+        stats = getattr(dev, "stats", None)
+        if stats:
+            counters[role] = dict(stats)
+    return CheckReport(
+        samples=int(t.size), seconds=span, rate_hz=(t.size - 1) / span if span > 0 else 0.0,
+        channels=channels, feedback=fb_stats,
+        feedback_rate_hz=(fb_t.size - 1) / fb_span if fb_span > 0 else 0.0, counters=counters,
+    )
