@@ -1,0 +1,198 @@
+"""Motorised linear stage that sets the truss height, over a serial line protocol.
+
+Protocol (docs/drivers/serial-stage.md): `MOVE <mm>` -> `OK`, later `DONE <mm>`;
+`POS?` -> `POS <mm>`; `HOME` -> `OK`, later `DONE <mm>`; `STOP` -> `OK` (a move in
+progress then ends with its `DONE <mm>`); refusals are `ERR <reason>`. Positions on
+the wire are stage millimetres; the driver converts to propeller depth below the
+surface with `zero_offset_m` and `direction`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import re
+import time
+from typing import Literal
+
+import serial
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from rigtool.errors import DeviceError, UsageError
+
+_LINE = re.compile(r"(?P<kind>OK|ERR|DONE|POS)(?:\s+(?P<arg>.*?))?\s*")
+_MAX_LINE = 256  # bytes; a longer run without a line end is garbage
+
+
+class _Timeout(DeviceError):
+    """The stage did not answer in time."""
+
+
+class SerialStageConfig(BaseModel):
+    """Rig-file section for the serial linear stage (`driver: serial-stage`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    driver: Literal["serial-stage"]
+    url: str = Field(min_length=1)  # pyserial URL: /dev/ttyUSB0, socket://host:port
+    baudrate: int = Field(115200, gt=0)  # ignored by socket:// and loop://
+    speed_mm_s: float = Field(10.0, gt=0)  # stage speed, for move timeouts
+    timeout_s: float = Field(2.0, gt=0)  # reply timeout, and slack added to every move
+    min_depth_m: float = 0.0  # soft limits on the propeller-centre depth
+    max_depth_m: float = 1.5
+    zero_offset_m: float = 0.0  # stage position at which the propeller centre is at the surface
+    direction: Literal[1, -1] = 1  # +1: larger stage positions put the propeller deeper
+
+    @model_validator(mode="after")
+    def _limits(self) -> SerialStageConfig:
+        if not self.min_depth_m < self.max_depth_m:
+            raise ValueError("need min_depth_m < max_depth_m")
+        return self
+
+
+class SerialStage:
+    """DepthStage driver: moves the truss and reports the depth actually reached."""
+
+    def __init__(self, config: SerialStageConfig) -> None:
+        self.config = config
+        self.name = f"serial stage on {config.url}"
+        self.stats = dict.fromkeys(("lines", "garbage", "unexpected", "errors", "timeouts"), 0)
+        self._buf = bytearray()
+        self._pending: list[str] = []
+        self._closed = False
+        try:
+            self._ser = serial.serial_for_url(config.url, baudrate=config.baudrate, timeout=0.02,
+                                              write_timeout=config.timeout_s)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceError(f"cannot open {config.url} (serial stage): {exc}") from None
+        try:
+            self.position_mm()
+        except DeviceError:
+            self.close()
+            raise
+
+    # -- DepthStage -----------------------------------------------------------------------
+    def move_to(self, depth_m: float) -> float:
+        """Move the propeller centre to `depth_m`; block until DONE; return the depth reached."""
+        cfg = self.config
+        if not (math.isfinite(depth_m) and cfg.min_depth_m <= depth_m <= cfg.max_depth_m):
+            raise UsageError(f"depth {depth_m!r} m outside the soft limits "
+                             f"{cfg.min_depth_m:g}..{cfg.max_depth_m:g} m of {self.name}")
+        target_mm = self.stage_mm(depth_m)
+        start_mm = self.position_mm()
+        self._request(f"MOVE {target_mm:.3f}", "OK")
+        budget = abs(target_mm - start_mm) / cfg.speed_mm_s + cfg.timeout_s
+        reached_mm = self._wait_done(budget, f"reach {target_mm:.3f} mm")
+        return self.depth_m(reached_mm)
+
+    def close(self) -> None:
+        """Release the port. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(serial.SerialException, OSError):
+            self._ser.close()
+
+    # -- extras ---------------------------------------------------------------------------
+    def position_mm(self) -> float:
+        """The stage's reported position (mm)."""
+        return _number(self._request("POS?", "POS"), self.name)
+
+    def home(self) -> float:
+        """Run the homing move; return the stage position reached (mm)."""
+        start_mm = self.position_mm()
+        self._request("HOME", "OK")
+        return self._wait_done(abs(start_mm) / self.config.speed_mm_s + self.config.timeout_s,
+                               "home")
+
+    def stop(self) -> None:
+        """Halt any move in progress."""
+        self._request("STOP", "OK")
+
+    def stage_mm(self, depth_m: float) -> float:
+        """Stage position that puts the propeller centre at `depth_m`."""
+        return (self.config.zero_offset_m + self.config.direction * depth_m) * 1000.0
+
+    def depth_m(self, stage_mm: float) -> float:
+        """Propeller-centre depth at stage position `stage_mm`."""
+        return self.config.direction * (stage_mm / 1000.0 - self.config.zero_offset_m)
+
+    # -- internals ------------------------------------------------------------------------
+    def _wait_done(self, budget_s: float, what: str) -> float:
+        try:
+            return _number(self._expect("DONE", budget_s, what), self.name)
+        except _Timeout as exc:
+            where = ""
+            try:
+                self.stop()
+                where = f"; stopped at {self.position_mm():.3f} mm"
+            except DeviceError:
+                pass
+            raise DeviceError(f"{exc}{where}") from None
+
+    def _request(self, line: str, kind: str) -> str | None:
+        """Send `line` and return the argument of the first `kind` reply."""
+        if self._closed:
+            raise DeviceError(f"{self.name} is closed")
+        try:
+            self._ser.reset_input_buffer()  # a stale reply must not answer this request
+            self._buf.clear()
+            self._pending.clear()
+            self._ser.write(f"{line}\n".encode("ascii"))
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(f"cannot write to {self.name}: {exc}") from None
+        return self._expect(kind, self.config.timeout_s, line)
+
+    def _expect(self, kind: str, budget_s: float, what: str) -> str | None:
+        """Read lines until one of `kind` (ERR raises); DeviceError after `budget_s`."""
+        deadline = time.monotonic() + budget_s
+        while time.monotonic() < deadline:
+            if not self._pending:
+                self._pending = self._lines()
+            while self._pending:
+                text = self._pending.pop(0)
+                m = _LINE.fullmatch(text)
+                if m is None:
+                    self.stats["garbage"] += 1
+                    continue
+                if m["kind"] == "ERR":
+                    self.stats["errors"] += 1
+                    raise DeviceError(f"{self.name} refused {what!r}: {m['arg'] or 'ERR'}")
+                if m["kind"] == kind:
+                    return m["arg"]
+                self.stats["unexpected"] += 1
+        self.stats["timeouts"] += 1
+        reply = "no DONE" if kind == "DONE" else f"no {kind} reply"
+        raise _Timeout(f"{reply} from {self.name} to {what!r} within {budget_s:.3g} s")
+
+    def _lines(self) -> list[str]:
+        """Complete lines read within one poll period (undecodable ones counted as garbage)."""
+        try:
+            self._buf.extend(self._ser.read(max(1, self._ser.in_waiting)))
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(f"lost connection to {self.name}: {exc}") from None
+        parts = re.split(rb"[\r\n]", bytes(self._buf))
+        self._buf = bytearray(parts.pop())
+        if len(self._buf) > _MAX_LINE:
+            self.stats["garbage"] += 1
+            self._buf.clear()
+        out = []
+        for raw in parts:
+            if not raw:
+                continue
+            try:
+                out.append(raw.decode("ascii").strip())
+            except UnicodeDecodeError:
+                self.stats["garbage"] += 1
+                continue
+            self.stats["lines"] += 1
+        return out
+
+
+def _number(text: str | None, name: str) -> float:
+    try:
+        value = float(text or "")
+    except ValueError:
+        raise DeviceError(f"{name}: expected a position in mm, got {text!r}") from None
+    if not math.isfinite(value):
+        raise DeviceError(f"{name}: expected a finite position in mm, got {text!r}")
+    return value

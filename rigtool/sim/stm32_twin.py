@@ -1,0 +1,283 @@
+"""Simulated STM32 PWM bridge firmware, on a pseudo-terminal and a TCP socket at once.
+
+It speaks the bridge line protocol (docs/drivers/stm32-bridge.md) or any dialect
+described by a `Dialect`, keeps a compare value (CCR) per timer channel, applies
+the thruster channel to a LiveTwin, and runs the firmware watchdog: when no line
+arrives for `watchdog_ms` every channel goes to neutral and the trip is recorded.
+Fault switches: `garbage` (a junk line before every reply), `no_replies` (commands
+are applied but never answered) and `disconnect()` (the device vanishes).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import selectors
+import socket
+import threading
+import time
+import tty
+from dataclasses import dataclass
+
+import numpy as np
+
+from rigtool.sim.live import LiveTwin
+
+_PLACEHOLDERS = {"{channel}": r"(?P<channel>\d+)", "{value}": r"(?P<value>[-+]?\d+(?:\.\d*)?)"}
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """How the firmware spells commands and replies (defaults: the rigtool bridge protocol)."""
+
+    set: str = "SET {channel} {value}"
+    pulse: str = "PW {channel} {value}"
+    get: str = "GET {channel}"
+    stop: str = "STOP"
+    heartbeat: str = "HB"
+    ping: str = "PING"
+    ok: str = "OK"
+    ok_value: str = "OK {value}"
+    error: str = "ERR {reason}"
+    version: str = "rigtool-bridge 1.0"
+    telemetry: str = "TEL {speed_rpm:.1f} {current_a:.3f} {voltage_v:.2f}"
+
+
+def command_pattern(fmt: str) -> re.Pattern[str]:
+    """Regex that parses lines written with the format string `fmt`."""
+    parts = re.split(r"(\{channel\}|\{value\})", fmt)
+    return re.compile("".join(_PLACEHOLDERS.get(p, re.escape(p)) for p in parts))
+
+
+def open_pty() -> tuple[int, int, str]:
+    """A raw pseudo-terminal: (master fd, slave fd, slave path); the master is non-blocking."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+    return master, slave, os.ttyname(slave)
+
+
+class Stm32BridgeTwin:
+    """The bridge firmware on a pty (`pty_path`) and on TCP (`url`), driving a LiveTwin."""
+
+    def __init__(
+        self,
+        live: LiveTwin,
+        *,
+        channels: int = 4,
+        thruster_channel: int = 1,
+        timer_clock_hz: float = 72e6,
+        psc: int | None = None,
+        arr: int | None = None,
+        watchdog_ms: int = 500,
+        dialect: Dialect | None = None,
+        telemetry_hz: float = 0.0,
+        seed: int = 0,
+    ) -> None:
+        profile = live.twin.profile
+        self.live = live
+        self.pulse_unit = profile.command_unit == "pulse_us"
+        # counts profile: the source rig's timer; pulse profile: 1 us ticks at 50 Hz
+        self.psc = psc if psc is not None else (71 if self.pulse_unit else 0)
+        self.arr = arr if arr is not None else (19999 if self.pulse_unit else 799)
+        self.tick_us = (self.psc + 1) / timer_clock_hz * 1e6
+        self.neutral_ccr = round(profile.neutral / self.tick_us if self.pulse_unit else profile.neutral)
+        self.channels = range(1, channels + 1)
+        self.thruster_channel = thruster_channel
+        self.watchdog_ms = watchdog_ms
+        self.dialect = dialect or Dialect()
+        self.telemetry_hz = telemetry_hz
+        self.ccr = dict.fromkeys(self.channels, self.neutral_ccr)
+        self.garbage = False
+        self.no_replies = False
+        self.watchdog_trips: list[float] = []
+        self.lines_received = 0
+        self.bad_lines = 0
+        self._rng = np.random.default_rng(seed)
+        d = self.dialect
+        self._patterns = [(kind, command_pattern(fmt)) for kind, fmt in (
+            ("set", d.set), ("pulse", d.pulse), ("get", d.get), ("stop", d.stop),
+            ("heartbeat", d.heartbeat), ("ping", d.ping)) if fmt]  # fmt: skip
+        self._master, self._slave, self.pty_path = open_pty()
+        self._listener = socket.create_server(("127.0.0.1", 0))
+        self._listener.setblocking(False)
+        self.port = self._listener.getsockname()[1]
+        self.url = f"socket://127.0.0.1:{self.port}"
+        self._sel = selectors.DefaultSelector()
+        self._sel.register(self._master, selectors.EVENT_READ, "pty")
+        self._sel.register(self._listener, selectors.EVENT_READ, "listen")
+        self._bufs: dict[object, bytearray] = {"pty": bytearray()}
+        self._clients: list[socket.socket] = []
+        self._last_line_t = time.monotonic()
+        self._armed = False
+        self._next_tel = 0.0
+        self._stop = threading.Event()
+        self._disconnect = threading.Event()
+        self._disconnected = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="stm32-bridge-twin", daemon=True)
+
+    def start(self) -> Stm32BridgeTwin:
+        self.live.set_command(self._live_command(self.ccr[self.thruster_channel]))
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        self._close_all()
+
+    def disconnect(self) -> None:
+        """Fault: the device vanishes (pty and TCP endpoints close)."""
+        self._disconnect.set()
+        self._disconnected.wait(timeout=2.0)
+
+    def __enter__(self) -> Stm32BridgeTwin:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- firmware -------------------------------------------------------------------------
+    def _live_command(self, ccr: int) -> float:
+        return ccr * self.tick_us if self.pulse_unit else float(ccr)
+
+    def _apply(self, channel: int, ccr: int) -> None:
+        self.ccr[channel] = ccr
+        if channel == self.thruster_channel:
+            self.live.set_command(self._live_command(ccr))
+
+    def _all_neutral(self) -> None:
+        for ch in self.channels:
+            self._apply(ch, self.neutral_ccr)
+
+    def _reply(self, text: str) -> str:
+        """Execute one host line and return the firmware's answer."""
+        d = self.dialect
+        parsed = next(((kind, m) for kind, rx in self._patterns if (m := rx.fullmatch(text))), None)
+        if parsed is None:
+            self.bad_lines += 1
+            return d.error.format(reason="unknown command")
+        kind, groups = parsed[0], parsed[1].groupdict()
+        channel = int(groups["channel"]) if "channel" in groups else self.thruster_channel
+        if channel not in self.channels:
+            return d.error.format(reason=f"no channel {channel}")
+        if kind in ("set", "pulse"):
+            value = float(groups["value"])
+            ccr = round(value / self.tick_us) if kind == "pulse" else round(value)
+            if kind == "set" and ccr != value:
+                return d.error.format(reason="counts must be an integer")
+            if not 0 <= ccr <= self.arr:
+                return d.error.format(reason=f"out of range 0..{self.arr}")
+            self._apply(channel, ccr)
+            return d.ok_value.format(value=ccr)
+        if kind == "get":
+            return d.ok_value.format(value=self.ccr[channel])
+        if kind == "stop":
+            self._all_neutral()
+            return d.ok
+        if kind == "ping":
+            return d.ok_value.format(value=d.version)
+        return d.ok
+
+    def _watchdog(self, now: float) -> None:
+        if self.watchdog_ms and self._armed and now - self._last_line_t > self.watchdog_ms / 1000:
+            self._all_neutral()
+            self.watchdog_trips.append(now)
+            self._armed = False
+
+    # -- transport ------------------------------------------------------------------------
+    def _send(self, end: object, text: str) -> None:
+        data = text.encode("ascii") + b"\n"
+        if self.garbage:
+            data = bytes(self._rng.integers(0x80, 0x100, size=8, dtype=np.uint8)) + b"\n" + data
+        try:
+            if end == "pty":
+                os.write(self._master, data)
+            else:
+                end.sendall(data)  # type: ignore[attr-defined]
+        except (BlockingIOError, OSError):
+            pass  # a UART drops what nobody reads; a vanished client is reaped on read
+
+    def _on_bytes(self, end: object, data: bytes) -> None:
+        buf = self._bufs.setdefault(end, bytearray())
+        buf.extend(data)
+        parts = re.split(rb"[\r\n]", bytes(buf))
+        self._bufs[end] = bytearray(parts.pop())
+        for raw in parts:
+            if not raw:
+                continue
+            self.lines_received += 1
+            self._last_line_t = time.monotonic()
+            self._armed = True
+            try:
+                answer = self._reply(raw.decode("ascii").strip())
+            except UnicodeDecodeError:
+                self.bad_lines += 1
+                answer = self.dialect.error.format(reason="bad line")
+            if not self.no_replies:
+                self._send(end, answer)
+
+    def _telemetry(self, now: float) -> None:
+        if self.telemetry_hz <= 0 or now < self._next_tel:
+            return
+        self._next_tel = now + 1.0 / self.telemetry_hz
+        block = self.live.latest()
+        if block is None:
+            return
+        text = self.dialect.telemetry.format(speed_rpm=float(block.speed_rpm[-1]),
+                                             current_a=float(block.current_a[-1]),
+                                             voltage_v=float(block.voltage_v[-1]))
+        for end in ["pty", *self._clients]:
+            self._send(end, text)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            if self._disconnect.is_set() and not self._disconnected.is_set():
+                self._close_all()
+                self._disconnected.set()
+            if self._disconnected.is_set():
+                self._stop.wait(0.01)
+                continue
+            for key, _ in self._sel.select(timeout=0.005):
+                if key.data == "listen":
+                    with contextlib.suppress(BlockingIOError):
+                        client, _ = self._listener.accept()
+                        client.settimeout(0.2)
+                        self._clients.append(client)
+                        self._sel.register(client, selectors.EVENT_READ, client)
+                    continue
+                try:
+                    data = os.read(self._master, 4096) if key.data == "pty" else key.data.recv(4096)
+                except BlockingIOError:
+                    continue
+                except OSError:
+                    data = b""
+                if data:
+                    self._on_bytes(key.data, data)
+                elif key.data != "pty":
+                    self._drop_client(key.data)
+            now = time.monotonic()
+            self._watchdog(now)
+            self._telemetry(now)
+
+    def _drop_client(self, client: socket.socket) -> None:
+        with contextlib.suppress(KeyError, ValueError):
+            self._sel.unregister(client)
+        with contextlib.suppress(ValueError):
+            self._clients.remove(client)
+        self._bufs.pop(client, None)
+        client.close()
+
+    def _close_all(self) -> None:
+        for client in list(self._clients):
+            self._drop_client(client)
+        for obj in (self._listener, self._master):
+            with contextlib.suppress(KeyError, ValueError):
+                self._sel.unregister(obj)
+        self._listener.close()
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._master = self._slave = -1
