@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
@@ -171,6 +172,35 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sim(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from rigtool.sim.server import start_sim
+
+    server = start_sim(args.profile, seed=args.seed, sensor=args.sensor, netft=args.netft,
+                       can_channel=args.can_channel, depth_m=args.depth)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        text = server.rig_yaml()
+        if args.rig_out:
+            tmp = f"{args.rig_out}.tmp"
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.write(text)
+            os.replace(tmp, args.rig_out)
+            err.print(f"rig file written to {args.rig_out}")
+        out.print(f"# rigtool sim --profile {args.profile}: use this rig file "
+                  "(rigtool sweep PROTOCOL --rig FILE); Ctrl-C stops the simulator")
+        out.print(text, markup=False)
+        sys.stdout.flush()
+        stop.wait()
+    finally:
+        server.stop()
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rigtool", description="Sweep, calibrate and report on underwater thrusters.")
@@ -204,6 +234,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=1000.0, help="requested sample rate (Hz)")
     p.add_argument("--command", type=float, help="test command to hold while reading (default: neutral only)")
     p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("sim", help="run the simulator twin on real transports and print its rig file")
+    p.add_argument("--profile", default="stm32-pwm", help="can-bldc | stm32-pwm | esc-1100-1900")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--sensor", default="netft", help="netft | mark10 | hx711")
+    p.add_argument("--netft", default="127.0.0.1:49152", metavar="HOST:PORT",
+                   help="where the Net F/T answers (port 0: any free port)")
+    p.add_argument("--can-channel", default="239.74.163.2",
+                   help="python-can udp_multicast group for the CAN personalities")
+    p.add_argument("--depth", type=float, default=1.0, help="initial propeller depth (m)")
+    p.add_argument("--rig-out", help="also write the rig file here")
+    p.set_defaults(func=cmd_sim)
 
     p = sub.add_parser("export", help="write a run's points, samples and events as CSV or Parquet")
     p.add_argument("run", help="run id, unique prefix, or `last`")

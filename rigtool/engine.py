@@ -210,10 +210,11 @@ class Engine:
     def _read(self, n: int, rate: float, step: PlanStep) -> dict[str, np.ndarray]:
         """Read `n` samples, attach feedback and thrust, check limits."""
         block = self.rig.sensor.read(n, rate)
+        ft = block.ft if self.rig.transform is None else block.ft @ self.rig.transform.T
         out: dict[str, np.ndarray] = {"t_s": block.t_s - self._t0}
         for i, name in enumerate(FT_CHANNELS):
-            out[name] = block.ft[:, i]
-        out["thrust_n"] = self.rig.thrust_sign * block.ft[:, self.rig.thrust_channel]
+            out[name] = ft[:, i]
+        out["thrust_n"] = self.rig.thrust_sign * ft[:, self.rig.thrust_channel]
         out.update(self._align_feedback(block.t_s, self.rig.actuator.read_feedback()))
         out["command"] = np.full(len(block), self._command)
         self.limits.check(out)

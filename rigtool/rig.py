@@ -9,11 +9,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model
+from rigtool.devices.axes import rotation_deg, wrench_transform
 from rigtool.devices.base import FT_CHANNELS, Actuator, Clock, DepthStage, ForceSensor
+from rigtool.devices.depth import ManualDepth, PresetDepth
+from rigtool.devices.registry import (
+    ACTUATORS,
+    SENSORS,
+    STAGES,
+    ActuatorConfig,
+    SensorConfig,
+    StageConfig,
+)
 from rigtool.errors import UsageError
 from rigtool.protocol import SimulatorSpec
 
@@ -26,8 +37,20 @@ class ThrustAxis(BaseModel):
     sign: Literal[1, -1] = 1
 
 
+class Mount(BaseModel):
+    """How a six-axis sensor is mounted: rotation into thruster axes and the propeller centre."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    rotation_axis: Literal["x", "y", "z"] = "z"
+    rotation_deg: float = 0.0
+    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def matrix(self) -> np.ndarray:
+        return wrench_transform(rotation_deg(self.rotation_axis, self.rotation_deg), self.offset_m)
+
+
 class Rig(BaseModel):
-    """A whole rig file."""
+    """A whole rig file: the simulator, or an actuator + force sensor (+ depth stage)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     rigtool_rig: Literal[1] = 1
@@ -36,14 +59,24 @@ class Rig(BaseModel):
     db: str | None = None
     simulator: SimulatorSpec | None = None
     real_time: bool = False
+    actuator: ActuatorConfig | None = None
+    sensor: SensorConfig | None = None
+    depth_stage: StageConfig | None = None
     thrust: ThrustAxis | None = None
+    mount: Mount | None = None
 
     @model_validator(mode="after")
     def _has_devices(self) -> Rig:
-        if self.simulator is None:
-            raise ValueError(
-                "this rig names no devices: add a `simulator:` section "
-                "(hardware drivers are configured with the drivers of a later release)")
+        hardware = self.actuator is not None or self.sensor is not None
+        if self.simulator is not None and (hardware or self.depth_stage is not None):
+            raise ValueError("a rig is either the `simulator:` or hardware "
+                             "(`actuator:`, `sensor:`, `depth_stage:`), not both")
+        if self.simulator is None and (self.actuator is None or self.sensor is None):
+            raise ValueError("a hardware rig needs both an `actuator:` and a `sensor:` section "
+                             "(or use a `simulator:` section)")
+        if self.mount is not None and getattr(self.sensor, "driver", None) == "ascii-gauge":
+            raise ValueError("`mount:` transforms six-axis sensors; a single-axis gauge maps its "
+                             "axis with its own `channel` and `sign`")
         return self
 
 
@@ -69,6 +102,7 @@ class RigSet:
     thrust_sign: int
     description: dict = field(default_factory=dict)
     world: object | None = None  # the simulator's shared state, when simulated
+    transform: np.ndarray | None = None  # 6x6 wrench transform of a mounted sensor
 
     def annotations(self) -> list[dict]:
         """Ground-truth events a simulator knows (e.g. ventilation), to store with the run."""
@@ -86,15 +120,45 @@ class RigSet:
             dev.close()
 
 
-def open_rig(rig: Rig, start_depth_m: float) -> RigSet:
-    """Open the devices a rig names. On the simulator a simulated operator sets every depth."""
+def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset") -> RigSet:
+    """Open the devices a rig names; a device that cannot be opened raises DeviceError."""
+    if rig.simulator is not None:
+        return _open_sim(rig, rig.simulator, start_depth_m)
+    opened: list = []
+    try:
+        actuator = ACTUATORS[rig.actuator.driver](rig.actuator)
+        opened.append(actuator)
+        sensor = SENSORS[rig.sensor.driver](rig.sensor)
+        opened.append(sensor)
+        if rig.depth_stage is not None:
+            stage: DepthStage = STAGES[rig.depth_stage.driver](rig.depth_stage)
+        elif depth_mode == "stage":
+            raise UsageError(f"rig {rig.name!r}: the protocol asks for a depth stage, "
+                             "but the rig has no `depth_stage:` section")
+        elif depth_mode == "manual":
+            stage = ManualDepth()
+        else:
+            stage = PresetDepth()
+    except BaseException:
+        for dev in reversed(opened):
+            dev.close()
+        raise
+    axis = rig.thrust or ThrustAxis()
+    return RigSet(
+        actuator=actuator, sensor=sensor, depth_stage=stage, clock=RealClock(),
+        thrust_channel=FT_CHANNELS.index(axis.channel), thrust_sign=axis.sign,
+        description={"kind": "hardware", "actuator": rig.actuator.driver,
+                     "sensor": rig.sensor.driver, "thrust": axis.model_dump()},
+        transform=rig.mount.matrix() if rig.mount else None,
+    )
+
+
+def _open_sim(rig: Rig, spec: SimulatorSpec, start_depth_m: float) -> RigSet:
+    """The in-process twin: a simulated operator sets every depth, time is virtual unless real_time."""
     from rigtool.sim.devices import SimActuator, SimDepthStage, SimForceSensor, SimWorld
     from rigtool.sim.physics import ThrusterTwin
     from rigtool.sim.profiles import profile_with_overrides
 
-    spec = rig.simulator
-    if spec is None:
-        raise UsageError(f"rig {rig.name!r} names no devices")
     profile = profile_with_overrides(spec.profile, dict(spec.overrides))
     clock: Clock = RealClock() if rig.real_time else VirtualClock()
     twin = ThrusterTwin(profile, seed=spec.seed, depth_m=start_depth_m, t0=clock.now())
@@ -106,5 +170,5 @@ def open_rig(rig: Rig, start_depth_m: float) -> RigSet:
         clock=clock, thrust_channel=FT_CHANNELS.index(axis.channel), thrust_sign=axis.sign,
         description={"kind": "simulator", "profile": profile.name, "seed": spec.seed,
                      "overrides": dict(spec.overrides), "thrust": axis.model_dump()},
-        world=world,
+        world=world, transform=rig.mount.matrix() if rig.mount else None,
     )

@@ -65,7 +65,8 @@ def check_compatible(setup: SweepSetup, rigset: RigSet) -> None:
 
 def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
     """Open the rig's devices and check the protocol against them (closing them on failure)."""
-    rigset = open_rig(setup.rig, start_depth_m=setup.plan[start_idx].depth_m)
+    rigset = open_rig(setup.rig, start_depth_m=setup.plan[start_idx].depth_m,
+                      depth_mode=setup.protocol.depth.mode)
     try:
         check_compatible(setup, rigset)
     except BaseException:

@@ -1,0 +1,196 @@
+"""What the CAN actuator drivers share: opening a python-can bus, its threads, feedback buffering.
+
+A `CanLink` owns one python-can bus, a receive thread that hands every frame (stamped
+with `time.monotonic()` on receipt) to the driver's decoder, and an optional keep-alive
+thread that re-sends the command in force so the motor controller's command timeout
+never fires while the rig wants the motor running. `FeedbackBuffer` turns the decoded
+values into the FeedbackBlock the engine reads.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+
+import can
+import numpy as np
+
+from rigtool.devices.base import FeedbackBlock
+from rigtool.errors import DeviceError
+
+log = logging.getLogger(__name__)
+
+FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
+_RECV_POLL_S = 0.05  # receive thread wakes this often to notice close()
+_SEND_TIMEOUT_S = 0.1  # wait this long for room in the interface's transmit queue
+# Counter names a frame handler may return; each received frame bumps exactly one of them.
+FRAME_COUNTERS = ("frames", "garbage", "ignored")
+
+
+def bus_name(interface: str, channel: str) -> str:
+    """How a bus is named in messages: interface and channel, e.g. `socketcan:can0`."""
+    return f"{interface}:{channel}"
+
+
+def open_bus(interface: str, channel: str, bitrate: int | None = None) -> can.BusABC:
+    """Open a python-can bus; any failure becomes a DeviceError naming interface and channel."""
+    kwargs = {} if bitrate is None else {"bitrate": bitrate}
+    try:
+        return can.Bus(interface=interface, channel=channel, **kwargs)
+    except Exception as exc:  # noqa: BLE001 - backends raise anything from ImportError to OSError
+        raise DeviceError(
+            f"cannot open CAN bus interface={interface!r} channel={channel!r}: {exc}"
+        ) from exc
+
+
+class CanLink:
+    """A python-can bus with a receive thread and an optional keep-alive thread.
+
+    `on_frame(msg, t)` runs on the receive thread for every frame that is not an error
+    frame and returns the name of the counter to bump ("frames", "garbage", "ignored").
+    """
+
+    def __init__(
+        self,
+        interface: str,
+        channel: str,
+        bitrate: int | None,
+        on_frame: Callable[[can.Message, float], str],
+        device: str,
+    ) -> None:
+        self.device = device
+        self.where = bus_name(interface, channel)
+        self.stats = dict.fromkeys((*FRAME_COUNTERS, "error_frames", "sent", "send_errors"), 0)
+        self.rx_error: Exception | None = None  # last failure of the receive side, if any
+        self._bus = open_bus(interface, channel, bitrate)
+        self._on_frame = on_frame
+        self._send_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._closed = False
+
+    def start(self, keepalive_s: float, keepalive: Callable[[], None]) -> None:
+        """Start receiving, and call `keepalive` every `keepalive_s` (0: never)."""
+        self._spawn(self._rx_loop, "rx")
+        if keepalive_s > 0:
+            self._spawn(lambda: self._keepalive_loop(keepalive_s, keepalive), "keepalive")
+
+    def send(self, msg: can.Message) -> None:
+        """Transmit one frame; a failure is counted and raised as DeviceError naming the bus."""
+        try:
+            with self._send_lock:
+                self._bus.send(msg, timeout=_SEND_TIMEOUT_S)
+        except (can.CanError, OSError, ValueError) as exc:
+            self.stats["send_errors"] += 1
+            raise DeviceError(f"{self.device}: cannot send on {self.where}: {exc}") from exc
+        self.stats["sent"] += 1
+
+    def send_retrying(self, msg: can.Message, attempts: int = 3) -> None:
+        """Send, retrying briefly on failure (for neutral); raise only if every attempt failed."""
+        error: DeviceError | None = None
+        for attempt in range(attempts):
+            try:
+                self.send(msg)
+                return
+            except DeviceError as exc:
+                log.warning("%s (attempt %d of %d)", exc, attempt + 1, attempts)
+                error = exc
+            time.sleep(0.01)
+        raise error
+
+    def stop_threads(self) -> None:
+        """Stop receiving and keeping alive; the bus stays open for final sends."""
+        self._stop.set()
+        current = threading.current_thread()
+        for thread in self._threads:
+            if thread is not current:
+                thread.join(timeout=1.0)
+
+    def close(self) -> None:
+        """Stop the threads and release the bus. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self.stop_threads()
+        try:
+            self._bus.shutdown()
+        except Exception as exc:  # noqa: BLE001 - releasing a broken bus must not mask the cause
+            log.warning("%s: closing %s failed: %s", self.device, self.where, exc)
+
+    def _spawn(self, target: Callable[[], None], role: str) -> None:
+        thread = threading.Thread(target=target, name=f"rigtool-{self.device}-{role}", daemon=True)
+        self._threads.append(thread)
+        thread.start()
+
+    def _rx_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self._bus.recv(timeout=_RECV_POLL_S)
+            except (can.CanError, OSError, ValueError) as exc:
+                self.rx_error = exc
+                self._stop.wait(_RECV_POLL_S)
+                continue
+            if msg is None:
+                continue
+            t = time.monotonic()
+            if msg.is_error_frame:
+                self.stats["error_frames"] += 1
+                continue
+            try:
+                counter = self._on_frame(msg, t)
+            except Exception as exc:  # noqa: BLE001 - a frame must never kill the reader
+                log.debug("%s: undecodable frame %s: %s", self.device, msg, exc)
+                counter = "garbage"
+            self.stats[counter] += 1
+
+    def _keepalive_loop(self, period_s: float, keepalive: Callable[[], None]) -> None:
+        while not self._stop.wait(period_s):
+            try:
+                keepalive()
+            except DeviceError as exc:
+                log.warning("%s", exc)
+
+
+class FeedbackBuffer:
+    """Latest decoded feedback values, and the samples taken from them since the last read.
+
+    A sample holds every field in `fields`; none is recorded until each has been received
+    once, so a block never starts with half-known samples.
+    """
+
+    def __init__(self, fields: tuple[str, ...] = FEEDBACK_FIELDS) -> None:
+        self.fields = fields
+        self._lock = threading.Lock()
+        self._latest = dict.fromkeys(FEEDBACK_FIELDS, float("nan"))
+        self._t: list[float] = []
+        self._rows: list[tuple[float, ...]] = []
+        self.last_t: float | None = None  # receive time of the latest sample
+
+    def update(self, **values: float) -> None:
+        """Remember new values of some feedback fields (not yet a sample)."""
+        with self._lock:
+            self._latest.update(values)
+
+    def sample(self, t: float, **values: float) -> None:
+        """Update fields, then record one sample at receive time `t` (once all are known)."""
+        with self._lock:
+            self._latest.update(values)
+            row = tuple(self._latest[k] for k in self.fields)
+            if any(math.isnan(x) for x in row):
+                return
+            self._t.append(t)
+            self._rows.append(row)
+            self.last_t = t
+
+    def take(self) -> FeedbackBlock:
+        """The samples since the previous call; fields not in `fields` are None."""
+        with self._lock:
+            t, rows = self._t, self._rows
+            self._t, self._rows = [], []
+        values = np.array(rows, dtype=float).reshape(len(rows), len(self.fields))
+        columns = {k: values[:, self.fields.index(k)] if k in self.fields else None
+                   for k in FEEDBACK_FIELDS}  # fmt: skip
+        return FeedbackBlock(np.array(t, dtype=float), **columns)

@@ -1,0 +1,365 @@
+"""Any CAN motor driver described by a DBC file: which signal takes the command, which report back.
+
+The DBC (read with cantools) gives frame layouts; the rig file maps rigtool's actuator
+onto them: the command signal and its unit, feedback signals for speed, current and
+voltage, an optional fault signal and enable signal. Frame ids in the DBC are offset by
+`node_id` (CANopen style: id + node). Without a `dbc:` the shipped servo_driver.dbc and
+its mapping servo_driver.yaml describe a speed/current servo like the pool rig's; rig
+sections given explicitly replace the shipped ones. A keep-alive thread re-sends the
+command in force for drives with a command watchdog.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Literal
+
+import can
+import cantools
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from rigtool.devices.base import COMMAND_UNITS, ActuatorInfo, FeedbackBlock
+from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer
+from rigtool.errors import DeviceError, UsageError
+
+log = logging.getLogger(__name__)
+
+SHIPPED_DBC = Path(__file__).resolve().parent.parent / "dbc" / "servo_driver.dbc"
+SHIPPED_MAPPING = SHIPPED_DBC.with_suffix(".yaml")
+_SECTIONS = ("command", "feedback", "fault", "enable")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SignalRef(_Strict):
+    """A DBC signal read as a feedback value: value = signal x scale."""
+
+    message: str = Field(min_length=1)  # DBC message name
+    signal: str = Field(min_length=1)  # DBC signal name (physical value, DBC scaling applied)
+    scale: float = 1.0  # e.g. 0.2 for motor r/min behind a 5:1 gearbox
+
+
+class CommandRef(_Strict):
+    """The DBC signal that carries the command: signal = command x scale."""
+
+    message: str = Field(min_length=1)  # DBC message name
+    signal: str = Field(min_length=1)  # DBC signal name
+    unit: Literal[COMMAND_UNITS] = "percent"  # command unit the engine works in
+    scale: float = 1.0  # signal units per command unit, e.g. 18 for percent -> r/min
+    min: float | None = None  # command limits (command unit); default: DBC range / scale
+    max: float | None = None
+
+    @model_validator(mode="after")
+    def _nonzero(self) -> CommandRef:
+        if self.scale == 0:
+            raise ValueError("scale must not be 0")
+        return self
+
+
+class FeedbackMap(_Strict):
+    """Which signals carry feedback; the speed_rpm message (else the first given) paces samples."""
+
+    speed_rpm: SignalRef | None = None
+    current_a: SignalRef | None = None
+    voltage_v: SignalRef | None = None
+
+
+class FaultRef(_Strict):
+    """A status signal whose value other than `ok` means the drive is in fault."""
+
+    message: str = Field(min_length=1)
+    signal: str = Field(min_length=1)
+    ok: float = 0.0
+
+
+class EnableRef(_Strict):
+    """A signal written once after opening and once when closing (power stage on/off)."""
+
+    message: str = Field(min_length=1)
+    signal: str = Field(min_length=1)
+    on_start: float = 1.0
+    on_close: float = 0.0
+
+
+class DbcCanConfig(_Strict):
+    """Rig-file section for a DBC-described CAN motor driver (`driver: dbc-can`)."""
+
+    driver: Literal["dbc-can"]
+    interface: str = Field("socketcan", min_length=1)  # python-can: socketcan, slcan, pcan, virtual
+    channel: str = Field(min_length=1)  # python-can channel: can0, /dev/ttyACM0, a virtual bus name
+    bitrate: int | None = Field(500000, gt=0)  # bit/s; null keeps the interface's own setting
+    dbc: str | None = None  # path to the .dbc; null: shipped servo_driver.dbc + servo_driver.yaml
+    node_id: int = Field(1, ge=0, le=0x1FFFFFFF)  # added to every DBC frame id; 0 for absolute ids
+    command: CommandRef | None = None  # required with your own dbc
+    feedback: FeedbackMap | None = None  # none: the actuator reports no feedback
+    fault: FaultRef | None = None
+    enable: EnableRef | None = None
+    neutral: float = 0.0  # safe command, in command.unit
+    keepalive_s: float = Field(0.1, ge=0)  # re-send period of the command in force; 0 = off
+    timeout_s: float = Field(1.0, gt=0)  # no feedback/fault frame this long -> DeviceError
+
+    @model_validator(mode="after")
+    def _has_command(self) -> DbcCanConfig:
+        if self.dbc is not None and self.command is None:
+            raise ValueError("with your own `dbc`, give `command: {message, signal, unit}`")
+        return self
+
+
+def resolve(config: DbcCanConfig) -> DbcCanConfig:
+    """The config with the shipped mapping in the sections it leaves out (shipped DBC only)."""
+    if config.dbc is not None:
+        return config
+    shipped = yaml.safe_load(SHIPPED_MAPPING.read_text())
+    missing = {k: shipped[k] for k in _SECTIONS if getattr(config, k) is None and k in shipped}
+    return DbcCanConfig.model_validate({**config.model_dump(exclude_none=True), **missing})
+
+
+def load_dbc(path: Path) -> cantools.database.can.Database:
+    """Read a DBC file; a missing or invalid file is a UsageError naming it."""
+    try:
+        return cantools.database.load_file(str(path), database_format="dbc")
+    except FileNotFoundError:
+        raise UsageError(f"dbc-can: DBC file {path} not found") from None
+    except Exception as exc:  # noqa: BLE001 - cantools raises parser-specific errors
+        raise UsageError(f"dbc-can: cannot read DBC file {path}: {exc}") from exc
+
+
+def _default(signal) -> float:
+    """Value for a signal the mapping does not set: its initial value, else 0 within its range."""
+    if signal.initial is not None:
+        return signal.initial
+    lo = signal.minimum if signal.minimum is not None else -math.inf
+    hi = signal.maximum if signal.maximum is not None else math.inf
+    return min(max(0.0, lo), hi)
+
+
+def encode_signal(message, name: str, value: float) -> bytes:
+    """Payload of `message` with signal `name` = `value` (clipped to its DBC range).
+
+    Multiplexer signals are set to select `name`; every other signal gets its default.
+    """
+    signal = message.get_signal_by_name(name)
+    data = {s.name: _default(s) for s in message.signals if s.is_multiplexer}
+    if signal.multiplexer_signal is not None:
+        data[signal.multiplexer_signal] = signal.multiplexer_ids[0]
+    for s in message.signals:
+        if s.is_multiplexer:
+            continue
+        if s.multiplexer_signal is None or data.get(s.multiplexer_signal) in s.multiplexer_ids:
+            data[s.name] = _default(s)
+    lo = signal.minimum if signal.minimum is not None else -math.inf
+    hi = signal.maximum if signal.maximum is not None else math.inf
+    data[name] = min(max(value, lo), hi)
+    return message.encode(data, scaling=True, strict=True)
+
+
+class DbcCanDriver:
+    """Actuator on a DBC-described CAN drive."""
+
+    def __init__(self, config: DbcCanConfig) -> None:
+        self.config = c = resolve(config)
+        self.dbc_path = Path(c.dbc) if c.dbc is not None else SHIPPED_DBC
+        self.db = load_dbc(self.dbc_path)
+        self.name = f"{self.dbc_path.stem} node {c.node_id}"
+        self._cmd_msg = self._signal_message(c.command, "command")
+        fb = c.feedback or FeedbackMap()
+        self._fields = tuple(k for k in FEEDBACK_FIELDS if getattr(fb, k) is not None)
+        self._rx_messages: dict[int, object] = {}  # frame id -> DBC message we listen to
+        self._rx: dict[int, dict[str, SignalRef]] = {}  # frame id -> {feedback field: signal}
+        for k in self._fields:
+            ref = getattr(fb, k)
+            frame_id = self._listen(self._signal_message(ref, f"feedback.{k}"))
+            self._rx[frame_id][k] = ref
+        self._pace = next(iter(self._rx), None)  # the first feedback field's message
+        self._fault_id = None
+        if c.fault is not None:
+            fault_msg = self._signal_message(c.fault, "fault")
+            self._fault_id = self._listen(fault_msg)
+            self._fault_signal = fault_msg.get_signal_by_name(c.fault.signal)
+        self._enable_msg = self._signal_message(c.enable, "enable") if c.enable else None
+        self.info = ActuatorInfo(c.command.unit, c.neutral, *self._range(), self._fields)
+        self._feedback = FeedbackBuffer(self._fields)
+        self._fault: str | None = None
+        self._last_rx: float | None = None
+        self._frame_lock = threading.Lock()
+        self._frame = self._command_frame(c.neutral)
+        self._closed = False
+        self._link = CanLink(c.interface, c.channel, c.bitrate, self._on_frame, self.name)
+        self.stats = self._link.stats
+        self._opened_t = time.monotonic()
+        self._link.start(c.keepalive_s, self._keepalive)
+        try:
+            self.neutral()
+            if self._enable_msg is not None:
+                self._send_signal(self._enable_msg, c.enable.signal, c.enable.on_start)
+            self._wait_for_device()
+        except BaseException:
+            self._link.close()
+            raise
+
+    # ----- Actuator -----
+
+    def set_command(self, value: float) -> None:
+        """Command `value` in info.command_unit (clipped to the command range)."""
+        if self._closed:
+            raise DeviceError(f"{self.name} on {self._link.where}: driver is closed")
+        if not math.isfinite(value):
+            raise ValueError(f"command must be finite, got {value!r}")
+        msg = self._command_frame(value)
+        with self._frame_lock:
+            self._frame = msg
+        self._link.send(msg)
+
+    def neutral(self) -> None:
+        """Send the neutral command; idempotent, quiet after close."""
+        if self._closed:
+            return
+        msg = self._command_frame(self.config.neutral)
+        with self._frame_lock:
+            self._frame = msg
+        self._link.send_retrying(msg)
+
+    def read_feedback(self) -> FeedbackBlock:
+        """Feedback samples since the last call; DeviceError on a reported fault or on silence."""
+        if self._fault is not None:
+            raise DeviceError(f"{self.name} on {self._link.where} reports fault {self._fault}")
+        if self._rx and not self._closed:
+            last = self._last_rx or self._opened_t
+            if time.monotonic() - last > self.config.timeout_s:
+                raise DeviceError(self._silence(f"for {self.config.timeout_s:g} s"))
+        return self._feedback.take()
+
+    def close(self) -> None:
+        """Neutral, stop the keep-alive, disable (if configured), release the bus. Idempotent."""
+        if self._closed:
+            return
+        try:
+            self.neutral()
+        except DeviceError as exc:
+            log.warning("%s: could not command neutral on close: %s", self.name, exc)
+        self._closed = True
+        self._link.stop_threads()
+        if self._enable_msg is not None:
+            try:
+                self._send_signal(self._enable_msg, self.config.enable.signal,
+                                  self.config.enable.on_close)  # fmt: skip
+            except DeviceError as exc:
+                log.warning("%s: could not disable on close: %s", self.name, exc)
+        self._link.close()
+
+    @property
+    def fault(self) -> str | None:
+        """The fault the drive reports (None: healthy)."""
+        return self._fault
+
+    # ----- internals -----
+
+    def _signal_message(self, ref: SignalRef | CommandRef | FaultRef | EnableRef, where: str):
+        """The DBC message `ref` names, checking that it has `ref.signal`."""
+        try:
+            message = self.db.get_message_by_name(ref.message)
+        except KeyError:
+            known = ", ".join(m.name for m in self.db.messages)
+            raise UsageError(f"dbc-can {where}: no message {ref.message!r} in {self.dbc_path} "
+                             f"(messages: {known})") from None  # fmt: skip
+        names = [s.name for s in message.signals]
+        if ref.signal not in names:
+            raise UsageError(f"dbc-can {where}: message {ref.message} has no signal "
+                             f"{ref.signal!r} (signals: {', '.join(names)})")  # fmt: skip
+        return message
+
+    def _frame_id(self, message) -> int:
+        return message.frame_id + self.config.node_id
+
+    def _listen(self, message) -> int:
+        """Register `message` as one we receive; return its frame id on the bus."""
+        frame_id = self._frame_id(message)
+        self._rx_messages[frame_id] = message
+        self._rx.setdefault(frame_id, {})
+        return frame_id
+
+    def _range(self) -> tuple[float, float]:
+        cmd = self.config.command
+        signal = self._cmd_msg.get_signal_by_name(cmd.signal)
+        ends = [x / cmd.scale for x in (signal.minimum, signal.maximum) if x is not None]
+        lo = cmd.min if cmd.min is not None else (min(ends) if len(ends) == 2 else None)
+        hi = cmd.max if cmd.max is not None else (max(ends) if len(ends) == 2 else None)
+        if lo is None or hi is None:
+            raise UsageError(f"dbc-can command: signal {cmd.signal} has no range in the DBC; "
+                             "give command.min and command.max")  # fmt: skip
+        if not lo <= self.config.neutral <= hi:
+            raise UsageError(f"dbc-can: neutral {self.config.neutral:g} outside the command "
+                             f"range [{lo:g}, {hi:g}]")  # fmt: skip
+        return lo, hi
+
+    def _command_frame(self, value: float) -> can.Message:
+        cmd = self.config.command
+        v = min(max(value, self.info.command_min), self.info.command_max)
+        data = encode_signal(self._cmd_msg, cmd.signal, v * cmd.scale)
+        return self._frame_for(self._cmd_msg, data)
+
+    def _frame_for(self, message, data: bytes) -> can.Message:
+        return can.Message(arbitration_id=self._frame_id(message), data=data,
+                           is_extended_id=message.is_extended_frame)  # fmt: skip
+
+    def _send_signal(self, message, signal: str, value: float) -> None:
+        self._link.send(self._frame_for(message, encode_signal(message, signal, value)))
+
+    def _keepalive(self) -> None:
+        with self._frame_lock:
+            msg = self._frame
+        self._link.send(msg)
+
+    def _on_frame(self, msg: can.Message, t: float) -> str:
+        """Decode one received frame; return the stats counter it belongs to."""
+        fields = self._rx.get(msg.arbitration_id)
+        if fields is None or msg.is_remote_frame:
+            return "ignored"
+        message = self._rx_messages[msg.arbitration_id]
+        if msg.is_extended_id != message.is_extended_frame:
+            return "ignored"
+        try:
+            decoded = message.decode(bytes(msg.data), decode_choices=False, scaling=True)
+        except (cantools.database.DecodeError, ValueError, KeyError):
+            return "garbage"
+        self._last_rx = t
+        values = {k: float(decoded[ref.signal]) * ref.scale
+                  for k, ref in fields.items() if ref.signal in decoded}  # fmt: skip
+        if msg.arbitration_id == self._pace:
+            self._feedback.sample(t, **values)
+        elif values:
+            self._feedback.update(**values)
+        if msg.arbitration_id == self._fault_id and self.config.fault.signal in decoded:
+            self._check_fault(decoded[self.config.fault.signal])
+        return "frames"
+
+    def _check_fault(self, value: float) -> None:
+        if value == self.config.fault.ok:
+            self._fault = None
+            return
+        choices = self._fault_signal.choices or {}
+        label = choices.get(int(value)) if float(value).is_integer() else None
+        self._fault = f"{self.config.fault.signal}={value:g}" + (f" ({label})" if label else "")
+
+    def _wait_for_device(self) -> None:
+        if not self._rx:
+            return
+        deadline = self._opened_t + self.config.timeout_s
+        while self._last_rx is None:
+            if time.monotonic() > deadline:
+                raise DeviceError(self._silence(
+                    f"within {self.config.timeout_s:g} s of opening (is it powered, on this bus "
+                    "and bitrate, with the right node_id?)"))  # fmt: skip
+            time.sleep(0.01)
+
+    def _silence(self, how: str) -> str:
+        names = sorted({m.name for m in self._rx_messages.values()})
+        rx = f"; receive error: {self._link.rx_error}" if self._link.rx_error else ""
+        return f"no {'/'.join(names)} frames from {self.name} on {self._link.where} {how}{rx}"

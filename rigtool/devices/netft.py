@@ -1,0 +1,451 @@
+"""ATI Net F/T six-axis force/torque sensor over RDT (UDP), calibration from its web page.
+
+Protocol facts (ATI Net F/T manual, "Raw Data Transfer"):
+
+* The host sends 8-byte requests to UDP port 49152: big-endian `>HHI` =
+  header 0x1234, command, sample count (0 = until stopped). Commands used here:
+  0x0000 stop streaming, 0x0002 start high-speed real-time streaming, 0x0042 set
+  software bias (the box zeroes itself on its current reading).
+* The box answers from that port with 36-byte records, big-endian `>III6i` =
+  rdt_sequence (numbers the RDT packets: gaps are lost packets), ft_sequence (the
+  box's internal sample counter), status (0 = healthy), then Fx, Fy, Fz, Tx, Ty, Tz
+  in counts. A datagram may carry several records (buffered mode); each is used.
+* Counts per force unit and per torque unit, and the units themselves, are the
+  `cfgcpf`, `cfgcpt`, `scfgfu`, `scfgtu` elements of `http://HOST/netftapi2.xml`;
+  `comrdtrate` is the RDT output rate in Hz.
+
+The driver streams in a background thread into a buffer stamped with the monotonic
+arrival time, converts counts to N and N m, and keeps statistics of lost, late,
+malformed and faulted packets (`stats`, `pop_warnings()`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import socket
+import struct
+import threading
+import time
+import urllib.error
+import urllib.request
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from rigtool.devices.base import FT_CHANNELS, ForceBlock
+from rigtool.devices.buffer import SampleBuffer
+from rigtool.errors import DeviceError
+
+log = logging.getLogger(__name__)
+
+RDT_PORT = 49152
+RDT_HEADER = 0x1234
+CMD_STOP = 0x0000
+CMD_START_REALTIME = 0x0002
+CMD_BIAS = 0x0042
+REQUEST = struct.Struct(">HHI")  # header, command, sample count
+RECORD = struct.Struct(">III6i")  # rdt_sequence, ft_sequence, status, Fx..Tz (counts)
+MAX_SEQUENCE_JUMP = 1_000_000  # larger rdt_sequence jumps are taken as a corrupt record
+_SEQ_MOD = 1 << 32
+_BIAS_GUARD_S = 0.02  # after a device bias, records arriving this soon may predate it
+
+# One unit of each, in N or N m. Keys are normalised by _unit_key (lower case, no separators).
+FORCE_UNITS_N = {
+    "n": 1.0, "kn": 1e3, "mn": 1e-3,
+    "lbf": 4.4482216152605, "lb": 4.4482216152605, "klbf": 4448.2216152605, "klb": 4448.2216152605,
+    "kgf": 9.80665, "kg": 9.80665, "gf": 0.00980665, "g": 0.00980665,
+    "ozf": 0.27801385095378125, "oz": 0.27801385095378125,
+}  # fmt: skip
+TORQUE_UNITS_NM = {
+    "nm": 1.0, "nmm": 1e-3, "knm": 1e3,
+    "lbfin": 0.1129848290276167, "lbin": 0.1129848290276167, "inlb": 0.1129848290276167,
+    "inlbf": 0.1129848290276167, "lbfft": 1.3558179483314004, "lbft": 1.3558179483314004,
+    "ftlb": 1.3558179483314004, "ftlbf": 1.3558179483314004,
+    "kgfcm": 0.0980665, "kgcm": 0.0980665, "kgfm": 9.80665, "gfcm": 0.0000980665,
+    "ozfin": 0.00706155181422604, "ozin": 0.00706155181422604,
+}  # fmt: skip
+
+
+def _unit_key(unit: str) -> str:
+    return "".join(c for c in unit.strip().lower() if c.isalnum())
+
+
+def unit_factor(unit: str, table: Mapping[str, float], kind: str) -> float:
+    """SI value of one `unit` (e.g. "lbf" -> 4.448); ValueError names the known units."""
+    try:
+        return table[_unit_key(unit)]
+    except KeyError:
+        raise ValueError(f"unknown {kind} unit {unit!r} (known: {', '.join(sorted(table))})") from None
+
+
+def pack_request(command: int, sample_count: int = 0) -> bytes:
+    return REQUEST.pack(RDT_HEADER, command, sample_count)
+
+
+class NetFTConfig(BaseModel):
+    """The `sensor:` section of a rig file for an ATI Net F/T."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    driver: Literal["ati-netft"]
+    host: str = Field(min_length=1)
+    port: int = Field(RDT_PORT, ge=1, le=65535)
+    http_port: int = Field(80, ge=1, le=65535)
+    # Calibration: both counts, or neither (then fetched from http://host:http_port/netftapi2.xml).
+    counts_per_force: float | None = Field(None, gt=0)
+    counts_per_torque: float | None = Field(None, gt=0)
+    force_unit: str = "N"  # unit the configured counts refer to (the box's scfgfu)
+    torque_unit: str = "N-m"  # (the box's scfgtu)
+    sample_count: int = Field(0, ge=0, lt=_SEQ_MOD)  # per start request; 0 = stream until stopped
+    timeout_s: float = Field(1.0, gt=0)
+    bias: Literal["host", "device"] = "host"
+    on_status: Literal["fault", "warn"] = "fault"
+    max_gap_s: float = Field(0.25, gt=0)
+    buffer_samples: int = Field(200_000, ge=1000)
+
+    @field_validator("force_unit")
+    @classmethod
+    def _force_unit(cls, v: str) -> str:
+        unit_factor(v, FORCE_UNITS_N, "force")
+        return v
+
+    @field_validator("torque_unit")
+    @classmethod
+    def _torque_unit(cls, v: str) -> str:
+        unit_factor(v, TORQUE_UNITS_NM, "torque")
+        return v
+
+    @model_validator(mode="after")
+    def _both_counts(self) -> NetFTConfig:
+        if (self.counts_per_force is None) != (self.counts_per_torque is None):
+            raise ValueError("give both counts_per_force and counts_per_torque, or neither "
+                             "(then they are read from the box's netftapi2.xml)")
+        return self
+
+
+@dataclass(frozen=True)
+class NetFTCalibration:
+    """Counts per N and per N m, and where they came from."""
+
+    counts_per_n: float
+    counts_per_nm: float
+    source: str  # "config" or the URL read
+    rate_hz: float | None = None  # the box's RDT output rate, when known
+    force_unit: str = "N"
+    torque_unit: str = "N-m"
+
+
+def parse_netftapi2(xml_text: str | bytes, source: str = "netftapi2.xml") -> NetFTCalibration:
+    """Calibration from the text of the box's netftapi2.xml (cfgcpf/cfgcpt in scfgfu/scfgtu)."""
+    try:
+        root = ET.fromstring(xml_text)
+    except ET.ParseError as exc:
+        raise DeviceError(f"{source}: not valid XML ({exc})") from None
+    values = {el.tag.rsplit("}", 1)[-1].lower(): (el.text or "").strip() for el in root.iter()}
+    missing = [k for k in ("cfgcpf", "cfgcpt", "scfgfu", "scfgtu") if not values.get(k)]
+    if missing:
+        raise DeviceError(f"{source}: no {', '.join(missing)} element; give counts_per_force, "
+                          "counts_per_torque, force_unit and torque_unit in the rig file")
+    try:
+        cpf, cpt = float(values["cfgcpf"]), float(values["cfgcpt"])
+        fu = unit_factor(values["scfgfu"], FORCE_UNITS_N, "force")
+        tu = unit_factor(values["scfgtu"], TORQUE_UNITS_NM, "torque")
+    except ValueError as exc:
+        raise DeviceError(f"{source}: {exc}") from None
+    if cpf <= 0 or cpt <= 0:
+        raise DeviceError(f"{source}: counts per force/torque must be positive (got {cpf}, {cpt})")
+    try:
+        rate = float(values["comrdtrate"]) if values.get("comrdtrate") else None
+    except ValueError:
+        rate = None
+    return NetFTCalibration(cpf / fu, cpt / tu, source, rate, values["scfgfu"], values["scfgtu"])
+
+
+def fetch_calibration(host: str, http_port: int = 80, timeout_s: float = 1.0) -> NetFTCalibration:
+    """Read counts per force/torque from http://host:http_port/netftapi2.xml."""
+    url = f"http://{host}:{http_port}/netftapi2.xml"
+    try:
+        with urllib.request.urlopen(url, timeout=timeout_s) as response:
+            text = response.read()
+    except (urllib.error.URLError, OSError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise DeviceError(f"cannot read the Net F/T calibration from {url}: {reason}; check host "
+                          "and http_port, or give counts_per_force and counts_per_torque") from None
+    return parse_netftapi2(text, url)
+
+
+@dataclass
+class NetFTStats:
+    """What the receive thread has seen since the driver opened."""
+
+    datagrams: int = 0  # every datagram from the box
+    records: int = 0  # records accepted into the buffer
+    lost_packets: int = 0  # rdt_sequence numbers missing from the accepted stream
+    out_of_order: int = 0  # late or duplicate packets (discarded)
+    bad_size: int = 0  # datagrams whose length is not a multiple of 36 bytes
+    bad_sequence: int = 0  # 36-byte records with an implausible rdt_sequence (corrupt)
+    resyncs: int = 0  # times the sequence was re-learned after corrupt records
+    status_records: int = 0  # records with a non-zero status word
+    last_status: int = 0
+    starts: int = 0  # start requests sent (first one, re-arms, restarts)
+    restarts: int = 0  # starts sent because the stream went quiet
+    refused: int = 0  # ICMP "port unreachable" replies: nothing listening at host:port
+    stale: int = 0  # samples dropped because they arrived in a pause between reads (max_gap_s)
+    overflowed: int = 0  # buffered samples dropped because the buffer was full
+
+
+class NetFTSensor:
+    """ForceSensor for an ATI Net F/T box (or NetFTTwin) at `config.host:config.port`.
+
+    `read(n, rate_hz)` returns the next `n` records at the box's own RDT rate: `rate_hz`
+    is advisory. `set_bias` adds to a host-side bias (or, with `bias: device`, sends the
+    box's own bias command). Non-zero status words fail the read (`on_status: fault`) or
+    are recorded as warnings (`on_status: warn`).
+    """
+
+    channels = FT_CHANNELS
+
+    def __init__(self, config: NetFTConfig | Mapping, *, now: Callable[[], float] = time.monotonic
+                 ) -> None:
+        cfg = config if isinstance(config, NetFTConfig) else NetFTConfig.model_validate(config)
+        self.config = cfg
+        self.name = f"Net F/T at {cfg.host}:{cfg.port}"
+        self._now = now
+        if cfg.counts_per_force is None or cfg.counts_per_torque is None:
+            self.calibration = fetch_calibration(cfg.host, cfg.http_port, cfg.timeout_s)
+        else:
+            self.calibration = NetFTCalibration(
+                cfg.counts_per_force / unit_factor(cfg.force_unit, FORCE_UNITS_N, "force"),
+                cfg.counts_per_torque / unit_factor(cfg.torque_unit, TORQUE_UNITS_NM, "torque"),
+                "config", None, cfg.force_unit, cfg.torque_unit)
+        cal = self.calibration
+        self._scale = np.array([1.0 / cal.counts_per_n] * 3 + [1.0 / cal.counts_per_nm] * 3)
+        self._bias = np.zeros(6)
+        self._stats = NetFTStats()
+        self._warnings: list[str] = []
+        self._lock = threading.Lock()  # sequence state, shared by both threads
+        self._last_seq: int | None = None
+        self._suspect_seq: int | None = None
+        self._since_start = 0
+        self._discard_until = -np.inf
+        self._buffer = SampleBuffer(cfg.buffer_samples)
+        self._stop = threading.Event()
+        self._first = threading.Event()
+        self._closed = False
+        self._sock = self._open_socket()
+        self._thread = threading.Thread(target=self._receive_loop, name="rigtool-netft", daemon=True)
+        self._thread.start()
+        try:
+            self._start_streaming()
+            if not self._first.wait(cfg.timeout_s):
+                raise DeviceError(
+                    f"{self.name}: no RDT data within {cfg.timeout_s:g} s of the start request "
+                    f"({self._describe_silence()})")
+        except BaseException:
+            self.close()
+            raise
+
+    # -- ForceSensor ----------------------------------------------------------------------
+    def read(self, n: int, rate_hz: float) -> ForceBlock:
+        """The next `n` records (at the box's rate; `rate_hz` is advisory)."""
+        if self._closed:
+            raise DeviceError(f"{self.name}: read after close")
+        cfg = self.config
+        if n <= 0:
+            return ForceBlock(np.empty(0), np.empty((0, 6)), np.empty(0, dtype=np.int64))
+        self._buffer.begin_read(self._now(), cfg.max_gap_s)
+        poll_s = min(0.1, cfg.timeout_s / 4)
+        out: list[tuple] = []
+        last_progress = self._now()
+        restarted = False
+        while len(out) < n:
+            if cfg.sample_count and self._since_start >= cfg.sample_count:
+                self._start_streaming()  # the box has sent the batch it was asked for
+            got = self._buffer.take(n - len(out), poll_s)
+            if got:
+                out.extend(got)
+                last_progress, restarted = self._now(), False
+                continue
+            idle = self._now() - last_progress
+            if idle >= cfg.timeout_s:
+                raise DeviceError(f"{self.name}: no RDT data for {idle:.1f} s ({len(out)} of {n} "
+                                  f"samples read; {self._describe_silence()})")
+            if idle >= cfg.timeout_s / 2 and not restarted:
+                restarted = True
+                self._stats.restarts += 1
+                self._warn(f"{self.name}: stream quiet for {idle:.2f} s; sent a new start request")
+                self._start_streaming()
+        self._buffer.end_read(self._now())
+        arr = np.asarray(out, dtype=float)
+        status = arr[:, 2]
+        bad = np.flatnonzero(status)
+        if len(bad) and cfg.on_status == "fault":
+            raise DeviceError(
+                f"{self.name}: status word 0x{int(status[bad[0]]):08x} on {len(bad)} of {n} samples "
+                "(sensor saturated or faulted; see the box's web page). Set `on_status: warn` to "
+                "record such samples and carry on")
+        ft = arr[:, 3:] * self._scale - self._bias
+        return ForceBlock(arr[:, 0], ft, arr[:, 1].astype(np.int64))
+
+    def set_bias(self, bias: np.ndarray) -> None:
+        """Subtract `bias` (N, N m) from later samples, on top of earlier biases.
+
+        With `bias: device` the box's own bias command is sent instead: the box zeroes
+        itself on its current reading, and the host bias is reset.
+        """
+        b = np.asarray(bias, dtype=float).reshape(-1)
+        if b.shape != (6,) or not np.all(np.isfinite(b)):
+            raise ValueError(f"{self.name}: bias must be 6 finite numbers, got {bias!r}")
+        if self.config.bias == "device":
+            self._send(CMD_BIAS)
+            self._bias = np.zeros(6)
+            self._discard_until = self._now() + _BIAS_GUARD_S
+            self._buffer.clear()
+        else:
+            self._bias = self._bias + b
+
+    def close(self) -> None:
+        """Stop streaming and release the socket (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(OSError, DeviceError):
+            self._send(CMD_STOP)
+        self._stop.set()
+        self._buffer.fail(DeviceError(f"{self.name}: closed"))  # wakes a read in another thread
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=1.0)
+        self._sock.close()
+
+    def __enter__(self) -> NetFTSensor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- diagnostics ----------------------------------------------------------------------
+    @property
+    def stats(self) -> dict:
+        """Counters since open (see NetFTStats), plus samples waiting in the buffer."""
+        self._stats.stale, self._stats.overflowed = self._buffer.stale, self._buffer.overflowed
+        return {**asdict(self._stats), "buffered": len(self._buffer)}
+
+    def pop_warnings(self) -> list[str]:
+        """Warnings (status words, restarts) since the previous call, oldest first."""
+        with self._lock:
+            out, self._warnings = self._warnings, []
+        return out
+
+    # -- internals ------------------------------------------------------------------------
+    def _open_socket(self) -> socket.socket:
+        cfg = self.config
+        try:
+            family, kind, proto, _, addr = socket.getaddrinfo(
+                cfg.host, cfg.port, type=socket.SOCK_DGRAM)[0]
+        except socket.gaierror as exc:
+            raise DeviceError(f"{self.name}: cannot resolve host {cfg.host!r}: {exc}") from None
+        sock = socket.socket(family, kind, proto)
+        with contextlib.suppress(OSError):  # room for bursts at 7 kHz; the OS may cap it
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        try:
+            sock.connect(addr)  # the kernel then only delivers datagrams from the box
+        except OSError as exc:
+            sock.close()
+            raise DeviceError(f"{self.name}: cannot reach the box: {exc}") from None
+        sock.settimeout(0.1)
+        return sock
+
+    def _send(self, command: int, count: int = 0) -> None:
+        try:
+            self._sock.send(pack_request(command, count))
+        except OSError as exc:
+            raise DeviceError(f"{self.name}: cannot send RDT command 0x{command:04x}: {exc}") from None
+
+    def _start_streaming(self) -> None:
+        with self._lock:
+            self._last_seq = self._suspect_seq = None  # the box numbers a new stream afresh
+            self._since_start = 0
+            self._stats.starts += 1
+        self._send(CMD_START_REALTIME, self.config.sample_count)
+
+    def _describe_silence(self) -> str:
+        s = self._stats
+        if s.refused:
+            return "the host answers that nothing listens on that UDP port"
+        if s.datagrams and not s.records:
+            return (f"{s.datagrams} datagrams arrived but none was a valid RDT record "
+                    f"({s.bad_size} of wrong size, {s.bad_sequence} with a corrupt sequence)")
+        return "check the address, that RDT is enabled on the box, and the firewall"
+
+    def _warn(self, message: str) -> None:
+        log.warning(message)
+        with self._lock:
+            self._warnings.append(message)
+
+    def _receive_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self._sock.recv(65536)
+            except TimeoutError:
+                continue
+            except ConnectionRefusedError:
+                self._stats.refused += 1
+                continue
+            except OSError as exc:
+                if not self._stop.is_set():
+                    self._buffer.fail(DeviceError(f"{self.name}: receive failed: {exc}"))
+                return
+            self._handle(data, self._now())
+
+    def _accept_sequence(self, seq: int) -> bool:
+        """Track rdt_sequence: count gaps; reject late, duplicate and implausible packets."""
+        s = self._stats
+        last = self._last_seq
+        if last is None:
+            self._last_seq = seq
+            return True
+        ahead = (seq - last) % _SEQ_MOD
+        if 0 < ahead <= MAX_SEQUENCE_JUMP:
+            s.lost_packets += ahead - 1
+            self._last_seq, self._suspect_seq = seq, None
+            return True
+        if ahead == 0 or _SEQ_MOD - ahead <= MAX_SEQUENCE_JUMP:
+            s.out_of_order += 1
+            return False
+        # Far from the stream: a corrupt record, unless the next packet continues from it
+        # (the box restarted its numbering without us asking).
+        if self._suspect_seq is not None and (seq - self._suspect_seq) % _SEQ_MOD == 1:
+            s.resyncs += 1
+            self._last_seq, self._suspect_seq = seq, None
+            return True
+        s.bad_sequence += 1
+        self._suspect_seq = seq
+        return False
+
+    def _handle(self, data: bytes, t: float) -> None:
+        s = self._stats
+        s.datagrams += 1
+        if not data or len(data) % RECORD.size:
+            s.bad_size += 1
+            return
+        records = list(RECORD.iter_unpack(data))
+        with self._lock:
+            if not self._accept_sequence(records[0][0]):
+                return
+            self._since_start += len(records)
+        if t < self._discard_until:
+            return  # may predate a device bias just sent
+        for rec in records:
+            status = rec[2]
+            if status:
+                s.status_records += 1
+                if status != s.last_status:
+                    self._warn(f"{self.name}: status word 0x{status:08x} (rdt_sequence {rec[0]})")
+            s.last_status = status
+        self._buffer.put_many((t, rec[0], rec[2], *rec[3:]) for rec in records)
+        s.records += len(records)
+        self._first.set()

@@ -1,0 +1,296 @@
+"""VESC motor controller over CAN: duty, current or speed commands; STATUS 1/4/5 feedback.
+
+Wire format as in the VESC firmware (comm/comm_can.c, documentation/comm_can.md):
+29-bit ids `(packet_id << 8) | controller_id`, big-endian payloads.
+  SET_DUTY (0)     int32 duty x 100000
+  SET_CURRENT (1)  int32 A x 1000
+  SET_RPM (3)      int32 electrical r/min
+  STATUS (9)       int32 ERPM, int16 motor A x 10, int16 duty x 1000
+  STATUS_4 (16)    int16 T_fet x 10, T_motor x 10, input A x 10, PID pos x 50
+  STATUS_5 (27)    int32 tachometer, int16 input V x 10, int16 reserved
+The VESC stops the motor when no command arrives within its timeout (1 s by default), so a
+keep-alive thread re-sends the command in force. The fault code is not in any status
+frame: the driver polls it with COMM_GET_VALUES_SELECTIVE (mask bit 15) sent as a
+PROCESS_SHORT_BUFFER frame; the VESC answers with a PROCESS_SHORT_BUFFER addressed to
+`host_id`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+import threading
+import time
+from typing import Literal
+
+import can
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from rigtool.devices.base import ActuatorInfo, FeedbackBlock
+from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer
+from rigtool.errors import DeviceError
+
+log = logging.getLogger(__name__)
+
+SET_DUTY, SET_CURRENT, SET_RPM = 0, 1, 3
+PROCESS_SHORT_BUFFER = 8
+STATUS_1, STATUS_4, STATUS_5 = 9, 16, 27
+COMM_GET_VALUES_SELECTIVE = 50
+FAULT_MASK = 1 << 15  # COMM_GET_VALUES_SELECTIVE bit of the fault code (one uint8)
+_SCALE = {SET_DUTY: 1e5, SET_CURRENT: 1e3, SET_RPM: 1.0}
+_INT32 = (-(2**31), 2**31 - 1)
+FAULT_NAMES = (
+    "NONE", "OVER_VOLTAGE", "UNDER_VOLTAGE", "DRV", "ABS_OVER_CURRENT", "OVER_TEMP_FET",
+    "OVER_TEMP_MOTOR", "GATE_DRIVER_OVER_VOLTAGE", "GATE_DRIVER_UNDER_VOLTAGE",
+    "MCU_UNDER_VOLTAGE", "BOOTING_FROM_WATCHDOG_RESET",
+)  # fmt: skip
+_DEFAULT_UNIT = {"duty": "percent", "rpm": "rpm", "current": "amps"}
+
+
+class VescCanConfig(BaseModel):
+    """Rig-file section for a VESC on a CAN bus (`driver: vesc-can`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    driver: Literal["vesc-can"]
+    interface: str = Field("socketcan", min_length=1)  # python-can: socketcan, slcan, pcan, virtual
+    channel: str = Field(min_length=1)  # python-can channel: can0, /dev/ttyACM0, socket://host:port
+    bitrate: int | None = Field(500000, gt=0)  # bit/s (VESC default); null: the interface's own
+    controller_id: int = Field(0, ge=0, le=254)  # VESC ID (VESC Tool: App Settings > General)
+    host_id: int = Field(254, ge=0, le=254)  # our CAN id for fault-poll replies; unused by any VESC
+    mode: Literal["duty", "current", "rpm"] = "duty"  # which SET_* packet carries the command
+    command_unit: Literal["percent", "rpm", "amps"] | None = None  # default: percent/rpm/amps
+    pole_pairs: int = Field(7, ge=1)  # motor pole pairs: ERPM = mechanical r/min x pole_pairs
+    max_erpm: float | None = Field(None, gt=0)  # rpm mode: command limit, and what 100 % means
+    max_current_a: float | None = Field(None, gt=0)  # current mode: limit, and what 100 % means
+    current_source: Literal["input", "motor"] = "input"  # STATUS_4 supply A or STATUS motor A
+    keepalive_s: float = Field(0.1, ge=0)  # re-send period, well under the VESC timeout; 0 = off
+    timeout_s: float = Field(1.0, gt=0)  # no status frame for this long -> DeviceError
+    poll_fault: bool = True  # poll the fault code with every keep-alive
+
+    @model_validator(mode="after")
+    def _consistent(self) -> VescCanConfig:
+        unit = self.unit
+        allowed = {"duty": ("percent",), "rpm": ("rpm", "percent"), "current": ("amps", "percent")}
+        if unit not in allowed[self.mode]:
+            units = " or ".join(allowed[self.mode])
+            raise ValueError(f"mode {self.mode!r} takes command_unit {units}")
+        if self.mode == "rpm" and self.max_erpm is None:
+            raise ValueError("mode 'rpm' needs max_erpm (electrical r/min at full command)")
+        if self.mode == "current" and self.max_current_a is None:
+            raise ValueError("mode 'current' needs max_current_a (motor current at full command)")
+        if self.poll_fault and self.host_id == self.controller_id:
+            raise ValueError("host_id must differ from controller_id")
+        return self
+
+    @property
+    def unit(self) -> str:
+        """The command unit in force (explicit, or the mode's default)."""
+        return self.command_unit or _DEFAULT_UNIT[self.mode]
+
+
+def can_id(packet: int, controller_id: int) -> int:
+    """The 29-bit frame id of `packet` for (or from) `controller_id`."""
+    return (packet << 8) | controller_id
+
+
+def encode_command(packet: int, value: float) -> bytes:
+    """Payload of SET_DUTY (duty -1..1), SET_CURRENT (A) or SET_RPM (ERPM)."""
+    raw = round(value * _SCALE[packet])
+    return struct.pack(">i", min(max(raw, _INT32[0]), _INT32[1]))
+
+
+def decode_status1(data: bytes) -> tuple[int, float, float]:
+    """STATUS: (ERPM, motor current A, duty -1..1)."""
+    erpm, current, duty = struct.unpack_from(">ihh", data)
+    return erpm, current / 10.0, duty / 1000.0
+
+
+def decode_status4(data: bytes) -> tuple[float, float, float, float]:
+    """STATUS_4: (FET temperature C, motor temperature C, input current A, PID position deg)."""
+    t_fet, t_motor, current_in, pid_pos = struct.unpack_from(">hhhh", data)
+    return t_fet / 10.0, t_motor / 10.0, current_in / 10.0, pid_pos / 50.0
+
+
+def decode_status5(data: bytes) -> tuple[int, float]:
+    """STATUS_5: (tachometer counts, input voltage V)."""
+    tacho, volts = struct.unpack_from(">ih", data)
+    return tacho, volts / 10.0
+
+
+def fault_poll(host_id: int) -> bytes:
+    """PROCESS_SHORT_BUFFER payload asking for the fault code, reply to `host_id`."""
+    return bytes((host_id, 0, COMM_GET_VALUES_SELECTIVE)) + struct.pack(">I", FAULT_MASK)
+
+
+def parse_fault_reply(data: bytes) -> int | None:
+    """Fault code from a reply to `fault_poll` (None if the payload is something else)."""
+    if len(data) != 8 or data[1] != 1 or data[2] != COMM_GET_VALUES_SELECTIVE:
+        return None
+    if struct.unpack_from(">I", data, 3)[0] != FAULT_MASK:
+        return None
+    return data[7]
+
+
+def fault_name(code: int) -> str:
+    """Firmware name of a fault code."""
+    return f"FAULT_CODE_{FAULT_NAMES[code] if code < len(FAULT_NAMES) else code}"
+
+
+class VescCanDriver:
+    """Actuator on a VESC: commands in percent, r/min or A; feedback from its status frames."""
+
+    def __init__(self, config: VescCanConfig) -> None:
+        self.config = config
+        c = config
+        self.name = f"VESC {c.controller_id}"
+        self.info = ActuatorInfo(c.unit, 0.0, *self._range(), FEEDBACK_FIELDS)
+        self._packet = {"duty": SET_DUTY, "current": SET_CURRENT, "rpm": SET_RPM}[c.mode]
+        self._feedback = FeedbackBuffer()
+        self._fault = 0
+        self._frame_lock = threading.Lock()
+        self._frame = self._message(SET_CURRENT, 0.0)  # what the keep-alive re-sends
+        self._closed = False
+        self._link = CanLink(c.interface, c.channel, c.bitrate, self._on_frame, self.name)
+        self.stats = self._link.stats
+        self._opened_t = time.monotonic()
+        self._link.start(c.keepalive_s, self._keepalive)
+        try:
+            self._wait_for_status()
+            self.neutral()
+        except BaseException:
+            self._link.close()
+            raise
+
+    # ----- Actuator -----
+
+    def set_command(self, value: float) -> None:
+        """Command `value` in info.command_unit (clipped to the command range)."""
+        if self._closed:
+            raise DeviceError(f"{self.name} on {self._link.where}: driver is closed")
+        if not math.isfinite(value):
+            raise ValueError(f"command must be finite, got {value!r}")
+        msg = self._message(self._packet, self._to_protocol(value))
+        with self._frame_lock:
+            self._frame = msg
+        self._link.send(msg)
+
+    def neutral(self) -> None:
+        """Release the motor (SET_CURRENT 0, whatever the mode); idempotent, quiet after close."""
+        if self._closed:
+            return
+        msg = self._message(SET_CURRENT, 0.0)
+        with self._frame_lock:
+            self._frame = msg
+        self._link.send_retrying(msg)
+
+    def read_feedback(self) -> FeedbackBlock:
+        """Status samples since the last call; DeviceError on a fault or on silence."""
+        if self._fault:
+            raise DeviceError(
+                f"{self.name} on {self._link.where} reports {fault_name(self._fault)} "
+                f"(code {self._fault}); the motor is stopped"
+            )
+        last = self._feedback.last_t or self._opened_t
+        if not self._closed and time.monotonic() - last > self.config.timeout_s:
+            raise DeviceError(self._silence(f"for {self.config.timeout_s:g} s"))
+        return self._feedback.take()
+
+    def close(self) -> None:
+        """Neutral, stop the keep-alive, release the bus. Idempotent."""
+        if self._closed:
+            return
+        try:
+            self.neutral()
+        except DeviceError as exc:
+            log.warning("%s: could not command neutral on close: %s", self.name, exc)
+        self._closed = True
+        self._link.close()
+
+    @property
+    def fault(self) -> int:
+        """Latest polled fault code (0: none)."""
+        return self._fault
+
+    # ----- internals -----
+
+    def _range(self) -> tuple[float, float]:
+        c = self.config
+        if c.unit == "percent":
+            return -100.0, 100.0
+        limit = c.max_erpm / c.pole_pairs if c.unit == "rpm" else c.max_current_a
+        return -limit, limit
+
+    def _to_protocol(self, value: float) -> float:
+        """Command in info.command_unit -> duty, A or ERPM (clipped to the range first)."""
+        c = self.config
+        v = min(max(value, self.info.command_min), self.info.command_max)
+        if c.mode == "duty":
+            return v / 100.0
+        if c.mode == "current":
+            return v / 100.0 * c.max_current_a if c.unit == "percent" else v
+        return v / 100.0 * c.max_erpm if c.unit == "percent" else v * c.pole_pairs
+
+    def _message(self, packet: int, value: float) -> can.Message:
+        return can.Message(
+            arbitration_id=can_id(packet, self.config.controller_id),
+            data=encode_command(packet, value), is_extended_id=True,
+        )  # fmt: skip
+
+    def _keepalive(self) -> None:
+        with self._frame_lock:
+            msg = self._frame
+        self._link.send(msg)
+        if self.config.poll_fault:
+            self._link.send(can.Message(
+                arbitration_id=can_id(PROCESS_SHORT_BUFFER, self.config.controller_id),
+                data=fault_poll(self.config.host_id), is_extended_id=True,
+            ))  # fmt: skip
+
+    def _on_frame(self, msg: can.Message, t: float) -> str:
+        """Decode one received frame; return the stats counter it belongs to."""
+        if not msg.is_extended_id or msg.is_remote_frame:
+            return "ignored"
+        c = self.config
+        packet, node, data = msg.arbitration_id >> 8, msg.arbitration_id & 0xFF, bytes(msg.data)
+        if node == c.controller_id and packet == STATUS_1:
+            if len(data) < 8:
+                return "garbage"
+            erpm, current, _duty = decode_status1(data)
+            values = {"speed_rpm": erpm / c.pole_pairs}
+            if c.current_source == "motor":
+                values["current_a"] = current
+            self._feedback.sample(t, **values)
+        elif node == c.controller_id and packet == STATUS_4:
+            if len(data) < 8:
+                return "garbage"
+            if c.current_source == "input":
+                self._feedback.update(current_a=decode_status4(data)[2])
+        elif node == c.controller_id and packet == STATUS_5:
+            if len(data) < 6:
+                return "garbage"
+            self._feedback.update(voltage_v=decode_status5(data)[1])
+        elif node == c.host_id and packet == PROCESS_SHORT_BUFFER:
+            if data[:1] != bytes((c.controller_id,)):
+                return "ignored"  # a reply from another controller
+            code = parse_fault_reply(data)
+            if code is None:
+                return "garbage" if len(data) < 8 else "ignored"
+            self._fault = code
+        else:
+            return "ignored"
+        return "frames"
+
+    def _wait_for_status(self) -> None:
+        deadline = self._opened_t + self.config.timeout_s
+        while self._feedback.last_t is None:
+            if time.monotonic() > deadline:
+                raise DeviceError(self._silence(
+                    f"within {self.config.timeout_s:g} s of opening (is it powered, on this "
+                    "bus and bitrate, with CAN status messages 1, 4 and 5 enabled?)"
+                ))  # fmt: skip
+            time.sleep(0.01)
+
+    def _silence(self, how: str) -> str:
+        rx = f"; receive error: {self._link.rx_error}" if self._link.rx_error else ""
+        return f"no status frames from {self.name} on {self._link.where} {how}{rx}"

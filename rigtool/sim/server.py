@@ -1,0 +1,112 @@
+"""`rigtool sim`: the physics twin in real time behind device personalities on real transports.
+
+Starts one LiveTwin and, for the chosen profile, the actuator personality, a force
+sensor personality and a depth stage, then describes them as a rig file that the real
+drivers can use unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import yaml
+
+from rigtool.errors import UsageError
+from rigtool.sim.live import LiveTwin
+from rigtool.sim.physics import ThrusterTwin
+from rigtool.sim.profiles import profile_with_overrides
+
+SENSORS = ("netft", "mark10", "hx711")
+STAGE_ZERO_OFFSET_M = 0.1  # stage position (m) at which the propeller centre is at the surface
+
+
+def parse_host_port(text: str) -> tuple[str, int]:
+    """HOST:PORT -> (host, port); port 0 picks a free one."""
+    host, _, port = text.rpartition(":")
+    try:
+        return host or "127.0.0.1", int(port)
+    except ValueError:
+        raise UsageError(f"expected HOST:PORT, got {text!r}") from None
+
+
+@dataclass
+class SimServer:
+    """Running personalities and the rig file that reaches them."""
+
+    live: LiveTwin
+    parts: list = field(default_factory=list)
+    rig: dict = field(default_factory=dict)
+
+    def rig_yaml(self) -> str:
+        return yaml.safe_dump(self.rig, sort_keys=False)
+
+    def stop(self) -> None:
+        for part in reversed(self.parts):
+            part.stop()
+        self.live.stop()
+
+
+def start_sim(profile_name: str, seed: int = 1, sensor: str = "netft",
+              netft: str = "127.0.0.1:49152", can_channel: str = "rigtool-sim",
+              depth_m: float = 1.0) -> SimServer:
+    """Start the twin and its personalities; the caller must stop() the result."""
+    from rigtool.sim.gauge_twin import GaugeTwin
+    from rigtool.sim.netft_twin import NetFTTwin
+    from rigtool.sim.stage_twin import StageTwin
+    from rigtool.sim.stm32_twin import Stm32BridgeTwin
+
+    if sensor not in SENSORS:
+        raise UsageError(f"unknown sensor personality {sensor!r}; choose one of {', '.join(SENSORS)}")
+    profile = profile_with_overrides(profile_name, {})
+    live = LiveTwin(ThrusterTwin(profile, seed=seed, depth_m=depth_m)).start()
+    server = SimServer(live)
+    try:
+        rig: dict = {"rigtool_rig": 1, "name": f"rigtool-sim-{profile.name}",
+                     "description": "personalities started by `rigtool sim`"}
+        if profile.command_unit == "percent":
+            rig["actuator"] = _start_can(server, can_channel)
+        else:
+            bridge = Stm32BridgeTwin(live).start()
+            server.parts.append(bridge)
+            rig["actuator"] = {"driver": "stm32-bridge", "url": bridge.url,
+                               "command_unit": profile.command_unit,
+                               "psc": bridge.psc, "arr": bridge.arr}
+        if sensor == "netft":
+            host, port = parse_host_port(netft)
+            try:
+                ft = NetFTTwin(live, host, port, seed=seed).start()
+            except OSError as exc:
+                raise UsageError(f"cannot serve Net F/T on {host}:{port}: {exc} "
+                                 "(choose another with --netft HOST:PORT, or port 0)") from None
+            server.parts.append(ft)
+            h, p = ft.address
+            rig["sensor"] = {"driver": "ati-netft", "host": h, "port": p, "http_port": ft.http_port}
+        else:
+            preset = "mark10" if sensor == "mark10" else "hx711-csv"
+            gauge = GaugeTwin(live, preset, seed=seed).start()
+            server.parts.append(gauge)
+            rig["sensor"] = {"driver": "ascii-gauge", "url": gauge.port, "preset": preset,
+                             "channel": ("fx", "fy", "fz")[gauge.channel]}
+            if preset == "hx711-csv":
+                rig["sensor"].update(scale=gauge.scale, offset=gauge.offset, unit="N")
+        stage = StageTwin(live, zero_offset_m=STAGE_ZERO_OFFSET_M,
+                          position_mm=(depth_m + STAGE_ZERO_OFFSET_M) * 1000).start()
+        server.parts.append(stage)
+        rig["depth_stage"] = {"driver": "serial-stage", "url": stage.pty_path,
+                              "speed_mm_s": stage.speed_mm_s, "zero_offset_m": STAGE_ZERO_OFFSET_M}
+        ch = ("fx", "fy", "fz", "tx", "ty", "tz")[profile.thrust_channel]
+        rig["thrust"] = {"channel": ch, "sign": profile.thrust_sign}
+        server.rig = rig
+    except BaseException:
+        server.stop()
+        raise
+    return server
+
+
+def _start_can(server: SimServer, channel: str) -> dict:
+    """A VESC on a python-can bus other processes can reach."""
+    from rigtool.sim.vesc_twin import VescTwin
+
+    vesc = VescTwin(server.live, channel=channel, interface="udp_multicast").start()
+    server.parts.append(vesc)
+    return {"driver": "vesc-can", **vesc.address}

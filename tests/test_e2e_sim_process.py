@@ -1,0 +1,127 @@
+"""End to end: a short sweep against `rigtool sim` running as a separate process, real drivers only.
+
+The sweep talks to the STM32 bridge twin over TCP (socket://), the Net F/T twin over
+loopback UDP (+ its HTTP calibration page) and the stage twin over a pty.
+"""
+
+from __future__ import annotations
+
+import random
+import subprocess
+import sys
+import time
+
+import pytest
+
+from rigtool.cli import main
+from rigtool.store import Store
+
+PROTOCOL = """\
+rigtool_protocol: 1
+name: e2e-stm32
+command:
+  unit: pwm_counts
+  values: [0, 300, 415, 460]
+depth:
+  unit: cm
+  values: [30, 35]
+  mode: stage
+timing:
+  settle: {seconds: 1.0}
+  acquire: {samples: 200, rate_hz: 1000}
+  rest_s: 0.1
+  tare: per_depth
+  tare_s: 0.2
+limits:
+  max_thrust_n: 20
+"""
+
+
+def _start_sim(tmp_path, profile: str, *extra: str):
+    rig = tmp_path / "sim-rig.yaml"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rigtool.cli", "sim", "--profile", profile, "--netft", "127.0.0.1:0",
+         "--depth", "0.3", "--rig-out", str(rig), *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 20
+    while not rig.exists():
+        assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline, "rigtool sim did not write its rig file"
+        time.sleep(0.05)
+    return proc, rig
+
+
+def _stop(proc) -> None:
+    proc.terminate()
+    proc.wait(timeout=10)
+    assert proc.returncode == 0
+
+
+@pytest.fixture
+def sim_rig(tmp_path):
+    proc, rig = _start_sim(tmp_path, "stm32-pwm")
+    yield rig
+    _stop(proc)
+
+
+@pytest.mark.slow
+def test_sweep_against_sim_process(sim_rig, tmp_path, capsys):
+    protocol = tmp_path / "p.yaml"
+    protocol.write_text(PROTOCOL)
+    db = tmp_path / "e2e.sqlite"
+    assert main(["sweep", str(protocol), "--rig", str(sim_rig), "--db", str(db)]) == 0, capsys.readouterr()
+    store = Store(db)
+    run_id = store.resolve_run_id("last")
+    steps = store.steps(run_id)
+    assert len(steps) == 8 and all(s["n"] == 200 for s in steps)
+    by = {(s["depth_m"], s["command"]): s["thrust_n_mean"] for s in steps}
+    for depth in (0.3, 0.35):
+        assert abs(by[(depth, 0)]) < 0.1  # dead zone, after the tare
+        assert 4.5 < by[(depth, 300)] < 5.5  # forward saturated, 5 N
+        assert 0.5 < by[(depth, 415)] < 4.5  # inverted forward branch
+        assert -3.5 < by[(depth, 460)] < -1.0  # reverse after the break-away
+    depths = [e["detail"]["reached_m"] for e in store.events(run_id, "depth")]
+    assert depths == pytest.approx([0.3, 0.35], abs=0.002)
+    assert store.run(run_id)["rig"]["resolved"]["kind"] == "hardware"
+
+
+CAN_PROTOCOL = """\
+rigtool_protocol: 1
+name: e2e-can
+command:
+  unit: percent
+  values: [-60, 0, 60]
+depth:
+  unit: cm
+  values: [30]
+  mode: stage
+timing:
+  settle: {seconds: 1.5}
+  acquire: {samples: 300, rate_hz: 1000}
+  tare: per_depth
+  tare_s: 0.2
+limits:
+  max_thrust_n: 80
+  slew_per_s: 400
+"""
+
+
+@pytest.mark.slow
+def test_can_sweep_against_sim_process_records_feedback(tmp_path, capsys):
+    group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
+    proc, rig = _start_sim(tmp_path, "can-bldc", "--can-channel", group)
+    try:
+        protocol = tmp_path / "p.yaml"
+        protocol.write_text(CAN_PROTOCOL)
+        db = tmp_path / "can.sqlite"
+        assert main(["sweep", str(protocol), "--rig", str(rig), "--db", str(db)]) == 0, capsys.readouterr()
+    finally:
+        _stop(proc)
+    store = Store(db)
+    steps = store.steps(store.resolve_run_id("last"))
+    speed = {s["command"]: s["speed_rpm_mean"] for s in steps}
+    assert speed[60] == pytest.approx(1080, abs=60) and speed[-60] == pytest.approx(-1080, abs=60)
+    assert abs(speed[0]) < 30
+    thrust = {s["command"]: s["thrust_n_mean"] for s in steps}
+    assert 18 < thrust[60] < 27 and -22 < thrust[-60] < -14
+    assert all(s["current_a_mean"] is not None for s in steps)
