@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from rigtool.progress import SilentReporter
-from rigtool.store import SAMPLE_COLUMNS, SCHEMA_V1, Store
+from rigtool.store import SAMPLE_COLUMNS, Store, create_schema
 from rigtool.sweep import resolve, run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -49,9 +49,7 @@ def time_bare_insert(groups: list[list[tuple]], db: Path) -> float:
     conn = sqlite3.connect(db, isolation_level=None)
     conn.execute("PRAGMA journal_mode=WAL")
     conn.execute("PRAGMA synchronous=NORMAL")
-    for statement in SCHEMA_V1.split(";"):
-        if statement.strip():
-            conn.execute(statement)
+    create_schema(conn)
     sql = f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}) VALUES ({', '.join('?' * len(SAMPLE_COLUMNS))})"
     t0 = time.perf_counter()
     for rows in groups:

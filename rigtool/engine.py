@@ -15,7 +15,7 @@ from types import FrameType
 import numpy as np
 
 from rigtool.devices.base import FT_CHANNELS, FeedbackBlock
-from rigtool.errors import SafetyTrip, StoreError
+from rigtool.errors import DeviceError, SafetyTrip, StoreError
 from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
@@ -119,6 +119,10 @@ class Engine:
             status, reason = "aborted", str(exc)
             self._safe_neutral()
             self._event("limit_trip", {"message": str(exc)})
+        except DeviceError as exc:
+            status, reason = "aborted", f"device fault: {exc}"
+            self._safe_neutral()
+            self._event("device_fault", {"message": str(exc)})
         except BaseException as exc:
             status, reason = "failed", f"{type(exc).__name__}: {exc}"
             raise
@@ -215,8 +219,16 @@ class Engine:
         for i, name in enumerate(FT_CHANNELS):
             out[name] = ft[:, i]
         out["thrust_n"] = self.rig.thrust_sign * ft[:, self.rig.thrust_channel]
-        out.update(self._align_feedback(block.t_s, self.rig.actuator.read_feedback()))
+        feedback = self.rig.actuator.read_feedback()
+        if feedback.fault:
+            raise SafetyTrip(f"driver fault: {feedback.fault}")
+        staleness = self.clock.now() - float(block.t_s[-1]) if len(block) else float("inf")
+        if staleness > self.protocol.limits.max_staleness_s:
+            raise SafetyTrip(f"sensor stale: newest sample is {staleness:.2f} s old "
+                             f"(limit {self.protocol.limits.max_staleness_s:g} s)")
+        out.update(self._align_feedback(block.t_s, feedback))
         out["command"] = np.full(len(block), self._command)
+        out["seq"] = block.seq if block.seq is not None else np.full(len(block), np.nan)
         self.limits.check(out)
         self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
         return out

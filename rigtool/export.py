@@ -69,7 +69,7 @@ def _write_csv(path: Path, columns: tuple[str, ...], batches: Iterator[list[tupl
 
 
 TEXT_COLUMNS = {"command_unit", "direction", "status", "kind", "detail_json"}
-INT_COLUMNS = {"idx", "step_idx", "repeat", "settled", "n"}
+INT_COLUMNS = {"idx", "step_idx", "repeat", "settled", "n", "seq"}
 
 
 def _write_parquet(path: Path, columns: tuple[str, ...], batches: Iterator[list[tuple]]) -> None:

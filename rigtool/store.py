@@ -30,7 +30,7 @@ RUN_STATUSES = ("running", "completed", "aborted", "failed", "interrupted")
 
 SAMPLE_COLUMNS = (
     "step_id", "t_s", "fx", "fy", "fz", "tx", "ty", "tz",
-    "thrust_n", "speed_rpm", "current_a", "voltage_v", "command",
+    "thrust_n", "speed_rpm", "current_a", "voltage_v", "command", "seq",
 )
 
 STAT_FIELDS = ("thrust_n", "speed_rpm", "current_a")
@@ -119,8 +119,17 @@ def _execute_script(conn: sqlite3.Connection, script: str) -> None:
 # Each migration takes the store from version i to i + 1.
 MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [
     lambda conn: _execute_script(conn, SCHEMA_V1),
+    # v2: the sensor's own sample sequence number, to reconcile lost samples
+    lambda conn: conn.execute("ALTER TABLE samples ADD COLUMN seq INTEGER"),
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
+
+
+def create_schema(conn: sqlite3.Connection) -> None:
+    """Apply every migration to an empty database (for tools and benchmarks)."""
+    for migrate in MIGRATIONS:
+        migrate(conn)
+    conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
 
 def utc_now() -> str:

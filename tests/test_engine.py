@@ -201,3 +201,60 @@ def test_until_steady_settling_records_settle_time(write_yaml, db_path):
     assert outcome.status == "completed"
     assert all(0.39 <= s["settle_s"] <= 3.5 for s in steps)
     assert all(s["settled"] == 1 for s in steps)
+
+
+class StaleSensor(FaultySensor):
+    """From read `at` on, returns samples that are seconds old (a stalled stream)."""
+
+    def read(self, n, rate_hz):
+        block = super().read(n, rate_hz)
+        if self.reads >= self.at:
+            block.t_s = block.t_s - 5.0
+        return block
+
+
+class FaultyActuator(RecordingActuator):
+    """Reports a driver fault in its feedback after `at` feedback reads."""
+
+    def __init__(self, inner, at):
+        super().__init__(inner)
+        self.at, self.reads = at, 0
+
+    def read_feedback(self):
+        fb = self.inner.read_feedback()
+        self.reads += 1
+        if self.reads >= self.at:
+            fb.fault = "over-temperature"
+        return fb
+
+
+def test_stale_sensor_trips_to_neutral(write_yaml, db_path):
+    setup, rigset = _setup(write_yaml)
+    rigset.sensor = StaleSensor(rigset.sensor, at=12, action=lambda: None)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and "sensor stale" in outcome.reason
+    assert rigset.actuator.sent[-1] == 0.0
+    assert store.events(outcome.run_id, "limit_trip")
+
+
+def test_driver_fault_trips_to_neutral(write_yaml, db_path):
+    setup, rigset = _setup(write_yaml)
+    rigset.actuator = FaultyActuator(rigset.actuator.inner, at=10)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and "over-temperature" in outcome.reason
+    assert rigset.actuator.sent[-1] == 0.0
+
+
+def test_lost_device_aborts_with_event_and_neutral(write_yaml, db_path):
+    from rigtool.errors import DeviceError
+
+    setup, rigset = _setup(write_yaml)
+
+    def lost():
+        raise DeviceError("no samples from Net F/T 127.0.0.1:49152 for 1.0 s")
+
+    rigset.sensor = FaultySensor(rigset.sensor, at=15, action=lost)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and "device fault" in outcome.reason
+    assert store.events(outcome.run_id, "device_fault")
+    assert rigset.actuator.sent[-1] == 0.0

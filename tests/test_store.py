@@ -103,3 +103,34 @@ def test_run_of_dead_process_reads_as_interrupted(db_path):
 def test_missing_database_for_reading_is_usage_error(tmp_path):
     with pytest.raises(UsageError, match="no run database"):
         Store(tmp_path / "none.sqlite", create=False)
+
+
+def test_migration_from_v1_keeps_data_and_adds_seq(db_path):
+    from rigtool.store import SCHEMA_V1
+
+    conn = sqlite3.connect(db_path)
+    conn.executescript(SCHEMA_V1)
+    conn.execute("PRAGMA user_version = 1")
+    conn.execute("INSERT INTO runs VALUES ('r1','old','completed','2026-01-01',NULL,'0.0','h',1,NULL,"
+                 "NULL,'{}','{}','[]','{}',1,'percent',NULL)")
+    conn.execute("INSERT INTO steps (run_id, idx, command, command_unit, repeat, direction, t_start_s,"
+                 " t_acquire_s, t_end_s, settle_s, settled, rate_hz, status, n) "
+                 "VALUES ('r1',0,5,'percent',0,'up',0,0,1,0,1,10,'ok',1)")
+    conn.execute("INSERT INTO samples (step_id, t_s, thrust_n) VALUES (1, 0.5, 2.5)")
+    conn.commit()
+    conn.close()
+    store = Store(db_path)
+    assert store.version == SCHEMA_VERSION >= 2
+    back = store.samples("r1", ["t_s", "thrust_n", "seq"])
+    assert back["thrust_n"][0] == 2.5 and np.isnan(back["seq"][0])
+
+
+def test_sequence_numbers_are_stored(db_path, write_yaml):
+    from rigtool.cli import main
+
+    from .conftest import SMALL_PROTOCOL
+
+    assert main(["sweep", str(write_yaml(SMALL_PROTOCOL)), "--sim", "--db", str(db_path)]) == 0
+    store = Store(db_path)
+    seq = store.samples(store.resolve_run_id("last"), ["seq"])["seq"]
+    assert np.all(np.diff(seq) > 0)  # the sensor's own counter, increasing over the run
