@@ -201,6 +201,51 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def _num(v: float) -> str:
+    return "" if v != v else f"{v:.5g}"  # NaN -> blank
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from rigtool.analysis.calibrate import calibrate_run
+    from rigtool.artefacts import calibration_document, write_artefacts
+    from rigtool.store import utc_now
+
+    store = Store(resolve_db_path(args.db), create=False)
+    run_id = store.resolve_run_id(args.run)
+    cal = calibrate_run(store, run_id)
+    created = utc_now()
+    paths = write_artefacts(cal, Path(args.out), created_utc=created)
+    folder = Path(args.out) / run_id
+    store.add_calibration(run_id, str(folder), calibration_document(cal, created), __version__)
+    table = Table("quantity", "value", "95 % interval", "unit", "note",
+                  title=f"calibration of run {run_id} ({cal.run_name})")
+    for name, value, lo, hi, unit, note in cal.summary_rows():
+        interval = f"{_num(lo)} .. {_num(hi)}" if lo == lo or hi == hi else ""
+        table.add_row(name, _num(value), interval, unit, note)
+    out.print(table)
+    for warning in cal.warnings:
+        err.print(f"warning: {warning}")
+    out.print(f"artefacts: {', '.join(str(p) for p in paths)}")
+    if args.report:
+        from rigtool.report import write_report
+
+        out.print(f"report: {write_report(store, run_id, folder, cal)}")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from rigtool.report import write_report
+
+    store = Store(resolve_db_path(args.db), create=False)
+    run_id = store.resolve_run_id(args.run)
+    out.print(str(write_report(store, run_id, Path(args.out) / run_id)))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rigtool", description="Sweep, calibrate and report on underwater thrusters.")
@@ -227,6 +272,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="run id, unique prefix, or `last`")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_show)
+
+    p = sub.add_parser("calibrate", help="fit a run; write calibrations/<run-id>/ artefacts")
+    p.add_argument("run", help="run id, unique prefix, or `last`")
+    p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
+    p.add_argument("--report", action="store_true", help="also write the HTML report")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("report", help="write calibrations/<run-id>/report.html and print its path")
+    p.add_argument("run", help="run id, unique prefix, or `last`")
+    p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("check", help="open a rig's devices, read for a few seconds, print rates and noise")
     p.add_argument("rig", help="rig YAML file")

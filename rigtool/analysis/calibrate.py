@@ -1,0 +1,228 @@
+"""`rigtool calibrate` analysis: a stored run -> a Calibration (one section per depth)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import rigtool
+from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
+from rigtool.analysis.dataset import RunData, load_run
+from rigtool.analysis.fits import Coefficient, ZeroLine
+from rigtool.analysis.models import FitParams, ModelFits, WindowSamples, fit_models
+from rigtool.analysis.quality import (
+    Hysteresis,
+    Repeatability,
+    TareDrift,
+    hysteresis,
+    repeatability,
+    tare_drift,
+)
+from rigtool.analysis.steady import PointTable, SettlingCriterion, SteadyWindows, steady_windows
+from rigtool.store import Store
+
+SummaryRow = tuple[str, float, float, float, str, str]
+NAN = math.nan
+# One coefficient per fit is checked for quality (the others share its R2 and n).
+CHECKED_FITS = ("C_p_fwd", "C_p_rev", "C_n", "k_free", "C_i_fwd_direct", "C_i_rev_direct")
+
+
+@dataclass(frozen=True)
+class CalibrationParams:
+    """Every threshold the analysis uses; all of it is written to calibration.json."""
+
+    settling: SettlingCriterion = field(default_factory=SettlingCriterion)
+    curve: CurveParams = field(default_factory=CurveParams)
+    fit: FitParams = field(default_factory=FitParams)
+    min_r2: float = 0.98
+    min_points: int = 5
+    drift_warn_n_per_h: float = 0.1
+
+
+@dataclass
+class DepthSection:
+    """Results for the points at one depth (depth_m is None when the run sets no depth).
+
+    `zero` is the thrust zero (offset + drift since the tare) found by the model fit or, without
+    speed feedback, from the dead points; curve, hysteresis and repeatability are relative to it.
+    """
+
+    depth_m: float | None
+    points: PointTable
+    fits: dict[str, Coefficient]
+    curve: CommandCurve | None
+    zero: ZeroLine | None
+    hysteresis: Hysteresis | None
+    repeatability: Repeatability | None
+    warnings: list[str]
+
+    @property
+    def label(self) -> str:
+        return "no depth" if self.depth_m is None else f"{self.depth_m:g} m"
+
+
+@dataclass
+class Calibration:
+    """Everything `rigtool calibrate` found in one run; arrays are ready to plot."""
+
+    run_id: str
+    run_name: str
+    run_status: str
+    command_unit: str
+    neutral_command: float
+    thruster_id: str | None
+    propeller_diameter_m: float | None
+    water_density_kg_m3: float | None
+    tool_version: str
+    params: CalibrationParams
+    sections: list[DepthSection]
+    drift: TareDrift | None
+    warnings: list[str]
+
+    def summary_rows(self) -> list[SummaryRow]:
+        """(name, value, lo, hi, unit, note) rows for a CLI table; NaN where not applicable."""
+        rows: list[SummaryRow] = []
+        multi = len(self.sections) > 1
+        for sec in self.sections:
+            suffix = f" @ {sec.label}" if multi else ""
+            for c in sec.fits.values():
+                note = c.note if math.isnan(c.r2) else f"R2={c.r2:.4f}, n={c.n}"
+                rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, note))
+            if sec.zero is not None and "zero_drift" not in sec.fits:
+                rows.append(("zero_drift" + suffix, sec.zero.drift_n_per_s * 3600, NAN, NAN,
+                             "N/h", f"sensor zero read from the {sec.zero.source}"))
+            if sec.curve is not None:
+                u = self.command_unit
+                rows += [("dead_zone" + suffix, NAN, lo, hi, u, "") for lo, hi in
+                         sec.curve.dead_zones]
+                rows += [("saturated" + suffix, NAN, lo, hi, u, "") for lo, hi in
+                         sec.curve.saturated]
+                rows += [("break_away" + suffix, c, NAN, NAN, u, "") for c in
+                         sec.curve.break_aways]
+            if sec.hysteresis is not None:
+                rows.append(("hysteresis_max" + suffix, sec.hysteresis.max_abs_n, NAN, NAN, "N",
+                             f"at {sec.hysteresis.at_command:g} {self.command_unit}"))
+            if sec.repeatability is not None:
+                rows.append(("repeatability_max_std" + suffix, sec.repeatability.max_std_n, NAN,
+                             NAN, "N", f"median {sec.repeatability.median_std_n:.4g} N"))
+        if self.drift is not None:
+            s = self.drift.slope
+            rows.append((s.name, s.value, s.lo, s.hi, s.unit, f"{s.n} tares"))
+        return rows
+
+
+def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None) -> Calibration:
+    """Load `run_id` from the store and analyse it."""
+    return calibrate(load_run(store, run_id), params)
+
+
+def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibration:
+    """Analyse a loaded run: steady windows, then per depth the curve, fits and quality."""
+    p = params or CalibrationParams()
+    windows = steady_windows(run.samples, p.settling)
+    table = windows.point_table(run.steps, run.samples)
+    drift = tare_drift(run.tares.t_s, run.tares.thrust_bias_n)
+    warnings = _run_warnings(run, table, drift, p)
+    depth_key = np.round(run.steps.depth_m, 6)
+    sections = []
+    for depth in np.unique(depth_key):
+        rows = np.flatnonzero(depth_key == depth) if np.isfinite(depth) else np.flatnonzero(
+            np.isnan(depth_key))
+        sections.append(_section(run, table.take(rows), rows, windows, drift, p))
+    for sec in sections:
+        prefix = f"{sec.label}: " if len(sections) > 1 else ""
+        warnings += [prefix + w for w in sec.warnings]
+    return Calibration(
+        run_id=run.run_id, run_name=run.name, run_status=run.status,
+        command_unit=run.command_unit, neutral_command=run.neutral_command,
+        thruster_id=run.thruster_id, propeller_diameter_m=run.propeller_diameter_m,
+        water_density_kg_m3=run.water_density_kg_m3, tool_version=rigtool.__version__,
+        params=p, sections=sections, drift=drift, warnings=warnings,
+    )
+
+
+def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: SteadyWindows,
+             drift: TareDrift | None, p: CalibrationParams) -> DepthSection:
+    """Fits first (they find the sensor zero when speed is measured), then the command curve
+    relative to that zero; fits are redone if the curve puts some of their points in a dead
+    zone."""
+    local = np.full(len(run.steps), -1)
+    local[rows] = np.arange(rows.size)
+    sample_local = local[run.samples.point]
+    pick = windows.in_window & (sample_local >= 0)
+    samples = WindowSamples(sample_local[pick], run.samples.thrust_n[pick],
+                            run.samples.speed_rpm[pick], run.samples.current_a[pick])
+
+    def fit() -> ModelFits:
+        return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
+                          density_kg_m3=run.water_density_kg_m3, params=p.fit)
+
+    models = fit()
+    ok = points.status == "ok"
+    curve = None
+    if run.command_unit in CURVE_UNITS:
+        t = points.thrust
+        curve = command_curve(
+            points.command[ok], points.t_mid_s[ok], t.mean[ok], t.se[ok], t.min[ok], t.max[ok],
+            points.speed.mean[ok], points.current.mean[ok], command_unit=run.command_unit,
+            neutral_command=run.neutral_command, zero=models.zero,
+            zero_scatter_n=drift.zero_scatter_n if drift else None, params=p.curve)
+        points.dead = curve.is_dead(points.command)
+        if (points.dead & models.used).any():
+            models = fit()
+    points.used_in_fits = models.used
+    zero = models.zero or (curve.zero if curve else None)
+    if zero is not None:
+        points.thrust_zero_n = np.nan_to_num(zero.at(points.t_mid_s))
+    f = points.thrust_corrected_n
+    hyst = hysteresis(points.command[ok], points.direction[ok], f[ok], points.thrust.se[ok])
+    rep = repeatability(points.command[ok], points.direction[ok], points.repeat[ok], f[ok])
+    depth = float(points.depth_m[0]) if np.isfinite(points.depth_m[0]) else None
+    return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep,
+                        _section_warnings(points, models.coefficients, curve, zero, p))
+
+
+def _run_warnings(run: RunData, table: PointTable, drift: TareDrift | None,
+                  p: CalibrationParams) -> list[str]:
+    out = []
+    if run.status != "completed":
+        out.append(f"run status is '{run.status}': only the points recorded are analysed")
+    bad = int(np.sum(table.status != "ok"))
+    if bad:
+        out.append(f"{bad} point(s) with status other than 'ok' are excluded")
+    unsettled = int(np.sum(~table.settled))
+    if unsettled:
+        out.append(f"{unsettled} point(s) were marked not settled by the engine")
+    unsteady = int(np.sum(table.unsteady))
+    if unsteady:
+        out.append(f"{unsteady} point(s) have excursions inside their steady window "
+                   "(transient longer than the window cap, or ventilation)")
+    if drift is not None and abs(drift.slope.value) > p.drift_warn_n_per_h:
+        out.append(f"tare drift {drift.slope.value:.3g} N/h exceeds "
+                   f"{p.drift_warn_n_per_h:g} N/h")
+    return out
+
+
+def _section_warnings(points: PointTable, fits: dict[str, Coefficient],
+                      curve: CommandCurve | None, zero: ZeroLine | None,
+                      p: CalibrationParams) -> list[str]:
+    out = []
+    if zero is not None and abs(zero.drift_n_per_s) * 3600 > p.drift_warn_n_per_h:
+        out.append(f"sensor zero drifts {zero.drift_n_per_s * 3600:.3g} N/h during the sweep "
+                   f"(from the {zero.source}; removed from the results)")
+    if not points.speed.measured and curve is None:
+        out.append("no speed feedback and no command curve: nothing to fit")
+    elif points.speed.measured and not fits:
+        out.append("no fit: too few points with significant propeller speed")
+    for c in fits.values():
+        if c.name not in CHECKED_FITS:
+            continue
+        if not math.isnan(c.r2) and c.r2 < p.min_r2:
+            out.append(f"poor fit: {c.name} R2 = {c.r2:.3f} < {p.min_r2:g}")
+        if c.n < p.min_points:
+            out.append(f"few points: {c.name} from {c.n} point(s)")
+    if curve is not None and not curve.branches:
+        out.append("command curve: no live command (thrust never distinguishable from zero)")
+    return out

@@ -1,0 +1,200 @@
+"""Load one run from the Store into numpy arrays (the only analysis module that reads the Store).
+
+Samples are read once, as whole-run arrays, and grouped by point through `offsets`, so later
+stages work with vectorised per-point reductions instead of per-step queries.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rigtool.errors import UsageError
+from rigtool.store import Store
+
+SAMPLE_FIELDS = ("t_s", "thrust_n", "speed_rpm", "current_a")
+FT_FIELDS = ("fx", "fy", "fz", "tx", "ty", "tz")
+NEUTRAL_BY_UNIT = {"percent": 0.0, "pwm_counts": 0.0, "pulse_us": 1500.0, "rpm": 0.0, "amps": 0.0}
+_AXIS_FIT_STEPS = 24  # points sampled to recover the thrust axis from the F/T channels
+
+
+@dataclass
+class Steps:
+    """One entry per stored point, ordered by step idx; depth_m is NaN when not set."""
+
+    step_id: np.ndarray
+    idx: np.ndarray
+    command: np.ndarray
+    depth_m: np.ndarray
+    repeat: np.ndarray
+    direction: np.ndarray
+    t_start_s: np.ndarray
+    t_acquire_s: np.ndarray
+    settled: np.ndarray
+    status: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.idx)
+
+
+@dataclass
+class Samples:
+    """All acquired samples of a run; point p owns rows offsets[p]:offsets[p + 1] (time order)."""
+
+    t_s: np.ndarray
+    thrust_n: np.ndarray
+    speed_rpm: np.ndarray
+    current_a: np.ndarray
+    point: np.ndarray
+    offsets: np.ndarray
+
+    def channel(self, name: str) -> np.ndarray:
+        return getattr(self, name)
+
+
+@dataclass
+class Tares:
+    """Tare events: time (s), six-channel bias, and the bias projected on the thrust axis (N)."""
+
+    t_s: np.ndarray
+    bias: np.ndarray
+    thrust_bias_n: np.ndarray | None
+
+
+@dataclass
+class RunData:
+    """Everything the analysis needs from one run, as arrays."""
+
+    run_id: str
+    name: str
+    status: str
+    command_unit: str
+    neutral_command: float
+    thruster_id: str | None
+    propeller_diameter_m: float | None
+    water_density_kg_m3: float | None
+    steps: Steps
+    samples: Samples
+    tares: Tares
+    events: list[dict] = field(default_factory=list)
+
+
+def load_run(store: Store, run_id: str) -> RunData:
+    """Read run, steps, samples and events of `run_id` into a RunData."""
+    run = store.run(run_id)
+    step_rows = store.steps(run_id)
+    if not step_rows:
+        raise UsageError(f"run {run_id} has no recorded points: nothing to calibrate")
+    steps = _steps(step_rows)
+    samples = _samples(store.samples(run_id, ("step_id", *SAMPLE_FIELDS)), steps)
+    events = store.events(run_id)
+    tare_rows = [e for e in events if e["kind"] == "tare"]
+    tares = _tares(store, tare_rows, steps, step_rows)
+
+    protocol = run.get("protocol") or {}
+    command = protocol.get("command") or {}
+    meta = {**(protocol.get("metadata") or {}), **(run.get("metadata") or {})}
+    unit = run.get("command_unit") or command.get("unit") or "percent"
+    neutral = command.get("neutral", NEUTRAL_BY_UNIT.get(unit, 0.0))
+    return RunData(
+        run_id=run_id,
+        name=run.get("name", ""),
+        status=run.get("status", ""),
+        command_unit=unit,
+        neutral_command=float(neutral),
+        thruster_id=_opt_str(meta.get("thruster_id")),
+        propeller_diameter_m=_opt_float(meta.get("propeller_diameter_m")),
+        water_density_kg_m3=_opt_float(meta.get("water_density_kg_m3")),
+        steps=steps,
+        samples=samples,
+        tares=tares,
+        events=[e for e in events if e["kind"] != "tare"],
+    )
+
+
+def _opt_float(value: object) -> float | None:
+    return None if value is None else float(value)  # type: ignore[arg-type]
+
+
+def _opt_str(value: object) -> str | None:
+    return None if value is None else str(value)
+
+
+def _steps(rows: list[dict]) -> Steps:
+    def col(key: str, dtype: type = float) -> np.ndarray:
+        return np.array([np.nan if r[key] is None and dtype is float else r[key] for r in rows],
+                        dtype=dtype)
+
+    return Steps(
+        step_id=col("id", int),
+        idx=col("idx", int),
+        command=col("command"),
+        depth_m=col("depth_m"),
+        repeat=col("repeat", int),
+        direction=np.array([str(r["direction"]) for r in rows]),
+        t_start_s=col("t_start_s"),
+        t_acquire_s=col("t_acquire_s"),
+        settled=col("settled", bool),
+        status=np.array([str(r["status"]) for r in rows]),
+    )
+
+
+def _samples(data: dict[str, np.ndarray], steps: Steps) -> Samples:
+    step_ids = data["step_id"].astype(np.int64)
+    order = np.argsort(steps.step_id)
+    sorted_ids = steps.step_id[order]
+    point = order[np.searchsorted(sorted_ids, step_ids)] if step_ids.size else step_ids
+    arrays = {k: data[k] for k in SAMPLE_FIELDS}
+    if point.size > 1 and np.any(np.diff(point) < 0):
+        perm = np.argsort(point, kind="stable")
+        point = point[perm]
+        arrays = {k: v[perm] for k, v in arrays.items()}
+    counts = np.bincount(point, minlength=len(steps))
+    offsets = np.concatenate(([0], np.cumsum(counts)))
+    return Samples(point=point, offsets=offsets, **arrays)
+
+
+def _tares(store: Store, rows: list[dict], steps: Steps, step_rows: list[dict]) -> Tares:
+    t = np.array([np.nan if r["t_s"] is None else r["t_s"] for r in rows], dtype=float)
+    bias = np.full((len(rows), 6), np.nan)
+    for i, r in enumerate(rows):
+        values = (r["detail"] or {}).get("bias") or []
+        for j, v in enumerate(values[:6]):
+            bias[i, j] = np.nan if v is None else float(v)
+    keep = np.isfinite(t)
+    t, bias = t[keep], bias[keep]
+    thrust_bias = None
+    if len(t):
+        weights = _thrust_axis(store, step_rows, np.isfinite(bias).any(axis=0))
+        if weights is not None:
+            thrust_bias = np.nan_to_num(bias) @ weights
+    return Tares(t_s=t, bias=bias, thrust_bias_n=thrust_bias)
+
+
+def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.ndarray | None:
+    """Weights w with thrust_n ~ w . (fx..tz) + c, by least squares on a few spread-out points.
+
+    The rig file's axis convention is not needed: the stored thrust and F/T channels define it.
+    """
+    rows = sorted((r for r in step_rows if r["thrust_n_mean"] is not None),
+                  key=lambda r: r["thrust_n_mean"])
+    if not rows or not usable.any():
+        return None
+    pick = np.unique(np.linspace(0, len(rows) - 1, min(_AXIS_FIT_STEPS, len(rows))).astype(int))
+    ids = [int(rows[i]["id"]) for i in pick]
+    cur = store.conn.execute(
+        f"SELECT {', '.join(FT_FIELDS)}, thrust_n FROM samples "
+        f"WHERE step_id IN ({', '.join('?' * len(ids))})", ids)
+    data = np.array(cur.fetchall(), dtype=float)
+    if data.size == 0:
+        return None
+    cols = np.flatnonzero(usable & np.isfinite(data[:, :6]).all(axis=0))
+    ok = np.isfinite(data[:, 6]) & np.isfinite(data[:, cols]).all(axis=1)
+    if cols.size == 0 or ok.sum() <= cols.size + 1:
+        return None
+    design = np.column_stack([data[ok][:, cols], np.ones(ok.sum())])
+    coef, *_ = np.linalg.lstsq(design, data[ok, 6], rcond=None)
+    weights = np.zeros(6)
+    weights[cols] = coef[:-1]
+    return weights

@@ -1,0 +1,346 @@
+"""Steady-state thruster model fits with 95 % intervals (domain.md section 2).
+
+All fits are weighted least squares on per-point means with the per-point standard errors,
+using the effective-variance method for the error in the regressor (one re-weighting pass).
+Thrust fits carry a zero offset and a linear zero drift in time as nuisance terms (see
+`fit_directional`): the sensor zero keeps drifting after the rig's last tare.
+Intervals stay honest when the errors are larger or less independent than the standard
+errors say: the covariance is scaled by the reduced chi-square when it exceeds 1, and, when
+the acquisition order is given, computed as a sandwich with AR(1)-correlated errors in that
+order (slow drift gives neighbouring points a shared offset), with r1 the lag-1
+autocorrelation of the weighted residuals, bias-corrected as r1 + (1 + 3 r1) / n. Intervals
+use Student's t with n_eff - p degrees of freedom, n_eff = n (1 - r1) / (1 + r1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, signal, stats
+
+RPM_PER_RPS = 60.0
+SECONDS_PER_HOUR = 3600.0
+MAX_R1 = 0.98
+
+
+@dataclass(frozen=True)
+class Coefficient:
+    """A fitted or derived value with its 95 % interval, unit and fit quality."""
+
+    name: str
+    value: float
+    lo: float
+    hi: float
+    unit: str
+    n: int = 0
+    r2: float = math.nan
+    rms: float = math.nan
+    rms_unit: str = ""
+    note: str = ""
+
+
+@dataclass
+class LinearFit:
+    """Result of a weighted linear least-squares fit y ~ X beta."""
+
+    beta: np.ndarray
+    cov: np.ndarray
+    dof: int
+    chi2_red: float
+    resid: np.ndarray
+
+    def half_width(self, i: int) -> float:
+        t = stats.t.ppf(0.975, max(self.dof, 1))
+        return float(t * math.sqrt(max(self.cov[i, i], 0.0)))
+
+
+def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
+        order: np.ndarray | None = None) -> LinearFit:
+    """Weighted LS; covariance scaled for excess scatter and for serial correlation in `order`."""
+    w = 1.0 / _floor_sigma(sigma, y)
+    a = design * w[:, None]
+    scale = np.sqrt(np.sum(a**2, axis=0))
+    scale[scale == 0] = 1.0
+    # Columns are scaled to unit norm first: |n|^3 and a constant differ by ten decades.
+    beta_s, *_ = np.linalg.lstsq(a / scale, y * w, rcond=None)
+    beta = beta_s / scale
+    resid = y - design @ beta
+    dof = len(y) - design.shape[1]
+    chi2_red = float(np.sum((resid * w) ** 2) / dof) if dof > 0 else math.nan
+    a_s = a / scale
+    bread = np.linalg.pinv(a_s.T @ a_s)
+    if order is not None and dof > 1:
+        sort = np.argsort(order, kind="stable")
+        r = (resid * w)[sort]
+        r1 = float(np.sum(r[1:] * r[:-1]) / np.sum(r * r))
+        r1 = float(np.clip(r1 + (1 + 3 * r1) / len(y), 0.0, MAX_R1)) if r1 > 0 else 0.0
+        if r1 > 0:
+            a_t = a_s[sort]
+            bread = bread @ (a_t.T @ _ar1_correlate(a_t, r1)) @ bread
+            dof = max(int(len(y) * (1 - r1) / (1 + r1)) - design.shape[1], 1)
+    cov = bread / np.outer(scale, scale)
+    if dof > 0 and chi2_red > 1.0:
+        cov = cov * chi2_red
+    return LinearFit(beta, cov, dof, chi2_red, resid)
+
+
+def _ar1_correlate(a: np.ndarray, r1: float) -> np.ndarray:
+    """R @ a for the AR(1) correlation R_ij = r1^|i - j|, in O(n) by two recursive filters."""
+    fwd = signal.lfilter([1.0], [1.0, -r1], a, axis=0)
+    bwd = signal.lfilter([1.0], [1.0, -r1], a[::-1], axis=0)[::-1]
+    return fwd + bwd - a
+
+
+def _floor_sigma(sigma: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Replace zero/NaN standard errors so one noiseless point cannot take all the weight."""
+    s = np.asarray(sigma, dtype=float)
+    good = np.isfinite(s) & (s > 0)
+    scale = np.median(s[good]) if good.any() else 1e-9 * max(np.max(np.abs(y)), 1.0)
+    return np.where(good, np.maximum(s, 1e-3 * scale), scale)
+
+
+def _quality(y: np.ndarray, resid: np.ndarray) -> tuple[float, float]:
+    ss_tot = float(np.sum((y - y.mean()) ** 2))
+    ss_res = float(np.sum(resid**2))
+    r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else math.nan
+    return r2, math.sqrt(ss_res / len(y))
+
+
+def _coef(name: str, fit: LinearFit, i: int, unit: str, y: np.ndarray, rms_unit: str,
+          note: str) -> Coefficient:
+    value = float(fit.beta[i])
+    hw = fit.half_width(i) if fit.dof > 0 else math.nan
+    r2, rms = _quality(y, fit.resid)
+    return Coefficient(name, value, value - hw, value + hw, unit, len(y), r2, rms, rms_unit, note)
+
+
+@dataclass(frozen=True)
+class ZeroLine:
+    """Estimated thrust zero: offset_n at t_ref_s plus a linear drift (N/s), and its source."""
+
+    offset_n: float
+    drift_n_per_s: float
+    t_ref_s: float
+    source: str
+
+    def at(self, t_s: np.ndarray) -> np.ndarray:
+        return self.offset_n + self.drift_n_per_s * (np.asarray(t_s, dtype=float) - self.t_ref_s)
+
+
+@dataclass
+class DirectionalFit:
+    """Joint fit y = c_fwd x [fwd] + c_rev x [rev] + a + b (t - t_ref) over both directions.
+
+    x is signed like y (e.g. |n| n), so both coefficients are positive for a normal thruster.
+    The offset a and drift b absorb the thrust zero left after taring (sensor drift), shared
+    by the two directions; they are nuisance terms, not part of the thruster model.
+    """
+
+    fit: LinearFit
+    columns: list[str]
+    masks: dict[str, np.ndarray]
+    used: np.ndarray
+    y: np.ndarray
+    t_ref_s: float
+
+    def coefficient(self, key: str, name: str, unit: str, note: str) -> Coefficient:
+        i = self.columns.index(key)
+        m = self.masks[key][self.used]
+        r2, rms = _quality(self.y[m], self.fit.resid[m])
+        value = float(self.fit.beta[i])
+        hw = self.fit.half_width(i) if self.fit.dof > 0 else math.nan
+        return Coefficient(name, value, value - hw, value + hw, unit, int(m.sum()), r2, rms,
+                           "N", note)
+
+    @property
+    def zero(self) -> ZeroLine:
+        beta = dict(zip(self.columns, self.fit.beta, strict=True))
+        return ZeroLine(float(beta["offset"]), float(beta.get("drift", 0.0)) / SECONDS_PER_HOUR,
+                        self.t_ref_s, "model fit")
+
+    def zero_coefficients(self) -> list[Coefficient]:
+        """f_0 (N, at t_ref) and zero_drift (N/h) as coefficients."""
+        r2, rms = _quality(self.y, self.fit.resid)
+        n = len(self.y)
+        out = []
+        for key, name, unit in (("offset", "f_0", "N"), ("drift", "zero_drift", "N/h")):
+            if key in self.columns:
+                i = self.columns.index(key)
+                value = float(self.fit.beta[i])
+                hw = self.fit.half_width(i) if self.fit.dof > 0 else math.nan
+                out.append(Coefficient(
+                    name, value, value - hw, value + hw, unit, n, r2, rms, "N",
+                    f"thrust zero left after taring, fitted with C_p (at t = {self.t_ref_s:.1f} s)"
+                    if key == "offset" else "drift of that zero over the run"))
+        return out
+
+
+def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.ndarray | None,
+                    t_s: np.ndarray, masks: dict[str, np.ndarray],
+                    min_points: int = 3) -> DirectionalFit | None:
+    """Fit y = sum_k c_k x [mask_k] + a + b (t - t_ref) by WLS (effective variance for dx_se).
+
+    Directions with fewer than `min_points` points are left out; the drift term only enters
+    when the points span time and leave enough degrees of freedom. Errors are treated as
+    serially correlated in time (see module docstring).
+    """
+    keys = [k for k, m in masks.items() if m.sum() >= min_points]
+    if not keys:
+        return None
+    used = np.logical_or.reduce([masks[k] for k in keys])
+    t = t_s[used]
+    t_ref = float(np.mean(t))
+    cols = [np.where(masks[k][used], x[used], 0.0) for k in keys]
+    names = [*keys, "offset"]
+    cols.append(np.ones(int(used.sum())))
+    if np.ptp(t) > 0 and used.sum() >= len(cols) + 4:
+        cols.append((t - t_ref) / SECONDS_PER_HOUR)
+        names.append("drift")
+    design = np.column_stack(cols)
+    yy, se = y[used], se_y[used]
+    fit = wls(design, yy, se, t)
+    if dx_se is not None:
+        slope = sum(np.where(masks[k][used], fit.beta[i], 0.0) for i, k in enumerate(keys))
+        fit = wls(design, yy, np.sqrt(se**2 + (slope * np.nan_to_num(dx_se[used])) ** 2), t)
+    return DirectionalFit(fit, names, masks, used, yy, t_ref)
+
+
+def fit_thrust_speed(n_rpm: np.ndarray, f_n: np.ndarray, se_f: np.ndarray,
+                     se_n: np.ndarray | None, t_s: np.ndarray,
+                     masks: dict[str, np.ndarray]) -> DirectionalFit | None:
+    """f = C_p |n| n with C_p per direction (`masks`: "fwd"/"rev" point masks) + zero terms."""
+    dx = None if se_n is None else 2 * np.abs(n_rpm) * se_n
+    return fit_directional(np.abs(n_rpm) * n_rpm, f_n, se_f, dx, t_s, masks)
+
+
+def thrust_coefficient(cp: Coefficient, diameter_m: float, density_kg_m3: float,
+                       name: str) -> Coefficient:
+    """K_T = f / (rho n^2 D^4) with n in rev/s, from C_p in N/(r/min)^2."""
+    k = RPM_PER_RPS**2 / (density_kg_m3 * diameter_m**4)
+    return Coefficient(name, cp.value * k, cp.lo * k, cp.hi * k, "1", cp.n, cp.r2, cp.rms,
+                       cp.rms_unit, f"K_T = C_p * 3600 / (rho D^4), D = {diameter_m:g} m, "
+                       f"rho = {density_kg_m3:g} kg/m^3")
+
+
+def fit_current_speed(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
+                      se_n: np.ndarray | None,
+                      order: np.ndarray | None = None) -> tuple[Coefficient, Coefficient]:
+    """C_n (A/(r/min)^3) and idle current I_0 (A) in I = C_n |n|^3 + I_0 (linear in |n|^3)."""
+    u = np.abs(n_rpm)
+    design = np.column_stack([u**3, np.ones_like(u)])
+    fit = wls(design, i_a, se_i, order)
+    if se_n is not None:
+        sigma = np.sqrt(se_i**2 + (fit.beta[0] * 3 * u**2 * np.nan_to_num(se_n)) ** 2)
+        fit = wls(design, i_a, sigma, order)
+    note = "I = C_n |n|^3 + I_0"
+    return (_coef("C_n", fit, 0, "A/(r/min)^3", i_a, "A", note),
+            _coef("I_0", fit, 1, "A", i_a, "A", note))
+
+
+def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
+                         c_n: float, i_0: float) -> tuple[Coefficient, ...]:
+    """Free exponent fit I = C |n|^k + I_0 by nonlinear LS, started from the cubic fit.
+
+    |n| is scaled by its maximum so the parameters are of order one; C is converted back.
+    """
+    u = np.abs(n_rpm)
+    u_ref = float(u.max())
+    x = u / u_ref
+    sigma = _floor_sigma(se_i, i_a)
+
+    def model(x: np.ndarray, a: float, k: float, i0: float) -> np.ndarray:
+        return a * x**k + i0
+
+    p0 = (max(c_n * u_ref**3, 1e-9), 3.0, i_0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optimize.OptimizeWarning)
+        popt, pcov = optimize.curve_fit(model, x, i_a, p0=p0, sigma=sigma, absolute_sigma=True,
+                                        bounds=([0.0, 0.3, -np.inf], [np.inf, 8.0, np.inf]))
+    resid = i_a - model(x, *popt)
+    dof = len(u) - 3
+    chi2_red = float(np.sum((resid / sigma) ** 2) / dof) if dof > 0 else math.nan
+    if dof > 0 and chi2_red > 1.0:
+        pcov = pcov * chi2_red
+    t = stats.t.ppf(0.975, max(dof, 1))
+    a, k, i0 = popt
+    # C = a / u_ref^k; log C = log a - k log u_ref; delta method on (a, k).
+    grad = np.array([1.0 / a if a > 0 else math.nan, -math.log(u_ref)])
+    var_log_c = float(grad @ pcov[:2, :2] @ grad)
+    c = a / u_ref**k
+    hw_log = t * math.sqrt(max(var_log_c, 0.0)) if dof > 0 else math.nan
+    r2, rms = _quality(i_a, resid)
+    hw = [t * math.sqrt(max(pcov[i, i], 0.0)) if dof > 0 else math.nan for i in range(3)]
+    note = "I = C |n|^k + I_0, k free (physics: 3)"
+    n = len(u)
+    return (
+        Coefficient("k_free", float(k), float(k - hw[1]), float(k + hw[1]), "1", n, r2, rms, "A",
+                    note),
+        Coefficient("C_free", float(c), float(c * math.exp(-hw_log)), float(c * math.exp(hw_log)),
+                    "A/(r/min)^k", n, r2, rms, "A", note),
+        Coefficient("I_0_free", float(i0), float(i0 - hw[2]), float(i0 + hw[2]), "A", n, r2, rms,
+                    "A", note),
+    )
+
+
+def derive_thrust_current(cp: Coefficient, cn: Coefficient, name: str) -> Coefficient:
+    """C_i = C_p / C_n^(2/3) (N/A^(2/3)) with the interval by first-order error propagation.
+
+    From f = C_p n^2 and I - I_0 = C_n |n|^3: f = C_i (I - I_0)^(2/3).
+    """
+    if cn.value <= 0 or cp.value <= 0:
+        return Coefficient(name, math.nan, math.nan, math.nan, "N/A^(2/3)", min(cp.n, cn.n),
+                           note="not derivable: C_p or C_n not positive")
+    value = cp.value / cn.value ** (2 / 3)
+    rel_p = (cp.hi - cp.lo) / 2 / cp.value
+    rel_n = (cn.hi - cn.lo) / 2 / cn.value
+    hw = value * math.sqrt(rel_p**2 + (2 / 3 * rel_n) ** 2)
+    return Coefficient(name, value, value - hw, value + hw, "N/A^(2/3)", min(cp.n, cn.n),
+                       note="derived: C_p / C_n^(2/3); f = C_i (I - I_0)^(2/3)")
+
+
+def fit_thrust_current(i_a: np.ndarray, i_0: float, f_n: np.ndarray, se_f: np.ndarray,
+                       se_i: np.ndarray | None, t_s: np.ndarray,
+                       masks: dict[str, np.ndarray]) -> DirectionalFit | None:
+    """f = +-C_i (I - I_0)^(2/3) fitted directly, C_i per direction, with the zero terms.
+
+    The sign is + for the "fwd" mask and - for "rev" (the current gives no direction).
+    """
+    d = np.maximum(i_a - i_0, 0.0)
+    sign = np.where(masks.get("rev", np.zeros(d.size, bool)), -1.0, 1.0)
+    dx = None
+    if se_i is not None:
+        with np.errstate(divide="ignore"):
+            dx = np.where(d > 0, 2 / 3 * d ** (-1 / 3) * se_i, 0.0)
+    return fit_directional(sign * d ** (2 / 3), f_n, se_f, dx, t_s, masks)
+
+
+def with_systematic(c: Coefficient, rel: float) -> Coefficient:
+    """`c` with rel * |value| added in quadrature to both sides of its interval.
+
+    For what the scatter cannot show: the scale calibration of the force sensor and of the
+    speed/current feedback.
+    """
+    if rel <= 0 or not math.isfinite(c.value):
+        return c
+    extra = rel * abs(c.value)
+    return dataclasses.replace(
+        c, lo=c.value - math.hypot(c.value - c.lo, extra),
+        hi=c.value + math.hypot(c.hi - c.value, extra))
+
+
+def residual_spread(resid: np.ndarray, name: str, note: str, *, interval: bool) -> Coefficient:
+    """RMS of residuals (N) as a coefficient; chi-square 95 % interval when `interval`."""
+    r = resid[np.isfinite(resid)]
+    n = r.size
+    if n == 0:
+        return Coefficient(name, math.nan, math.nan, math.nan, "N", 0, note=note)
+    s = float(math.sqrt(np.mean(r**2)))
+    lo = hi = math.nan
+    if interval and n > 1:
+        lo = s * math.sqrt(n / stats.chi2.ppf(0.975, n))
+        hi = s * math.sqrt(n / stats.chi2.ppf(0.025, n))
+    return Coefficient(name, s, lo, hi, "N", n, note=note)

@@ -1,0 +1,189 @@
+"""The steady-state thruster model set for one depth: point selection, fits, residual spreads.
+
+Forward (n > 0) and reverse (n < 0) points get their own C_p and C_i, fitted jointly with a
+shared thrust zero (offset + linear drift, see fits.fit_directional); the current model uses
+|n| from both directions. Points slower than max(min_speed_rpm, min_speed_frac * max|n|),
+dead-zone points and points without a usable window are left out. The residual spreads
+sigma_n (speed-based thrust) and sigma_i (current-based thrust, about the directly fitted
+C_i) are given per point mean and per sample, after removing the fitted zero, for the
+sensor-fusion model. Model coefficient intervals carry `rel_systematic` (sensor scale).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rigtool.analysis.fits import (
+    Coefficient,
+    ZeroLine,
+    derive_thrust_current,
+    fit_current_exponent,
+    fit_current_speed,
+    fit_thrust_current,
+    fit_thrust_speed,
+    residual_spread,
+    thrust_coefficient,
+    with_systematic,
+)
+from rigtool.analysis.steady import PointTable
+
+DIRECTIONS = (("fwd", 1.0), ("rev", -1.0))
+
+
+@dataclass(frozen=True)
+class FitParams:
+    """Point selection for the model fits (recorded in calibration.json)."""
+
+    min_speed_rpm: float = 20.0
+    min_speed_frac: float = 0.05
+    min_window: int = 10
+    rel_systematic: float = 1e-3  # scale uncertainty of force and feedback, added to intervals
+
+
+@dataclass
+class WindowSamples:
+    """Steady-window samples of one depth; `point` indexes rows of that depth's PointTable."""
+
+    point: np.ndarray
+    thrust_n: np.ndarray
+    speed_rpm: np.ndarray
+    current_a: np.ndarray
+
+
+@dataclass
+class ModelFits:
+    """Coefficients of one depth, the points they used, and the thrust zero they found."""
+
+    coefficients: dict[str, Coefficient] = field(default_factory=dict)
+    used: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    zero: ZeroLine | None = None
+
+
+def candidate_points(points: PointTable, params: FitParams) -> np.ndarray:
+    """Points whose window is usable for any fit: status ok, enough samples, not dead."""
+    return ((points.status == "ok") & (points.n_window >= params.min_window)
+            & np.isfinite(points.thrust.mean) & ~points.dead)
+
+
+def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float | None,
+               density_kg_m3: float | None, params: FitParams | None = None) -> ModelFits:
+    """All speed/current model coefficients of one depth."""
+    p = params or FitParams()
+    use = candidate_points(points, p)
+    result = ModelFits(used=np.zeros(len(points), dtype=bool))
+    if not points.speed.measured:
+        return result
+    f, se_f, t = points.thrust.mean, points.thrust.se, points.t_mid_s
+    n, se_n = points.speed.mean, points.speed.se
+    n_s = samples.speed_rpm
+    use &= np.isfinite(n)
+    if not use.any():
+        return result
+    fast = use & (np.abs(n) > 0.2 * np.max(np.abs(n[use])))
+    if np.all(n[use] >= 0) and np.any(f[fast] < 0):
+        # Speed feedback without sign: take the direction from the thrust.
+        n = np.abs(n) * np.sign(f)
+        n_s = np.abs(n_s) * np.sign(f)[samples.point]
+    n_min = max(p.min_speed_rpm, p.min_speed_frac * float(np.max(np.abs(n[use]))))
+    masks = {"fwd": use & (n > n_min), "rev": use & (n < -n_min)}
+    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks)
+    if thrust_fit is None:
+        return result
+    out = result.coefficients
+    cp = {}
+    for key in ("fwd", "rev"):
+        if key in thrust_fit.columns:
+            cp[key] = with_systematic(thrust_fit.coefficient(
+                key, f"C_p_{key}", "N/(r/min)^2", "f = C_p |n| n"), p.rel_systematic)
+            out[cp[key].name] = cp[key]
+            if diameter_m and density_kg_m3:
+                out[f"K_T_{key}"] = thrust_coefficient(cp[key], diameter_m, density_kg_m3,
+                                                       f"K_T_{key}")
+    for c in thrust_fit.zero_coefficients():
+        out[c.name] = c
+    result.used = thrust_fit.used
+    result.zero = thrust_fit.zero
+    zero = result.zero.at(t)
+    pred = _signed_model(cp, n, lambda c, v: c * np.abs(v) * v)
+    pred_s = _signed_model(cp, n_s, lambda c, v: c * np.abs(v) * v, np.sign(n)[samples.point])
+    in_fit = result.used[samples.point]
+    out["sigma_n_point"] = residual_spread(
+        (f - zero - pred)[result.used], "sigma_n_point",
+        "RMS of point-mean thrust minus zero minus C_p |n| n", interval=True)
+    out["sigma_n_sample"] = residual_spread(
+        (samples.thrust_n - zero[samples.point] - pred_s)[in_fit], "sigma_n_sample",
+        "RMS of sample thrust minus zero minus C_p |n| n over the steady windows; no interval "
+        "(samples are autocorrelated)", interval=False)
+    if points.current.measured:
+        out.update(_current_models(points, samples, n, masks, result.used, cp, p))
+    return result
+
+
+def _signed_model(coef: dict[str, Coefficient], x: np.ndarray,
+                  model: Callable[[float, np.ndarray], np.ndarray],
+                  sign: np.ndarray | None = None) -> np.ndarray:
+    """model(C_dir, x) with C_dir chosen by the sign of each point (or of `sign`)."""
+    s = np.sign(x) if sign is None else sign
+    out = np.zeros(x.size)
+    for key, direction in DIRECTIONS:
+        if key in coef:
+            out += np.where(s == direction, model(coef[key].value, x), 0.0)
+    return out
+
+
+def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
+                    masks: dict[str, np.ndarray], used: np.ndarray,
+                    cp: dict[str, Coefficient], p: FitParams) -> dict[str, Coefficient]:
+    cur, se_i = points.current.mean, points.current.se
+    cur_s = samples.current_a
+    m = used & np.isfinite(cur)
+    if m.sum() < 3:
+        return {}
+    if (m & (n < 0)).any() and np.median(cur[m & (n < 0)]) < 0:
+        # The driver reports signed current: the model is in its magnitude.
+        cur, cur_s = np.abs(cur), np.abs(cur_s)
+    out: dict[str, Coefficient] = {}
+    c_n, i_0 = fit_current_speed(n[m], cur[m], se_i[m], points.speed.se[m], points.t_mid_s[m])
+    c_n = with_systematic(c_n, p.rel_systematic)
+    out["C_n"], out["I_0"] = c_n, i_0
+    if m.sum() >= 4:
+        try:
+            for c in fit_current_exponent(n[m], cur[m], se_i[m], c_n.value, i_0.value):
+                out[c.name] = with_systematic(c, p.rel_systematic) if c.name == "C_free" else c
+        except (RuntimeError, ValueError):
+            pass
+    for key in cp:
+        out[f"C_i_{key}"] = derive_thrust_current(cp[key], c_n, f"C_i_{key}")
+    cur_masks = {k: v & m for k, v in masks.items()}
+    direct = fit_thrust_current(cur, i_0.value, points.thrust.mean, points.thrust.se, se_i,
+                                points.t_mid_s, cur_masks)
+    if direct is None:
+        return out
+    ci = {}
+    for key in ("fwd", "rev"):
+        if key in direct.columns:
+            ci[key] = with_systematic(direct.coefficient(
+                key, f"C_i_{key}_direct", "N/A^(2/3)",
+                "fitted directly: f = C_i (I - I_0)^(2/3)"), p.rel_systematic)
+            out[ci[key].name] = ci[key]
+    zero = direct.zero.at(points.t_mid_s)
+
+    def model(c: float, v: np.ndarray) -> np.ndarray:
+        return c * np.maximum(v - i_0.value, 0.0) ** (2 / 3)
+
+    sign = np.sign(n)
+    pred = _signed_model(ci, cur, model, sign) * sign
+    pred_s = _signed_model(ci, cur_s, model, sign[samples.point]) * sign[samples.point]
+    in_fit = direct.used[samples.point] & np.isfinite(cur_s)
+    f = points.thrust.mean
+    out["sigma_i_point"] = residual_spread(
+        (f - zero - pred)[direct.used], "sigma_i_point",
+        "RMS of point-mean thrust minus zero minus C_i_direct (I - I_0)^(2/3)", interval=True)
+    out["sigma_i_sample"] = residual_spread(
+        (samples.thrust_n - zero[samples.point] - pred_s)[in_fit], "sigma_i_sample",
+        "RMS of sample thrust minus zero minus C_i_direct (I - I_0)^(2/3) over the steady "
+        "windows; no interval (samples are autocorrelated)", interval=False)
+    return out

@@ -1,0 +1,138 @@
+"""Measurement quality: hysteresis (up vs down), repeatability (across repeats), tare drift."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from rigtool.analysis.fits import Coefficient
+
+SECONDS_PER_HOUR = 3600.0
+
+
+@dataclass
+class Hysteresis:
+    """Up-sweep minus down-sweep thrust at commands visited in both directions (N)."""
+
+    command: np.ndarray
+    up_n: np.ndarray
+    down_n: np.ndarray
+    diff_n: np.ndarray
+    diff_se_n: np.ndarray
+
+    @property
+    def max_abs_n(self) -> float:
+        return float(np.max(np.abs(self.diff_n)))
+
+    @property
+    def at_command(self) -> float:
+        return float(self.command[np.argmax(np.abs(self.diff_n))])
+
+
+@dataclass
+class Repeatability:
+    """Standard deviation (N) of the point means across repeats, per (command, direction)."""
+
+    command: np.ndarray
+    direction: np.ndarray
+    n_repeats: np.ndarray
+    std_n: np.ndarray
+
+    @property
+    def max_std_n(self) -> float:
+        return float(np.max(self.std_n))
+
+    @property
+    def median_std_n(self) -> float:
+        return float(np.median(self.std_n))
+
+
+@dataclass
+class TareDrift:
+    """Thrust-channel tare bias vs time, relative to the first tare, and its linear trend."""
+
+    t_s: np.ndarray
+    bias_n: np.ndarray
+    slope: Coefficient
+    zero_scatter_n: float
+
+
+def _group_mean(keys: np.ndarray, values: np.ndarray,
+                se: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    uniq, inv = np.unique(keys, return_inverse=True)
+    k = np.bincount(inv, minlength=uniq.size)
+    mean = np.bincount(inv, weights=values, minlength=uniq.size) / k
+    out: tuple[np.ndarray, ...] = (uniq, inv, k, mean)
+    if se is not None:
+        out += (np.sqrt(np.bincount(inv, weights=np.nan_to_num(se) ** 2,
+                                    minlength=uniq.size)) / k,)
+    return out
+
+
+def hysteresis(command: np.ndarray, direction: np.ndarray, mean: np.ndarray,
+               se: np.ndarray) -> Hysteresis | None:
+    """Per-command up minus down difference of the mean thrust; None without both sweeps."""
+    ok = np.isfinite(mean)
+    up = ok & (direction == "up")
+    down = ok & (direction == "down")
+    if not up.any() or not down.any():
+        return None
+    cu, _, _, mu, su = _group_mean(command[up], mean[up], se[up])
+    cd, _, _, md, sd = _group_mean(command[down], mean[down], se[down])
+    both, iu, idn = np.intersect1d(cu, cd, return_indices=True)
+    if both.size == 0:
+        return None
+    return Hysteresis(both, mu[iu], md[idn], mu[iu] - md[idn], np.hypot(su[iu], sd[idn]))
+
+
+def repeatability(command: np.ndarray, direction: np.ndarray, repeat: np.ndarray,
+                  mean: np.ndarray) -> Repeatability | None:
+    """Std (ddof 1) of point means across repeats at the same command and sweep direction."""
+    ok = np.isfinite(mean)
+    if np.unique(repeat[ok]).size < 2:
+        return None
+    dir_code = (direction[ok] == "down").astype(float)
+    keys = np.column_stack([command[ok], dir_code])
+    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    k = np.bincount(inv, minlength=len(uniq))
+    m = np.bincount(inv, weights=mean[ok], minlength=len(uniq)) / k
+    ss = np.bincount(inv, weights=(mean[ok] - m[inv]) ** 2, minlength=len(uniq))
+    multi = k >= 2
+    if not multi.any():
+        return None
+    return Repeatability(
+        command=uniq[multi, 0],
+        direction=np.where(uniq[multi, 1] > 0, "down", "up"),
+        n_repeats=k[multi],
+        std_n=np.sqrt(ss[multi] / (k[multi] - 1)),
+    )
+
+
+def tare_drift(t_s: np.ndarray, bias_n: np.ndarray | None) -> TareDrift | None:
+    """Linear trend (N/h, 95 % interval) of the thrust-channel tare bias; None under 2 tares."""
+    if bias_n is None:
+        return None
+    ok = np.isfinite(t_s) & np.isfinite(bias_n)
+    t, b = t_s[ok], bias_n[ok]
+    n = t.size
+    if n < 2 or np.ptp(t) <= 0:
+        return None
+    order = np.argsort(t, kind="stable")
+    t, b = t[order], b[order] - b[order][0]
+    hours = (t - t[0]) / SECONDS_PER_HOUR
+    res = stats.linregress(hours, b)
+    resid = b - (res.intercept + res.slope * hours)
+    lo = hi = math.nan
+    if n > 2:
+        hw = stats.t.ppf(0.975, n - 2) * res.stderr
+        lo, hi = res.slope - hw, res.slope + hw
+    r2 = res.rvalue**2 if n > 2 else math.nan
+    slope = Coefficient("tare_drift", float(res.slope), float(lo), float(hi), "N/h", n,
+                        float(r2), float(np.sqrt(np.mean(resid**2))), "N",
+                        "thrust-channel tare bias vs time, linear trend")
+    scatter = float(np.sqrt(np.mean(np.diff(b) ** 2)))
+    return TareDrift(t, b, slope, scatter)

@@ -1,0 +1,278 @@
+"""Steady-state window per point (block-mean settling criterion) and per-point statistics.
+
+Each point's samples are cut into `n_blocks` equal blocks. The reference level is the median
+of the block means over the second half; the window starts after the last block whose mean is
+outside a tolerance of that reference (z times the scatter of the second half's block means
+about a straight line, z times the white-noise standard error of a block, or a relative
+tolerance, whichever is largest), but
+never later than keeping `min_fraction` of the samples. The start is the latest one over the
+channels that have data. Standard errors take autocorrelation into account: the larger of
+the AR(1) effective-sample-size error, s / sqrt(n (1 - r1) / (1 + r1)), and the batch-means
+error of the blocks inside the window.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rigtool.analysis.dataset import Samples, Steps
+
+CHANNEL_UNITS = {"thrust_n": "N", "speed_rpm": "r/min", "current_a": "A"}
+
+
+@dataclass(frozen=True)
+class SettlingCriterion:
+    """Parameters of the steady-window choice (recorded in calibration.json)."""
+
+    n_blocks: int = 20
+    min_fraction: float = 0.5
+    z: float = 5.0
+    rel_tol: float = 0.002
+    min_samples: int = 80
+    channels: tuple[str, ...] = ("thrust_n", "speed_rpm", "current_a")
+
+    @property
+    def max_start_block(self) -> int:
+        return int(np.floor((1.0 - self.min_fraction) * self.n_blocks + 1e-9))
+
+
+@dataclass
+class ChannelStats:
+    """Per-point statistics of one channel over the steady window (NaN where not measured)."""
+
+    unit: str
+    mean: np.ndarray
+    std: np.ndarray
+    se: np.ndarray
+    min: np.ndarray
+    max: np.ndarray
+
+    @property
+    def peak(self) -> np.ndarray:
+        """The extreme on the side of the mean (max for positive means, min for negative).
+
+        This is the "max" PWM rigs traditionally report beside the mean.
+        """
+        return np.where(self.mean >= 0, self.max, self.min)
+
+    def take(self, index: np.ndarray) -> ChannelStats:
+        return ChannelStats(self.unit, *(getattr(self, k)[index]
+                                         for k in ("mean", "std", "se", "min", "max")))
+
+    @property
+    def measured(self) -> bool:
+        return bool(np.isfinite(self.mean).any())
+
+
+@dataclass
+class PointTable:
+    """One row per point (step): step metadata, steady window and channel statistics.
+
+    t_mid_s is the mean sample time of the window (run clock); thrust_zero_n is the thrust
+    zero (offset and drift) estimated for the point's depth, 0 when none could be estimated.
+    """
+
+    step_idx: np.ndarray
+    command: np.ndarray
+    depth_m: np.ndarray
+    repeat: np.ndarray
+    direction: np.ndarray
+    t_start_s: np.ndarray
+    status: np.ndarray
+    settled: np.ndarray
+    n_samples: np.ndarray
+    n_window: np.ndarray
+    window_start_s: np.ndarray
+    t_mid_s: np.ndarray
+    unsteady: np.ndarray
+    thrust: ChannelStats
+    speed: ChannelStats
+    current: ChannelStats
+    dead: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    used_in_fits: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    thrust_zero_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def thrust_corrected_n(self) -> np.ndarray:
+        """Mean thrust minus the estimated zero (offset + drift) at the point's time."""
+        return self.thrust.mean - self.thrust_zero_n
+
+    def __len__(self) -> int:
+        return len(self.step_idx)
+
+    @property
+    def kept_fraction(self) -> np.ndarray:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.n_window / self.n_samples
+
+    def take(self, index: np.ndarray) -> PointTable:
+        """Rows `index` (int or bool array) as a new table."""
+        plain = {k: getattr(self, k)[index] for k in self.__dataclass_fields__
+                 if k not in ("thrust", "speed", "current")}
+        return PointTable(**plain, thrust=self.thrust.take(index), speed=self.speed.take(index),
+                          current=self.current.take(index))
+
+
+@dataclass
+class SteadyWindows:
+    """Result of the window choice for every point of a run, plus the in-window sample mask."""
+
+    criterion: SettlingCriterion
+    first: np.ndarray
+    window_start_s: np.ndarray
+    t_mid_s: np.ndarray
+    n_window: np.ndarray
+    unsteady: np.ndarray
+    channels: dict[str, ChannelStats]
+    in_window: np.ndarray
+
+    def point_table(self, steps: Steps, samples: Samples) -> PointTable:
+        n = len(steps)
+        return PointTable(
+            step_idx=steps.idx, command=steps.command, depth_m=steps.depth_m,
+            repeat=steps.repeat, direction=steps.direction, t_start_s=steps.t_start_s,
+            status=steps.status, settled=steps.settled, n_samples=np.diff(samples.offsets),
+            n_window=self.n_window, window_start_s=self.window_start_s, t_mid_s=self.t_mid_s,
+            unsteady=self.unsteady, thrust=self.channels["thrust_n"],
+            speed=self.channels["speed_rpm"], current=self.channels["current_a"],
+            dead=np.zeros(n, bool), used_in_fits=np.zeros(n, bool), thrust_zero_n=np.zeros(n),
+        )
+
+
+def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None) -> SteadyWindows:
+    """Choose the steady window of every point and compute per-point statistics over it."""
+    crit = criterion or SettlingCriterion()
+    n_points = len(samples.offsets) - 1
+    nb = crit.n_blocks
+    n = np.diff(samples.offsets)
+    pid = samples.point
+    pos = np.arange(pid.size) - samples.offsets[pid]
+    blk = (pos * nb) // np.maximum(n[pid], 1)
+    key = pid * nb + blk
+
+    start_blk = np.zeros(n_points, dtype=np.int64)
+    unsteady = np.zeros(n_points, dtype=bool)
+    block_means: dict[str, np.ndarray] = {}
+    for name in crit.channels:
+        x = samples.channel(name)
+        if not np.isfinite(x).any():
+            continue
+        means, out = _block_screen(x, key, n_points, crit)
+        block_means[name] = means
+        after_last = np.where(out.any(axis=1), nb - np.argmax(out[:, ::-1], axis=1), 0)
+        unsteady |= after_last > crit.max_start_block
+        start_blk = np.maximum(start_blk, np.minimum(after_last, crit.max_start_block))
+    short = n < crit.min_samples
+    start_blk[short] = 0
+    unsteady[short] = False
+
+    first = (start_blk * n + nb - 1) // nb
+    in_window = blk >= start_blk[pid]
+    t = samples.t_s
+    has = n > 0
+    window_start_s = np.full(n_points, np.nan)
+    window_start_s[has] = (t[samples.offsets[:-1][has] + first[has]]
+                           - t[samples.offsets[:-1][has]])
+    n_window = n - first
+    win_pid = pid[in_window]
+    win_offsets = np.concatenate(([0], np.cumsum(n_window)))
+    block_mask = (np.arange(nb)[None, :] >= start_blk[:, None]) & ~short[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t_mid = np.bincount(win_pid, weights=t[in_window], minlength=n_points) / n_window
+    stats = {}
+    for name, unit in CHANNEL_UNITS.items():
+        x = samples.channel(name)[in_window]
+        batch_se = _batch_se(block_means.get(name), block_mask)
+        stats[name] = _window_stats(x, win_pid, win_offsets, n_points, unit, batch_se)
+    return SteadyWindows(crit, first, window_start_s, t_mid, n_window, unsteady, stats, in_window)
+
+
+def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
+                  crit: SettlingCriterion) -> tuple[np.ndarray, np.ndarray]:
+    """Block means (points x blocks) and the mask of blocks outside the settling tolerance."""
+    nb = crit.n_blocks
+    size = n_points * nb
+    ok = np.isfinite(x)
+    xv = np.where(ok, x, 0.0)
+    cnt = np.bincount(key, weights=ok, minlength=size).reshape(n_points, nb)
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        means = np.bincount(key, weights=xv, minlength=size).reshape(n_points, nb) / cnt
+        dev = np.where(ok, xv - means.ravel()[key], 0.0)
+        ss = np.bincount(key, weights=dev * dev, minlength=size).reshape(n_points, nb)
+        tail = slice(nb // 2, nb)
+        ref = _nanmedian(means[:, tail])
+        scatter = _detrended_scatter(means[:, tail])
+        within = ss[:, tail].sum(axis=1) / np.maximum(cnt[:, tail] - 1, 0).sum(axis=1)
+        block_se = np.sqrt(within / np.nanmean(cnt[:, tail], axis=1))
+    tol = np.fmax(np.fmax(crit.z * scatter, crit.z * block_se), crit.rel_tol * np.abs(ref))
+    tol = np.fmax(tol, 1e-12)
+    with np.errstate(invalid="ignore"):
+        out = np.abs(means - ref[:, None]) > tol[:, None]
+    return means, out
+
+
+def _detrended_scatter(means: np.ndarray) -> np.ndarray:
+    """Residual std of block means about a straight line (a trend is not counted as noise)."""
+    k = np.isfinite(means).sum(axis=1)
+    x = np.arange(means.shape[1], dtype=float)
+    x = np.where(np.isfinite(means), x - np.nanmean(np.where(np.isfinite(means), x, np.nan),
+                                                    axis=1, keepdims=True), 0.0)
+    y = means - np.nanmean(means, axis=1, keepdims=True)
+    y = np.where(np.isfinite(y), y, 0.0)
+    slope = (x * y).sum(axis=1) / (x * x).sum(axis=1)
+    resid = y - slope[:, None] * x
+    return np.sqrt((resid * resid).sum(axis=1) / (k - 2))
+
+
+def _batch_se(means: np.ndarray | None, mask: np.ndarray) -> np.ndarray:
+    """Batch-means standard error of the blocks inside each window (NaN if unavailable)."""
+    if means is None:
+        return np.full(mask.shape[0], np.nan)
+    m = np.where(mask & np.isfinite(means), means, np.nan)
+    k = np.isfinite(m).sum(axis=1)
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sd = np.nanstd(m, axis=1, ddof=1)
+    return np.where(k >= 3, sd / np.sqrt(k), np.nan)
+
+
+def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points: int,
+                  unit: str, batch_se: np.ndarray) -> ChannelStats:
+    ok = np.isfinite(x)
+    xv = np.where(ok, x, 0.0)
+    cnt = np.bincount(pid, weights=ok, minlength=n_points)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.bincount(pid, weights=xv, minlength=n_points) / cnt
+        dev = np.where(ok, xv - mean[pid], 0.0)
+        c0 = np.bincount(pid, weights=dev * dev, minlength=n_points)
+        same = pid[1:] == pid[:-1]
+        c1 = np.bincount(pid[:-1][same], weights=(dev[1:] * dev[:-1])[same], minlength=n_points)
+        var = c0 / (cnt - 1)
+        std = np.sqrt(var)
+        r1 = np.clip(c1 / c0, 0.0, 0.999)
+        n_eff = np.maximum(cnt * (1 - r1) / (1 + r1), 1.0)
+        se_ar1 = std / np.sqrt(n_eff)
+    se = np.fmax(se_ar1, batch_se)
+    mean = np.where(cnt > 0, mean, np.nan)
+    se = np.where(cnt > 1, se, np.nan)
+    std = np.where(cnt > 1, std, np.nan)
+    lo = np.full(n_points, np.nan)
+    hi = np.full(n_points, np.nan)
+    nonempty = np.flatnonzero(np.diff(offsets) > 0)
+    if nonempty.size and ok.any():
+        starts = offsets[nonempty]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            lo[nonempty] = np.fmin.reduceat(x, starts)
+            hi[nonempty] = np.fmax.reduceat(x, starts)
+    return ChannelStats(unit, mean, std, se, lo, hi)
+
+
+def _nanmedian(a: np.ndarray) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(a, axis=1)

@@ -1,0 +1,298 @@
+"""Calibration artefacts: calibration.json + points/command_curve/inverse_lut CSVs (docs/artefacts.md).
+
+Output is deterministic: sorted JSON keys, floats rounded to 10 significant digits in JSON and
+written with `%.9g` in CSV, no timestamp except the `created_utc` passed in. A rerun replaces
+the files (each one written to a temporary name, then renamed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rigtool.analysis.calibrate import Calibration, DepthSection
+from rigtool.analysis.fits import Coefficient
+from rigtool.store import utc_now
+
+FORMAT = "rigtool-calibration"
+FORMAT_VERSION = 1
+FILES = {
+    "calibration": "calibration.json",
+    "points": "points.csv",
+    "command_curve": "command_curve.csv",
+    "inverse_lut": "inverse_lut.csv",
+}
+MISSING = "nan"
+COMMAND_UNIT = "<command unit>"
+
+
+def write_artefacts(cal: Calibration, out_dir: str | Path,
+                    created_utc: str | None = None) -> list[Path]:
+    """Write the artefacts of `cal` into `out_dir`/<run-id>/ and return the file paths.
+
+    `created_utc` (ISO-8601) is the only timestamp written; pass the same value to get
+    byte-identical files on a rerun. It defaults to now.
+    """
+    created = created_utc or utc_now()
+    target = Path(out_dir) / cal.run_id
+    target.mkdir(parents=True, exist_ok=True)
+    head = [f"rigtool {cal.tool_version} calibration of run {cal.run_id}, created {created}",
+            f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
+    texts = {
+        "calibration": json.dumps(calibration_document(cal, created), indent=2,
+                                  sort_keys=True, allow_nan=False) + "\n",
+        "points": _csv(head + POINTS_DOC, _units(POINT_COLUMNS, cal), _point_rows(cal)),
+        "command_curve": _csv(head + CURVE_DOC, _units(CURVE_COLUMNS, cal), _curve_rows(cal)),
+        "inverse_lut": _csv(head + LUT_DOC, _units(LUT_COLUMNS, cal), _lut_rows(cal)),
+    }
+    paths = []
+    for key, text in texts.items():
+        path = target / FILES[key]
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(text, encoding="utf-8", newline="\n")
+        os.replace(tmp, path)
+        paths.append(path)
+    return paths
+
+
+def calibration_document(cal: Calibration, created_utc: str) -> dict:
+    """The content of calibration.json as JSON-safe Python data (also usable as a store summary)."""
+    all_points = [s.points for s in cal.sections]
+    start = np.concatenate([p.window_start_s for p in all_points])
+    kept = np.concatenate([p.kept_fraction for p in all_points])
+    return _clean({
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "tool_version": cal.tool_version,
+        "created_utc": created_utc,
+        "source": {
+            "run_id": cal.run_id,
+            "run_name": cal.run_name,
+            "run_status": cal.run_status,
+            "command_unit": cal.command_unit,
+            "neutral_command": cal.neutral_command,
+            "thruster_id": cal.thruster_id,
+            "propeller_diameter_m": cal.propeller_diameter_m,
+            "water_density_kg_m3": cal.water_density_kg_m3,
+        },
+        "files": {k: v for k, v in FILES.items() if k != "calibration"},
+        "analysis": dataclasses.asdict(cal.params),
+        "steady_window": {
+            "method": "block-mean settling criterion (see analysis.settling)",
+            "n_points": int(start.size),
+            "n_points_unsteady": int(sum(int(p.unsteady.sum()) for p in all_points)),
+            "window_start_s": _spread(start),
+            "kept_fraction": _spread(kept),
+            "se_method": "max(AR(1) effective-sample-size SE, batch-means SE)",
+        },
+        "depths": [_section_doc(s) for s in cal.sections],
+        "tare_drift": None if cal.drift is None else {
+            "slope": _coef_doc(cal.drift.slope),
+            "n_tares": int(cal.drift.t_s.size),
+            "zero_scatter_n": cal.drift.zero_scatter_n,
+            "max_abs_bias_n": float(np.max(np.abs(cal.drift.bias_n))),
+        },
+        "warnings": list(cal.warnings),
+    })
+
+
+def _spread(values: np.ndarray) -> dict:
+    v = values[np.isfinite(values)]
+    if v.size == 0:
+        return {"min": None, "median": None, "max": None}
+    return {"min": float(v.min()), "median": float(np.median(v)), "max": float(v.max())}
+
+
+def _coef_doc(c: Coefficient) -> dict:
+    return {"value": c.value, "lo": c.lo, "hi": c.hi, "unit": c.unit, "n": c.n, "r2": c.r2,
+            "rms": c.rms, "rms_unit": c.rms_unit, "note": c.note}
+
+
+def _section_doc(sec: DepthSection) -> dict:
+    curve = None
+    if sec.curve is not None:
+        curve = {
+            "dead_floor_n": sec.curve.floor_n,
+            "dead_zones": [list(r) for r in sec.curve.dead_zones],
+            "saturated": [list(r) for r in sec.curve.saturated],
+            "break_aways": list(sec.curve.break_aways),
+            "branches": [{
+                "index": i,
+                "direction": b.direction,
+                "command_lo": b.command_lo,
+                "command_hi": b.command_hi,
+                "slope_sign": b.slope_sign,
+                "inverted": bool(b.inverted),
+                "saturated": None if b.saturated is None else list(b.saturated),
+                "usable": None if b.usable is None else list(b.usable),
+                "break_aways": list(b.break_aways),
+                "lut_thrust_min_n": float(b.lut_thrust_n.min()) if b.lut_thrust_n.size else None,
+                "lut_thrust_max_n": float(b.lut_thrust_n.max()) if b.lut_thrust_n.size else None,
+            } for i, b in enumerate(sec.curve.branches)],
+        }
+    h, r, z = sec.hysteresis, sec.repeatability, sec.zero
+    return {
+        "depth_m": sec.depth_m,
+        "zero": None if z is None else {
+            "source": z.source, "offset_n": z.offset_n,
+            "drift_n_per_h": z.drift_n_per_s * 3600.0, "t_ref_s": z.t_ref_s},
+        "n_points": len(sec.points),
+        "n_points_used_in_fits": int(sec.points.used_in_fits.sum()),
+        "coefficients": {name: _coef_doc(c) for name, c in sec.fits.items()},
+        "command_curve": curve,
+        "hysteresis": None if h is None else {
+            "max_abs_n": h.max_abs_n, "at_command": h.at_command, "n_commands": int(h.command.size)},
+        "repeatability": None if r is None else {
+            "max_std_n": r.max_std_n, "median_std_n": r.median_std_n,
+            "n_groups": int(r.command.size)},
+        "warnings": list(sec.warnings),
+    }
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-safe, deterministic: numpy scalars to Python, floats to 10 significant digits,
+    NaN/inf to null."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, bool | np.bool_):
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        x = float(obj)
+        return float(f"{x:.10g}") if math.isfinite(x) else None
+    return obj
+
+
+# -- CSV --------------------------------------------------------------------------------------
+
+POINT_COLUMNS = (
+    ("depth_m", "m", "depth of the propeller centre (nan: not set)"),
+    ("step_idx", "", "step index in the run plan"),
+    ("command", COMMAND_UNIT, "command in the actuator's unit"),
+    ("repeat", "", "repeat number"),
+    ("direction", "", "sweep direction: up | down"),
+    ("status", "", "step status as recorded (only 'ok' points are analysed)"),
+    ("n_samples", "", "samples acquired"),
+    ("n_window", "", "samples in the steady window"),
+    ("window_start_s", "s", "steady window start, after the first acquired sample"),
+    ("t_mid_s", "s", "mean sample time of the window, run clock"),
+    ("unsteady", "0/1", "1 if an excursion remains inside the window (e.g. ventilation)"),
+    ("dead", "0/1", "1 if the command lies in a dead zone"),
+    ("used_in_fits", "0/1", "1 if the point entered the speed/current model fits"),
+    *((f"{ch}_{stat}_{u}", unit, f"{label} {text} over the steady window")
+      for ch, u, unit, label in (("thrust", "n", "N", "thrust"),
+                                 ("speed", "rpm", "r/min", "propeller speed"),
+                                 ("current", "a", "A", "motor current"))
+      for stat, text in (("mean", "mean"), ("std", "standard deviation"),
+                         ("se", "standard error of the mean (autocorrelation-aware)"),
+                         ("min", "minimum"), ("max", "maximum"))),
+    ("thrust_peak_n", "N", "extreme on the side of the mean: max if mean >= 0 else min"),
+    ("thrust_zero_n", "N", "estimated sensor zero (offset + drift) at t_mid_s; "
+     "thrust_mean_n - thrust_zero_n is the thruster's thrust"),
+)
+CURVE_COLUMNS = (
+    ("depth_m", "m", "depth (nan: not set)"),
+    ("command", COMMAND_UNIT, "command"),
+    ("n_points", "", "points pooled at this command (repeats and directions)"),
+    ("state", "", "dead | live | saturated"),
+    ("branch", "", "branch index (see calibration.json command_curve.branches), -1 if dead"),
+    ("thrust_mean_n", "N", "mean of the point means, relative to the sensor zero"),
+    ("thrust_se_n", "N", "standard error of that mean"),
+    ("thrust_min_n", "N", "smallest sample over the points' windows"),
+    ("thrust_max_n", "N", "largest sample over the points' windows"),
+    ("thrust_fit_n", "N", "monotone (isotonic) fit of the branch; 0 in dead zones"),
+    ("speed_mean_rpm", "r/min", "mean propeller speed (nan: not measured)"),
+    ("current_mean_a", "A", "mean motor current (nan: not measured)"),
+)
+LUT_COLUMNS = (
+    ("depth_m", "m", "depth (nan: not set)"),
+    ("branch", "", "branch index (see calibration.json)"),
+    ("direction", "", "forward (thrust > 0) | reverse (thrust < 0)"),
+    ("thrust_n", "N", "thrust; strictly increasing within a (depth, branch)"),
+    ("command", COMMAND_UNIT, "command giving that thrust; interpolate linearly"),
+)
+POINTS_DOC = ["one row per recorded point (step); statistics over its steady window"]
+CURVE_DOC = ["one row per distinct command: thrust vs command with dead/saturated states;",
+             "thrust values are relative to the estimated sensor zero (calibration.json zero)"]
+LUT_DOC = ["inverse lookup command(thrust) over each branch's usable range (no dead zone,",
+           "no saturated range); rows sorted by depth, branch, thrust; interpolate linearly",
+           "between rows of the same depth and branch, clamp outside (docs/artefacts.md)"]
+
+
+def _units(columns: Sequence[tuple[str, str, str]], cal: Calibration) -> list[tuple[str, str, str]]:
+    return [(name, cal.command_unit if unit == COMMAND_UNIT else unit, text)
+            for name, unit, text in columns]
+
+
+def _fmt(v: object) -> str:
+    if isinstance(v, bool | np.bool_):
+        return "1" if v else "0"
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    if isinstance(v, float | np.floating):
+        x = float(v)
+        if not math.isfinite(x):
+            return MISSING
+        s = f"{x:.9g}"
+        return "0" if s == "-0" else s
+    return str(v).replace(",", ";")
+
+
+def _csv(comments: Sequence[str], columns: Sequence[tuple[str, str, str]],
+         rows: Iterable[Sequence[object]]) -> str:
+    lines = [f"# {c}" for c in comments]
+    lines += [f"# {name}{f' [{unit}]' if unit else ''}: {text}" for name, unit, text in columns]
+    lines.append(",".join(name for name, _, _ in columns))
+    lines += [",".join(_fmt(v) for v in row) for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _depth(sec: DepthSection) -> float:
+    return math.nan if sec.depth_m is None else sec.depth_m
+
+
+def _point_rows(cal: Calibration) -> Iterable[list[object]]:
+    for sec in cal.sections:
+        p = sec.points
+        for i in range(len(p)):
+            row: list[object] = [
+                _depth(sec), p.step_idx[i], float(p.command[i]), p.repeat[i], p.direction[i],
+                p.status[i], p.n_samples[i], p.n_window[i], float(p.window_start_s[i]),
+                float(p.t_mid_s[i]), bool(p.unsteady[i]), bool(p.dead[i]),
+                bool(p.used_in_fits[i])]
+            for ch in (p.thrust, p.speed, p.current):
+                row += [float(ch.mean[i]), float(ch.std[i]), float(ch.se[i]), float(ch.min[i]),
+                        float(ch.max[i])]
+            row += [float(p.thrust.peak[i]), float(p.thrust_zero_n[i])]
+            yield row
+
+
+def _curve_rows(cal: Calibration) -> Iterable[list[object]]:
+    for sec in cal.sections:
+        c = sec.curve
+        if c is None:
+            continue
+        for i in range(c.command.size):
+            yield [_depth(sec), float(c.command[i]), c.n_points[i], c.state[i], c.branch[i],
+                   float(c.thrust_mean_n[i]), float(c.thrust_se_n[i]), float(c.thrust_min_n[i]),
+                   float(c.thrust_max_n[i]), float(c.thrust_fit_n[i]), float(c.speed_mean_rpm[i]),
+                   float(c.current_mean_a[i])]
+
+
+def _lut_rows(cal: Calibration) -> Iterable[list[object]]:
+    for sec in cal.sections:
+        if sec.curve is None:
+            continue
+        thrust, command, branch = sec.curve.lut
+        for f, c, b in zip(thrust, command, branch, strict=True):
+            yield [_depth(sec), b, sec.curve.branches[b].direction, float(f), float(c)]

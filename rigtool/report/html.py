@@ -1,0 +1,440 @@
+"""Build the self-contained HTML report of one run: metadata, warnings, coefficients, figures."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jinja2
+import numpy as np
+from markupsafe import Markup
+
+import rigtool
+from rigtool.analysis.calibrate import Calibration, DepthSection, calibrate_run
+from rigtool.analysis.fits import Coefficient
+from rigtool.analysis.steady import PointTable
+from rigtool.report import figures as fg
+from rigtool.store import Store, utc_now
+
+WARN_KINDS = ("limit_trip", "warning", "interrupt")
+VENTILATION_KIND = "sim.ventilation"
+MAX_EVENT_LINES = 12
+UNIT_LABEL = {"percent": "%", "pwm_counts": "PWM counts", "pulse_us": "µs", "rpm": "r/min",
+              "amps": "A"}
+REPORT_FILE = "report.html"
+IMAGE_FORMATS = ("svg", "png")
+
+
+@dataclass
+class FigureItem:
+    """One figure slot: an embedded image, or (uri None) a one-line note why it is omitted."""
+
+    kind: str
+    fig_id: str
+    title: str
+    caption: str
+    uri: str | None = None
+    small: bool = False
+
+
+@dataclass
+class SectionView:
+    """What the template shows for one depth."""
+
+    label: str
+    heading: str
+    coefficients: list[Coefficient]
+    features: list[tuple[str, str, str]]
+    no_fit_reason: str = ""
+    figures: list[FigureItem] = field(default_factory=list)
+
+
+def write_report(store: Store, run_id: str, out_dir: Path,
+                 calibration: Calibration | None = None, *, image_format: str = "svg") -> Path:
+    """Write `out_dir`/report.html for `run_id` (calibrating it unless given) and return the path."""
+    text = render_report(store, run_id, calibration, image_format=image_format)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / REPORT_FILE
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def render_report(store: Store, run_id: str, calibration: Calibration | None = None, *,
+                  image_format: str = "svg") -> str:
+    """The report of `run_id` as one HTML string."""
+    if image_format not in IMAGE_FORMATS:
+        raise ValueError(f"image_format must be one of {IMAGE_FORMATS}, not {image_format!r}")
+    run = store.run(run_id)
+    steps = store.steps(run_id)
+    events = store.events(run_id)
+    cal = calibration
+    if cal is None and steps:
+        cal = calibrate_run(store, run_id)
+    unit = UNIT_LABEL.get(run["command_unit"], run["command_unit"])
+    sections: list[SectionView] = []
+    drift: FigureItem | None = None
+    with fg.style():
+        if cal is not None:
+            step_ids = {int(s["idx"]): int(s["id"]) for s in steps}
+            vent = [e for e in events if e["kind"] == VENTILATION_KIND]
+            multi = len(cal.sections) > 1
+            for i, sec in enumerate(cal.sections):
+                suffix = f"-{i + 1}" if multi else ""
+                view = _section(sec, cal, unit, suffix, image_format)
+                view.figures.append(_time_series(store, sec, step_ids, vent, unit,
+                                                 suffix, image_format))
+                sections.append(view)
+            drift = _drift_figure(cal, events, image_format)
+    return _template().render(
+        run=run, meta=_meta_rows(run, steps, cal), protocol=_flatten(run.get("protocol") or {}),
+        warnings=_warnings(run, events, cal), events=_event_counts(events), cal=cal,
+        sections=sections, drift=drift, unit=unit, generated=utc_now(),
+        version=rigtool.__version__)
+
+
+def _template() -> jinja2.Template:
+    env = jinja2.Environment(loader=jinja2.PackageLoader("rigtool.report", "templates"),
+                             autoescape=True, trim_blocks=True, lstrip_blocks=True,
+                             undefined=jinja2.StrictUndefined)
+    env.filters["num"] = fmt_num
+    env.filters["unit"] = fmt_unit
+    env.filters["interval"] = fmt_interval
+    env.filters["r2"] = fmt_r2
+    return env.get_template("report.html")
+
+
+def fmt_num(value: object, digits: int = 5) -> Markup:
+    """A number for a table: `digits` significant figures, powers of ten as superscripts."""
+    if value is None:
+        return Markup("–")
+    x = float(value)  # type: ignore[arg-type]
+    if not math.isfinite(x):
+        return Markup("–")
+    if x == 0 or 1e-3 <= abs(x) < 1e5:
+        return Markup.escape(f"{x:.{digits}g}".replace("-", "−"))
+    mant, exp = f"{x:.{digits - 1}e}".split("e")
+    return Markup(f"{mant.replace('-', '−')}×10<sup>{int(exp)}</sup>".replace("<sup>-", "<sup>−"))
+
+
+def fmt_interval(c: Coefficient) -> Markup:
+    """`lo … hi` of a coefficient on two lines, or a dash when it has no interval."""
+    if not (math.isfinite(c.lo) and math.isfinite(c.hi)):
+        return Markup("–")
+    return Markup("{} …<br>{}").format(fmt_num(c.lo), fmt_num(c.hi))
+
+
+def fmt_r2(value: float) -> str:
+    """R² with four decimals (so 0.99996 does not print as 1), a dash when undefined."""
+    return f"{value:.4f}" if math.isfinite(value) else "–"
+
+
+def fmt_unit(unit: str) -> Markup:
+    """A unit with `^2`, `^(2/3)`, `^k` written as superscripts."""
+    text = str(Markup.escape(unit))
+    return Markup(re.sub(r"\^\(([^)]*)\)|\^(\w+)",
+                         lambda m: f"<sup>{m.group(1) or m.group(2)}</sup>", text))
+
+
+# -- metadata, warnings, events -----------------------------------------------------------------
+
+def _meta_rows(run: dict, steps: list[dict], cal: Calibration | None) -> list[tuple[str, str]]:
+    protocol = run.get("protocol") or {}
+    meta = {**(protocol.get("metadata") or {}), **(run.get("metadata") or {})}
+    rig = run.get("rig") or {}
+    resolved = rig.get("resolved") or {}
+    rig_text = rig.get("name") or "?"
+    if resolved.get("kind") == "simulator":
+        rig_text += f" (simulator profile {resolved.get('profile')})"
+    command = protocol.get("command") or {}
+    plan = run.get("plan") or steps
+    commands = sorted({float(s["command"]) for s in plan})
+    unit = UNIT_LABEL.get(run["command_unit"], run["command_unit"])
+    depths = sorted({s["depth_m"] for s in plan if s.get("depth_m") is not None})
+    status = run["status"] + (f": {run['stop_reason']}" if run.get("stop_reason") else "")
+    rows = [
+        ("run id", run["id"]), ("name", run["name"]),
+        ("description", protocol.get("description") or ""), ("status", status),
+        ("created (UTC)", run["created_utc"]), ("finished (UTC)", run.get("finished_utc") or "–"),
+        ("run time (rig clock)", _duration(max((s["t_end_s"] for s in steps), default=0.0))),
+        ("host", run["host"]), ("tool version (run)", run["tool_version"]),
+        ("seed", "–" if run.get("seed") is None else str(run["seed"])), ("rig", rig_text),
+        ("protocol file", run.get("protocol_path") or "–"),
+    ]
+    for key in ("thruster_id", "propeller", "operator", "notes", "propeller_diameter_m",
+                "water_density_kg_m3"):
+        if meta.get(key) is not None:
+            rows.append((key.replace("_", " "), str(meta[key])))
+    rows += [(f"extra: {k}", str(v)) for k, v in (meta.get("extra") or {}).items()]
+    rows += [
+        ("command unit", f"{run['command_unit']} ({unit})"),
+        ("commands", f"{len(commands)} values, {commands[0]:g} .. {commands[-1]:g} {unit}, "
+                     f"order {command.get('order', '?')}, {command.get('repeats', 1)} repeat(s)"
+         if commands else "–"),
+        ("depths", ", ".join(f"{d:g} m" for d in depths) or "not set"),
+        ("points", f"{len(steps)} recorded of {run['n_planned']} planned"),
+        ("samples", f"{sum(int(s['n']) for s in steps):,}"),
+    ]
+    if cal is not None:
+        rows.append(("analysed with", f"rigtool {cal.tool_version}"))
+    return rows
+
+
+def _duration(seconds: float) -> str:
+    h, rem = divmod(int(round(seconds)), 3600)
+    m, s = divmod(rem, 60)
+    return f"{h} h {m:02d} min" if h else f"{m} min {s:02d} s"
+
+
+def _flatten(obj: object, prefix: str = "") -> list[tuple[str, str]]:
+    """Nested protocol data as (dotted key, value) rows; empty values left out."""
+    if isinstance(obj, dict):
+        rows: list[tuple[str, str]] = []
+        for k, v in obj.items():
+            rows += _flatten(v, f"{prefix}.{k}" if prefix else str(k))
+        return rows
+    if obj is None or obj == [] or obj == "":
+        return []
+    if isinstance(obj, list):
+        return [(prefix, ", ".join(str(v) for v in obj))]
+    return [(prefix, str(obj))]
+
+
+def _event_text(event: dict) -> str:
+    detail = event.get("detail") or {}
+    text = detail.get("message") or ", ".join(f"{k}={v}" for k, v in detail.items()) or "-"
+    where = f" (point {event['step_idx']})" if event.get("step_idx") is not None else ""
+    when = f" at t = {event['t_s']:.1f} s" if event.get("t_s") is not None else ""
+    return f"{event['kind']}{where}{when}: {text}"
+
+
+def _warnings(run: dict, events: list[dict], cal: Calibration | None) -> list[str]:
+    out = []
+    if run["status"] != "completed":
+        reason = run.get("stop_reason") or "no reason recorded"
+        out.append(f"Run {run['status']}: {reason}. The report covers the recorded points only.")
+    noted = [e for e in events if e["kind"] in WARN_KINDS]
+    out += [_event_text(e) for e in noted[:MAX_EVENT_LINES]]
+    if len(noted) > MAX_EVENT_LINES:
+        out.append(f"... and {len(noted) - MAX_EVENT_LINES} more warning event(s)")
+    if cal is None:
+        out.append("No recorded points: nothing to calibrate.")
+    else:
+        out += group_by_depth(cal.warnings, [s.label for s in cal.sections])
+    return out
+
+
+def group_by_depth(warnings: list[str], labels: list[str]) -> list[str]:
+    """Merge "<depth>: text" warnings repeated at several depths into "<d1>, <d2>: text"."""
+    prefixes = tuple(f"{label}: " for label in labels)
+    merged: dict[str, list[str]] = {}
+    for w in warnings:
+        head = next((p for p in prefixes if w.startswith(p)), None)
+        key = w[len(head):] if head else w
+        merged.setdefault(key, []).append(head[:-2] if head else "")
+    return [", ".join(d for d in depths if d) + ": " + text if any(depths) else text
+            for text, depths in merged.items()]
+
+
+def _event_counts(events: list[dict]) -> list[tuple[str, int]]:
+    return sorted(Counter(e["kind"] for e in events).items())
+
+
+# -- per-depth sections -------------------------------------------------------------------------
+
+def _section(sec: DepthSection, cal: Calibration, unit: str, suffix: str,
+             fmt: str) -> SectionView:
+    heading = "Results" if not suffix else f"Depth {sec.label}"
+    view = SectionView(sec.label, heading, list(sec.fits.values()), _features(sec, unit),
+                       _no_fit_reason(sec))
+    at = "" if not suffix else f" at {sec.label}"
+    view.figures += _curve_figures(sec, cal, unit, suffix, at, fmt)
+    view.figures += _speed_figures(sec, cal, suffix, at, fmt)
+    view.figures.append(_hysteresis_figure(sec, unit, suffix, at, fmt))
+    p = sec.points
+    if (p.status == "ok").any():
+        view.figures.append(FigureItem(
+            "spread", f"fig-spread{suffix}", f"Per-point spread{at}",
+            "Thrust standard deviation and |max − mean| per point over its steady window "
+            f"(N) vs command ({unit}).", fg.encode(fg.spread(p, unit), fmt)))
+    return view
+
+
+def _no_fit_reason(sec: DepthSection) -> str:
+    if not sec.points.speed.measured:
+        what = "the command curve below is" if sec.curve is not None else "there is no"
+        return (f"No speed or current model: the run has no propeller speed feedback, so "
+                f"{what} the calibration.")
+    return "No model coefficients: too few usable points (see the warnings)."
+
+
+def _features(sec: DepthSection, unit: str) -> list[tuple[str, str, str]]:
+    """(quantity, value, note) rows: curve features, hysteresis, repeatability, point counts."""
+    p = sec.points
+    rows = [("points", f"{len(p)}", f"{int(p.used_in_fits.sum())} used in fits, "
+             f"{int(np.sum(p.status != 'ok'))} not ok, {int(p.unsteady.sum())} unsteady, "
+             f"{int(p.dead.sum())} in dead zones")]
+    c = sec.curve
+    if c is not None:
+        rows += [("dead zone", f"{lo:g} .. {hi:g} {unit}", "") for lo, hi in c.dead_zones]
+        for i, b in enumerate(c.branches):
+            parts = [f"commands {b.command_lo:g} .. {b.command_hi:g} {unit}"]
+            if b.usable:
+                parts.append(f"usable {b.usable[0]:g} .. {b.usable[1]:g}")
+            if b.saturated:
+                parts.append(f"saturated {b.saturated[0]:g} .. {b.saturated[1]:g}")
+            if b.lut_thrust_n.size:
+                parts.append(f"thrust {b.lut_thrust_n.min():.3g} .. {b.lut_thrust_n.max():.3g} N")
+            note = "inverted: |thrust| grows towards neutral" if b.inverted else ""
+            rows.append((f"branch {i} ({b.direction})", "; ".join(parts), note))
+        rows += [("break-away", f"{x:g} {unit}", "thrust jumps here") for x in c.break_aways]
+    if sec.hysteresis is not None:
+        h = sec.hysteresis
+        rows.append(("hysteresis max |up − down|", f"{h.max_abs_n:.3g} N",
+                     f"at {h.at_command:g} {unit}"))
+    if sec.repeatability is not None:
+        r = sec.repeatability
+        rows.append(("repeatability max std", f"{r.max_std_n:.3g} N",
+                     f"median {r.median_std_n:.3g} N over {r.command.size} command(s)"))
+    return rows
+
+
+def _curve_figures(sec: DepthSection, cal: Calibration, unit: str, suffix: str, at: str,
+                   fmt: str) -> list[FigureItem]:
+    c = sec.curve
+    if c is None:
+        return [FigureItem("command-curve", f"fig-command-curve{suffix}", "Command curve",
+                           f"No command curve: commands in {cal.command_unit} are closed-loop "
+                           "set-points, not a drive signal.")]
+    out = [FigureItem(
+        "command-curve", f"fig-command-curve{suffix}", f"Command curve{at}",
+        f"Thrust (N) vs command ({unit}): per-command mean of the steady windows, sample "
+        "min..max band, monotone fit per branch, dead zones shaded grey, saturated ranges "
+        "hatched, break-aways dashed.", fg.encode(fg.command_curve(c, unit), fmt))]
+    if any(b.lut_thrust_n.size for b in c.branches):
+        out.append(FigureItem(
+            "inverse-map", f"fig-inverse-map{suffix}", f"Inverse map{at}",
+            f"Command ({unit}) vs wanted thrust (N) over each branch's usable range "
+            "(inverse_lut.csv).", fg.encode(fg.inverse_map(c, unit), fmt), small=True))
+    else:
+        out.append(FigureItem("inverse-map", f"fig-inverse-map{suffix}", "Inverse map",
+                              "No inverse map: no live command range."))
+    return out
+
+
+def _speed_figures(sec: DepthSection, cal: Calibration, suffix: str, at: str,
+                   fmt: str) -> list[FigureItem]:
+    p, fits = sec.points, sec.fits
+    ts = ("thrust-speed", f"fig-thrust-speed{suffix}", f"Thrust vs propeller speed{at}")
+    cs = ("current-speed", f"fig-current-speed{suffix}", f"Current vs propeller speed{at}")
+    if not p.speed.measured:
+        why = (f"No propeller speed feedback in this run (command unit {cal.command_unit}): "
+               "no thrust-vs-speed or current-vs-speed figure.")
+        return [FigureItem(*ts, why)]
+    out = []
+    if "C_p_fwd" in fits or "C_p_rev" in fits:
+        out.append(FigureItem(*ts, "Thrust (N) vs propeller speed (r/min), points with 95 % "
+                              "error bars and the forward/reverse C_p |n| n model; below, the "
+                              "residuals thrust − C_p |n| n (N), without the fitted zero offset "
+                              "f_0, so a tare offset shows as a shift.", fg.encode(fg.thrust_speed(p, fits), fmt)))
+    else:
+        out.append(FigureItem(*ts, "No thrust-vs-speed fit: too few points with significant "
+                              "propeller speed."))
+    if not p.current.measured:
+        out.append(FigureItem(*cs, "No motor current feedback: no current-vs-speed figure."))
+    elif "C_n" in fits and "I_0" in fits:
+        out.append(FigureItem(*cs, "Motor current (A) vs propeller speed (r/min) with the "
+                              "I = C_n |n|³ + I_0 fit.", fg.encode(fg.current_speed(p, fits), fmt)))
+    else:
+        out.append(FigureItem(*cs, "No current fit: too few points with current feedback."))
+    return out
+
+
+def _hysteresis_figure(sec: DepthSection, unit: str, suffix: str, at: str,
+                       fmt: str) -> FigureItem:
+    base = ("hysteresis", f"fig-hysteresis{suffix}", f"Hysteresis{at}")
+    if sec.hysteresis is None:
+        return FigureItem(*base, "No hysteresis figure: the run does not visit the same "
+                          "commands sweeping both up and down.")
+    return FigureItem(*base, f"Up-sweep minus down-sweep mean thrust (N) vs command ({unit}), "
+                      "95 % error bars.", fg.encode(fg.hysteresis(sec.hysteresis, unit), fmt))
+
+
+def _drift_figure(cal: Calibration, events: list[dict], fmt: str) -> FigureItem:
+    base = ("tare-drift", "fig-tare-drift", "Tare drift")
+    if cal.drift is None:
+        n = sum(1 for e in events if e["kind"] == "tare")
+        return FigureItem(*base, f"{n} tare(s) recorded: a drift figure needs at least two "
+                          "(protocol timing.tare: per_depth with several depths, or per_point).")
+    return FigureItem(*base, "Bias on the thrust channel at each tare, relative to the first "
+                      "(N), vs time, with its linear trend (N/h).",
+                      fg.encode(fg.tare_drift(cal.drift), fmt))
+
+
+# -- time series of chosen points ---------------------------------------------------------------
+
+def chosen_points(points: PointTable) -> list[tuple[int, str]]:
+    """(row, why) of up to three points: highest forward, highest reverse, and a mid thrust."""
+    f = points.thrust.mean
+    ok = (points.status == "ok") & np.isfinite(f) & (points.n_samples > 0)
+    picks: list[tuple[int, str]] = []
+    if (ok & (f > 0)).any():
+        picks.append((int(np.nanargmax(np.where(ok, f, np.nan))), "highest forward thrust"))
+    if (ok & (f < 0)).any():
+        picks.append((int(np.nanargmin(np.where(ok, f, np.nan))), "highest reverse thrust"))
+    live = ok & ~points.dead
+    live[[i for i, _ in picks]] = False
+    if live.any() and picks:
+        target = 0.5 * max(abs(float(f[i])) for i, _ in picks)
+        i = int(np.nanargmin(np.where(live, np.abs(np.abs(f) - target), np.nan)))
+        picks.append((i, "mid thrust"))
+    return picks
+
+
+def _step_trace(store: Store, step_id: int) -> tuple[np.ndarray, np.ndarray]:
+    rows = store.conn.execute(
+        "SELECT t_s, thrust_n FROM samples WHERE step_id = ? ORDER BY rowid", (step_id,)).fetchall()
+    data = np.array(rows, dtype=float).reshape(-1, 2)
+    return data[:, 0], data[:, 1]
+
+
+def _time_series(store: Store, sec: DepthSection, step_ids: dict[int, int],
+                 vent: list[dict], unit: str, suffix: str, fmt: str) -> FigureItem:
+    base = ("time-series", f"fig-time-series{suffix}",
+            "Time series of chosen points" + (f" at {sec.label}" if suffix else ""))
+    p = sec.points
+    traces = []
+    for row, why in chosen_points(p):
+        t, y = _step_trace(store, step_ids[int(p.step_idx[row])])
+        keep = np.isfinite(y)
+        t, y = t[keep], y[keep]
+        if t.size < 2:
+            continue
+        t0 = float(t[0])
+        spans = [(max(float(e["t_s"]) - t0, 0.0),
+                  min(float(e["t_s"]) + _vent_length(e) - t0, float(t[-1] - t0)))
+                 for e in vent if e.get("t_s") is not None]
+        label = (f"point {int(p.step_idx[row])}: {p.command[row]:g} {unit}, "
+                 f"{p.direction[row]}, {why}")
+        traces.append(fg.Trace(label, t - t0, y, float(p.window_start_s[row]),
+                               float(p.thrust.mean[row]), [s for s in spans if s[1] > s[0]]))
+    if not traces:
+        return FigureItem(*base, "No point with recorded thrust samples to show.")
+    return FigureItem(*base, "Thrust (N) vs time (s) within the chosen points; the steady "
+                      "window used for the statistics is shaded green.",
+                      fg.encode(fg.time_series(traces), fmt))
+
+
+def _vent_length(event: dict) -> float:
+    d = event.get("detail") or {}
+    try:
+        return float(d["t_end_s"]) - float(d["t_start_s"])
+    except (KeyError, TypeError, ValueError):
+        return 0.0
+
