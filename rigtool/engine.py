@@ -91,6 +91,7 @@ class Engine:
         self._depth: float | None = None
         self._fb_last = dict.fromkeys(FEEDBACK_FIELDS, np.nan)
         self._bias_total = np.zeros(6)
+        self.samples_read = 0  # every sample taken from the sensor, stored or not (reconciliation)
 
     # -- public ---------------------------------------------------------------------------
     def run(self, start_idx: int = 0, t_offset_s: float = 0.0) -> Outcome:
@@ -214,6 +215,7 @@ class Engine:
     def _read(self, n: int, rate: float, step: PlanStep) -> dict[str, np.ndarray]:
         """Read `n` samples, attach feedback and thrust, check limits."""
         block = self.rig.sensor.read(n, rate)
+        self.samples_read += len(block)
         ft = block.ft if self.rig.transform is None else block.ft @ self.rig.transform.T
         out: dict[str, np.ndarray] = {"t_s": block.t_s - self._t0}
         for i, name in enumerate(FT_CHANNELS):
@@ -302,6 +304,7 @@ class Engine:
         rate = self.protocol.timing.acquire.rate_hz
         n = max(1, round(self.protocol.timing.tare_s * rate))
         block = self.rig.sensor.read(n, rate)
+        self.samples_read += len(block)
         self.rig.actuator.read_feedback()
         offset = block.ft.mean(axis=0)
         self.rig.sensor.set_bias(offset)
