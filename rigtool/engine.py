@@ -221,6 +221,7 @@ class Engine:
         for i, name in enumerate(FT_CHANNELS):
             out[name] = ft[:, i]
         out["thrust_n"] = self.rig.thrust_sign * ft[:, self.rig.thrust_channel]
+        self._device_warnings(step)
         feedback = self.rig.actuator.read_feedback()
         if feedback.fault:
             raise SafetyTrip(f"driver fault: {feedback.fault}")
@@ -234,6 +235,14 @@ class Engine:
         self.limits.check(out)
         self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
         return out
+
+    def _device_warnings(self, step: PlanStep) -> None:
+        """Store warnings a driver has queued (e.g. a Net F/T status word, a stream restart)."""
+        for dev in (self.rig.sensor, self.rig.actuator):
+            pop = getattr(dev, "pop_warnings", None)
+            for message in pop() if pop else ():
+                self.reporter.note(f"warning: {message}")
+                self._event("warning", {"message": message}, step.idx)
 
     def _align_feedback(self, t: np.ndarray, fb: FeedbackBlock) -> dict[str, np.ndarray]:
         """Feedback at each force sample's time: the latest feedback value received (zero-order hold)."""

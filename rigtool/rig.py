@@ -81,8 +81,16 @@ class Rig(BaseModel):
 
 
 def load_rig(path: str | Path) -> tuple[Rig, dict]:
-    """Read and validate a rig file; ConfigError names file, line and field."""
-    return load_model(Path(path), Rig)
+    """Read and validate a rig file; ConfigError names file, line and field.
+
+    A relative `dbc:` path in the actuator section is taken relative to the rig file.
+    """
+    rig, data = load_model(Path(path), Rig)
+    dbc = getattr(rig.actuator, "dbc", None)
+    if dbc and not Path(dbc).is_absolute():
+        actuator = rig.actuator.model_copy(update={"dbc": str(Path(path).parent / dbc)})
+        rig = rig.model_copy(update={"actuator": actuator})
+    return rig, data
 
 
 def sim_rig(spec: SimulatorSpec) -> Rig:

@@ -50,3 +50,10 @@ def test_mount_with_single_axis_gauge_is_refused(write_yaml):
 def test_simulator_and_hardware_are_exclusive(write_yaml):
     text = "name: r\nsimulator: {profile: can-bldc}\nsensor: {driver: ati-netft, host: h}\n"
     assert "not both" in _load(write_yaml, text)
+
+
+def test_relative_dbc_path_is_taken_from_the_rig_folder(write_yaml, tmp_path):
+    text = ("name: r\nactuator: {driver: dbc-can, interface: virtual, channel: x, dbc: my.dbc}\n"
+            "sensor: {driver: ati-netft, host: h}\n")
+    rig, _ = load_rig(write_yaml(text, "rig.yaml"))
+    assert rig.actuator.dbc == str(tmp_path / "my.dbc")
