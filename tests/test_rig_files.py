@@ -53,7 +53,8 @@ def test_simulator_and_hardware_are_exclusive(write_yaml):
 
 
 def test_relative_dbc_path_is_taken_from_the_rig_folder(write_yaml, tmp_path):
-    text = ("name: r\nactuator: {driver: dbc-can, interface: virtual, channel: x, dbc: my.dbc}\n"
+    text = ("name: r\nactuator:\n  driver: dbc-can\n  interface: virtual\n  channel: x\n"
+            "  dbc: my.dbc\n  command: {message: Control, signal: Speed, unit: rpm}\n"
             "sensor: {driver: ati-netft, host: h}\n")
     rig, _ = load_rig(write_yaml(text, "rig.yaml"))
     assert rig.actuator.dbc == str(tmp_path / "my.dbc")
