@@ -246,6 +246,57 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import(args: argparse.Namespace) -> int:
+    from rigtool.importers import Mapping, import_file, load_mapping, with_overrides
+
+    base = load_mapping(args.mapping) if args.mapping else Mapping()
+    mapping = with_overrides(
+        base, cols=args.col, units=args.unit, command_unit=args.command_unit,
+        decimal="," if args.decimal_comma else None, delimiter=args.delimiter,
+        format=args.format, settle_s=args.settle_s, pole_pairs=args.pole_pairs,
+        neutral=args.neutral, thrust_sign=-1 if args.flip_thrust else None)
+    store = Store(resolve_db_path(args.db))
+    several = len(args.files) > 1
+    for path in args.files:
+        name = f"{args.name}-{os.path.splitext(os.path.basename(path))[0]}" if (
+            args.name and several) else args.name
+        result = import_file(store, path, mapping, name=name, thruster_id=args.thruster_id,
+                             depth_m=args.depth, strict=args.strict)
+        for line in result.errors:
+            err.print(line, markup=False)
+        for warning in result.warnings:
+            err.print(f"warning: {warning}", markup=False)
+        out.print(result.summary(), markup=False)
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from rigtool.compare import compare_runs, write_corrections
+    from rigtool.report.compare_html import write_compare_report
+
+    store = Store(resolve_db_path(args.db), create=False)
+    run_ids = [store.resolve_run_id(r) for r in args.runs]
+    reference = store.resolve_run_id(args.reference) if args.reference else None
+    result = compare_runs(store, run_ids, reference, floor_frac=args.floor_frac)
+    folder = Path(args.out)
+    paths = write_corrections(result, folder)
+    paths.append(write_compare_report(result, folder))
+    table = Table("run", "thruster", "branch", "a", "b (" + result.command_unit + ")",
+                  "max dev before", "max dev after", title=f"corrections vs {result.reference_label}")
+    for c in result.corrections:
+        table.add_row(c.run_id, c.label, c.branch, f"{c.a:.5g}", f"{c.b:.5g}",
+                      f"{100 * c.max_dev_before:.2f} %", f"{100 * c.max_dev_after:.2f} %")
+    out.print(table)
+    for warning in result.warnings:
+        err.print(f"warning: {warning}", markup=False)
+    out.print(f"spread between thrusters: {100 * result.spread_before:.2f} % before, "
+              f"{100 * result.spread_after:.2f} % after correction")
+    out.print("written: " + ", ".join(str(p) for p in paths))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rigtool", description="Sweep, calibrate and report on underwater thrusters.")
@@ -311,6 +362,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="exports", help="output folder (default: ./exports)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("import", help="store existing thrust-stand logs (Tyto/RCbenchmark, any CSV) as runs")
+    p.add_argument("files", nargs="+", metavar="FILE", help="CSV log(s); one run per file")
+    p.add_argument("--mapping", help="YAML column mapping (docs/import.md)")
+    p.add_argument("--col", action="append", metavar="FIELD=COLUMN",
+                   help="map a column: time, command, thrust, speed, current, voltage, depth, "
+                        "thrust_std, n_samples (repeatable)")
+    p.add_argument("--unit", action="append", metavar="FIELD=UNIT",
+                   help="unit of a mapped column, e.g. thrust=kgf (overrides the header suffix)")
+    p.add_argument("--command-unit", help="pulse_us | percent | pwm_counts | rpm | amps")
+    p.add_argument("--neutral", type=float, help="stop command (default: 1500 us, else 0)")
+    p.add_argument("--decimal-comma", action="store_true", help="numbers use ',' as decimal sep. "
+                   "(delimiter then defaults to ';')")
+    p.add_argument("--delimiter", help="field delimiter (default: sniffed from the header)")
+    p.add_argument("--format", choices=("auto", "timeseries", "points"),
+                   help="time series (rows grouped by command) or one row per point")
+    p.add_argument("--settle-s", type=float, help="time series: drop this many seconds at the "
+                   "start of each command")
+    p.add_argument("--pole-pairs", type=int, help="motor pole pairs, to convert electrical r/min")
+    p.add_argument("--flip-thrust", action="store_true", help="negate the thrust column")
+    p.add_argument("--depth", type=float, help="propeller depth (m) of every point")
+    p.add_argument("--name", help="run name (default: the file name)")
+    p.add_argument("--thruster-id", help="thruster id stored in the run metadata")
+    p.add_argument("--strict", action="store_true", help="import nothing if any row is unreadable")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_import)
+
+    p = sub.add_parser("compare", help="compare thrusters (runs); write corrections and a report")
+    p.add_argument("runs", nargs="+", metavar="RUN", help="run ids, unique prefixes, or `last`")
+    p.add_argument("--reference", metavar="RUN", help="match this run (default: the mean of the runs)")
+    p.add_argument("--floor-frac", type=float, default=0.1,
+                   help="ignore thrust below this fraction of the shared maximum (default 0.1)")
+    p.add_argument("--out", default="calibrations/compare", help="output folder")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_compare)
     return parser
 
 

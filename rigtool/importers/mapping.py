@@ -1,0 +1,101 @@
+"""Column mapping of an imported table: which column is what, units, CSV dialect (YAML or --col)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from rigtool.config import load_model
+from rigtool.errors import UsageError
+
+FIELDS = ("time", "command", "thrust", "speed", "current", "voltage", "depth", "thrust_std",
+          "n_samples")
+FORMATS = ("auto", "timeseries", "points")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Columns(_Strict):
+    """Header name (with or without its unit suffix, case-insensitive) or 1-based column number."""
+
+    time: str | int | None = None
+    command: str | int | None = None
+    thrust: str | int | None = None
+    speed: str | int | None = None
+    current: str | int | None = None
+    voltage: str | int | None = None
+    depth: str | int | None = None
+    thrust_std: str | int | None = None
+    n_samples: str | int | None = None
+
+
+class Units(_Strict):
+    """Units of mapped columns; they override a unit suffix in the header."""
+
+    time: str | None = None
+    thrust: str | None = None
+    speed: str | None = None
+    current: str | None = None
+    voltage: str | None = None
+    depth: str | None = None
+    thrust_std: str | None = None
+
+
+class Mapping(_Strict):
+    """How to read one table into a run (the YAML file given to `rigtool import --mapping`)."""
+
+    rigtool_mapping: Literal[1] = 1
+    columns: Columns = Field(default_factory=Columns)
+    units: Units = Field(default_factory=Units)
+    command_unit: str | None = None
+    neutral: float | None = None
+    format: Literal["auto", "timeseries", "points"] = "auto"
+    delimiter: str | None = None
+    decimal: Literal[".", ","] = "."
+    header_row: int | None = Field(default=None, ge=1)
+    settle_s: float = Field(default=0.0, ge=0)
+    thrust_sign: Literal[1, -1] = 1
+    pole_pairs: int | None = Field(default=None, ge=1)
+
+    @field_validator("delimiter")
+    @classmethod
+    def _one_char(cls, v: str | None) -> str | None:
+        if v is not None and v not in ("\t", "tab") and len(v) != 1:
+            raise ValueError("delimiter must be one character (or 'tab')")
+        return "\t" if v == "tab" else v
+
+
+def load_mapping(path: str | Path) -> Mapping:
+    """Read and validate a mapping YAML file; errors name file, line and field."""
+    model, _ = load_model(Path(path), Mapping)
+    return model
+
+
+def _pairs(items: list[str] | None, option: str, allowed: tuple[str, ...]) -> dict[str, str]:
+    out = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not value.strip():
+            raise UsageError(f"{option} {item!r}: expected FIELD=VALUE, e.g. {option} thrust=Fz")
+        if key not in allowed:
+            raise UsageError(f"{option} {item!r}: unknown field {key!r}; known: {', '.join(allowed)}")
+        out[key] = value.strip()
+    return out
+
+
+def with_overrides(base: Mapping, *, cols: list[str] | None = None,
+                   units: list[str] | None = None, **options: object) -> Mapping:
+    """`base` with command-line --col/--unit pairs and other options (None = keep) applied."""
+    col_map = {k: (int(v) if v.isdigit() else v) for k, v in _pairs(cols, "--col", FIELDS).items()}
+    unit_map = _pairs(units, "--unit", tuple(Units.model_fields))
+    update: dict[str, object] = {k: v for k, v in options.items() if v is not None}
+    data = base.model_dump()
+    data["columns"].update(col_map)
+    data["units"].update(unit_map)
+    data.update(update)
+    return Mapping.model_validate(data)

@@ -1,0 +1,48 @@
+"""Tyto Robotics / RCbenchmark thrust-stand CSV logs: recognise their headers, map their columns.
+
+Their logs name each column with a unit suffix, e.g. `Time (s)`, `ESC signal (µs)` (older
+software: `ESC (µs)`), `Thrust (kgf)` or `Thrust (N)`, `Torque (N·m)`, `Voltage (V)`,
+`Current (A)`, `Motor Electrical Speed (RPM)`, `Motor Optical Speed (RPM)`.
+"""
+
+from __future__ import annotations
+
+import re
+
+from rigtool.importers.units import split_header
+
+# field -> header base names (lower case, unit suffix removed), most preferred first
+PATTERNS: dict[str, tuple[str, ...]] = {
+    "time": (r"time",),
+    "command": (r"esc signal", r"esc", r"pwm", r"throttle"),
+    "thrust": (r"thrust",),
+    "voltage": (r"voltage",),
+    "current": (r"current",),
+    "speed": (r"motor optical speed", r"optical speed", r"motor speed", r"rpm",
+              r"motor electrical speed", r"electrical speed"),
+}
+ELECTRICAL = re.compile(r"electrical", re.IGNORECASE)
+
+
+def detect(header: list[str]) -> bool:
+    """True if the header looks like a Tyto/RCbenchmark log (an ESC and a thrust column)."""
+    found = guess_columns(header)
+    return "command" in found and "thrust" in found
+
+
+def guess_columns(header: list[str]) -> dict[str, str]:
+    """Field -> header cell for the columns this format is known to use."""
+    bases = [split_header(h)[0].lower() for h in header]
+    out: dict[str, str] = {}
+    for field, names in PATTERNS.items():
+        for name in names:
+            hit = next((h for h, b in zip(header, bases, strict=True) if b == name), None)
+            if hit is not None:
+                out[field] = hit
+                break
+    return out
+
+
+def is_electrical(header_cell: str) -> bool:
+    """True for the eRPM column (needs the motor's pole pairs to give propeller speed)."""
+    return bool(ELECTRICAL.search(header_cell))

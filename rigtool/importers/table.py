@@ -1,0 +1,64 @@
+"""Read a delimited text table: BOM, blank lines, delimiter sniffing, physical line numbers."""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+from rigtool.errors import UsageError
+
+CANDIDATE_DELIMITERS = (",", ";", "\t")
+
+
+@dataclass
+class RawTable:
+    """Header cells and data rows, each row with its 1-based line number in the file."""
+
+    path: Path
+    header: list[str]
+    header_line: int
+    rows: list[tuple[int, list[str]]]
+    delimiter: str
+
+
+def sniff_delimiter(line: str, decimal: str) -> str:
+    """The most frequent of , ; TAB in the header line (never ',' with a comma decimal)."""
+    choices = [d for d in CANDIDATE_DELIMITERS if not (decimal == "," and d == ",")]
+    best = max(choices, key=line.count)
+    return best if line.count(best) else choices[0]
+
+
+def read_table(path: Path, *, delimiter: str | None = None, decimal: str = ".",
+               header_row: int | None = None) -> RawTable:
+    """Parse `path`; the header is line `header_row` or the first non-blank line."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise UsageError(f"{path}: file not found") from None
+    except UnicodeDecodeError:
+        text = path.read_text(encoding="latin-1")
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot read: {exc}") from None
+    lines = text.splitlines()
+    if header_row is None:
+        header_row = next((i + 1 for i, s in enumerate(lines) if s.strip()), 0)
+    if not header_row or header_row > len(lines) or not lines[header_row - 1].strip():
+        raise UsageError(f"{path}: no header line found (file empty, or header_row points at a blank line)")
+    delim = delimiter or sniff_delimiter(lines[header_row - 1], decimal)
+    body = "\n".join(lines[header_row - 1:])
+    reader = csv.reader(io.StringIO(body, newline=""), delimiter=delim)
+    header: list[str] = []
+    rows: list[tuple[int, list[str]]] = []
+    for cells in reader:
+        line = header_row + reader.line_num - 1
+        if not header:
+            header = [c.strip() for c in cells]
+            while header and not header[-1]:
+                header.pop()
+            continue
+        if not any(c.strip() for c in cells):
+            continue
+        rows.append((line, cells))
+    return RawTable(path, header, header_row, rows, delim)
