@@ -180,6 +180,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     server = start_sim(args.profile, seed=args.seed, sensor=args.sensor, netft=args.netft,
                        can_channel=args.can_channel, depth_m=args.depth)
+    try:
+        for spec in args.fault or ():
+            server.set_fault(spec)
+    except BaseException:
+        server.stop()
+        raise
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, lambda *_: stop.set())
@@ -353,6 +359,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--can-channel", default="239.74.163.2",
                    help="python-can udp_multicast group for the CAN personalities")
     p.add_argument("--depth", type=float, default=1.0, help="initial propeller depth (m)")
+    p.add_argument("--fault", action="append", metavar="PART.SWITCH=VALUE",
+                   help="inject a fault, e.g. netft.drop=0.01, netft.silent=true, bridge.garbage=true, "
+                        "bridge.no_replies=true, vesc.fault_code=4, stage.stalled=true (repeatable)")
     p.add_argument("--rig-out", help="also write the rig file here")
     p.set_defaults(func=cmd_sim)
 

@@ -125,3 +125,19 @@ def test_can_sweep_against_sim_process_records_feedback(tmp_path, capsys):
     thrust = {s["command"]: s["thrust_n_mean"] for s in steps}
     assert 18 < thrust[60] < 27 and -22 < thrust[-60] < -14
     assert all(s["current_a_mean"] is not None for s in steps)
+
+
+def test_sim_fault_switches(tmp_path):
+    from rigtool.errors import UsageError
+    from rigtool.sim.server import start_sim
+
+    server = start_sim("stm32-pwm", sensor="netft", netft="127.0.0.1:0")
+    try:
+        server.set_fault("netft.drop=0.25")
+        server.set_fault("bridge.garbage=true")
+        assert server.parts["netft"].faults.drop == 0.25 and server.parts["bridge"].garbage is True
+        for bad in ("netft.nope=1", "warp.drive=1", "netft.drop=lots", "netft"):
+            with pytest.raises(UsageError):
+                server.set_fault(bad)
+    finally:
+        server.stop()

@@ -34,16 +34,35 @@ class SimServer:
     """Running personalities and the rig file that reaches them."""
 
     live: LiveTwin
-    parts: list = field(default_factory=list)
+    parts: dict = field(default_factory=dict)  # name -> personality
     rig: dict = field(default_factory=dict)
 
     def rig_yaml(self) -> str:
         return yaml.safe_dump(self.rig, sort_keys=False)
 
     def stop(self) -> None:
-        for part in reversed(self.parts):
+        for part in reversed(list(self.parts.values())):
             part.stop()
         self.live.stop()
+
+    def set_fault(self, spec: str) -> None:
+        """Apply `PART.SWITCH=VALUE`, e.g. `netft.drop=0.01`, `bridge.garbage=true`, `vesc.fault_code=4`."""
+        target, _, value = spec.partition("=")
+        name, _, switch = target.partition(".")
+        part = self.parts.get(name)
+        if part is None or not switch or not value:
+            raise UsageError(f"--fault {spec!r}: expected PART.SWITCH=VALUE with PART one of "
+                             f"{', '.join(self.parts)}")
+        obj = part.faults if hasattr(part, "faults") and hasattr(part.faults, switch) else part
+        if switch.startswith("_") or not hasattr(obj, switch):
+            raise UsageError(f"--fault {spec!r}: {name} has no fault switch {switch!r}")
+        current = getattr(obj, switch)
+        try:
+            parsed = (value.lower() in ("1", "true", "yes", "on")) if isinstance(current, bool) \
+                else type(current)(value)
+        except (TypeError, ValueError):
+            raise UsageError(f"--fault {spec!r}: {value!r} is not a valid {type(current).__name__}") from None
+        setattr(obj, switch, parsed)
 
 
 def start_sim(profile_name: str, seed: int = 1, sensor: str = "netft",
@@ -67,7 +86,7 @@ def start_sim(profile_name: str, seed: int = 1, sensor: str = "netft",
             rig["actuator"] = _start_can(server, can_channel)
         else:
             bridge = Stm32BridgeTwin(live).start()
-            server.parts.append(bridge)
+            server.parts["bridge"] = bridge
             rig["actuator"] = {"driver": "stm32-bridge", "url": bridge.url,
                                "command_unit": profile.command_unit,
                                "psc": bridge.psc, "arr": bridge.arr}
@@ -78,20 +97,20 @@ def start_sim(profile_name: str, seed: int = 1, sensor: str = "netft",
             except OSError as exc:
                 raise UsageError(f"cannot serve Net F/T on {host}:{port}: {exc} "
                                  "(choose another with --netft HOST:PORT, or port 0)") from None
-            server.parts.append(ft)
+            server.parts["netft"] = ft
             h, p = ft.address
             rig["sensor"] = {"driver": "ati-netft", "host": h, "port": p, "http_port": ft.http_port}
         else:
             preset = "mark10" if sensor == "mark10" else "hx711-csv"
             gauge = GaugeTwin(live, preset, seed=seed).start()
-            server.parts.append(gauge)
+            server.parts["gauge"] = gauge
             rig["sensor"] = {"driver": "ascii-gauge", "url": gauge.port, "preset": preset,
                              "channel": ("fx", "fy", "fz")[gauge.channel]}
             if preset == "hx711-csv":
                 rig["sensor"].update(scale=gauge.scale, offset=gauge.offset, unit="N")
         stage = StageTwin(live, zero_offset_m=STAGE_ZERO_OFFSET_M,
                           position_mm=(depth_m + STAGE_ZERO_OFFSET_M) * 1000).start()
-        server.parts.append(stage)
+        server.parts["stage"] = stage
         rig["depth_stage"] = {"driver": "serial-stage", "url": stage.pty_path,
                               "speed_mm_s": stage.speed_mm_s, "zero_offset_m": STAGE_ZERO_OFFSET_M}
         ch = ("fx", "fy", "fz", "tx", "ty", "tz")[profile.thrust_channel]
@@ -108,5 +127,5 @@ def _start_can(server: SimServer, channel: str) -> dict:
     from rigtool.sim.vesc_twin import VescTwin
 
     vesc = VescTwin(server.live, channel=channel, interface="udp_multicast").start()
-    server.parts.append(vesc)
+    server.parts["vesc"] = vesc
     return {"driver": "vesc-can", **vesc.address}
