@@ -28,7 +28,7 @@ def _fmt_duration(seconds: float) -> str:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from rigtool.sweep import open_checked, resolve, resume_sweep, run_sweep
+    from rigtool.sweep import open_checked, resolve, resume_sweep, run_sweep, terminal_confirm
 
     if args.resume:
         if args.protocol or args.rig or args.sim or args.dry_run:
@@ -36,7 +36,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                              "give no protocol, --rig, --sim or --dry-run")
         store = Store(resolve_db_path(args.db), create=False)
         try:
-            outcome, n_plan = resume_sweep(store, args.resume, default_reporter())
+            outcome, n_plan = resume_sweep(store, args.resume, default_reporter(), terminal_confirm())
             return _report_outcome(outcome, n_plan, store)
         finally:
             store.close()
@@ -50,7 +50,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     store = Store(resolve_db_path(args.db, setup.rig.db))
     try:
-        outcome = run_sweep(setup, store, default_reporter())
+        outcome = run_sweep(setup, store, default_reporter(), terminal_confirm())
         return _report_outcome(outcome, len(setup.plan), store)
     finally:
         store.close()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import signal
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import FrameType
 
@@ -76,13 +77,15 @@ class Engine:
     """Executes plan steps on the devices and commits each finished point to the store."""
 
     def __init__(self, protocol: Protocol, plan: list[PlanStep], rig: RigSet, store: Store,
-                 run_id: str, reporter=None) -> None:
+                 run_id: str, reporter=None, confirm: Callable[[str], bool] | None = None) -> None:
+        """`confirm` asks the operator a yes/no question (None: nobody to ask, so pauses abort)."""
         self.protocol = protocol
         self.plan = plan
         self.rig = rig
         self.store = store
         self.run_id = run_id
         self.reporter = reporter or SilentReporter()
+        self.confirm = confirm
         self.clock = rig.clock
         self.limits = LimitMonitor(protocol.limits)
         self.unit = rig.actuator.info.command_unit
@@ -107,7 +110,7 @@ class Engine:
                 self._begin(t_offset_s)
                 for step in self.plan[start_idx:]:
                     self._prepare_depth(step)
-                    self._run_step(step)
+                    self._run_step_or_pause(step)
                     done += 1
                     if signals.stop_requested:
                         status, reason = "aborted", "stopped by the operator (Ctrl-C)"
@@ -152,6 +155,22 @@ class Engine:
                 self._tare("per_depth", step.idx)
         if self.protocol.timing.tare == "per_point":
             self._tare("per_point", step.idx)
+
+    def _run_step_or_pause(self, step: PlanStep) -> None:
+        """Run a point; with `on_trip: pause`, a trip goes neutral and the operator may retry it."""
+        while True:
+            try:
+                self._run_step(step)
+                return
+            except SafetyTrip as trip:
+                if self.protocol.limits.on_trip != "pause" or self.confirm is None:
+                    raise
+                self._safe_neutral()
+                self._event("limit_trip", {"message": str(trip), "action": "paused"}, step.idx)
+                self.limits.reset()
+                if not self.confirm(f"{trip}. Thruster at neutral. Retry point {step.idx}?"):
+                    raise SafetyTrip(f"{trip}; the operator stopped the run") from None
+                self._event("resumed", {"after": "limit_trip", "retry_idx": step.idx}, step.idx)
 
     def _run_step(self, step: PlanStep) -> None:
         timing = self.protocol.timing

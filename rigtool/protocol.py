@@ -148,6 +148,7 @@ class Limits(_Strict):
     max_staleness_s: PositiveFloat = 1.0
     slew_per_s: PositiveFloat | None = None
     debounce_samples: PositiveInt = 5
+    on_trip: Literal["abort", "pause"] = "abort"  # pause: neutral, ask the operator, retry the point
 
 
 class Metadata(_Strict):

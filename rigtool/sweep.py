@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import socket
+import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -99,7 +101,15 @@ def resolve_resume(store: Store, run_ref: str) -> tuple[str, SweepSetup, int, fl
     return run_id, SweepSetup(protocol, path, rig, plan), len(done), t_used
 
 
-def resume_sweep(store: Store, run_ref: str, reporter=None) -> tuple[Outcome, int]:
+def terminal_confirm() -> Callable[[str], bool] | None:
+    """A yes/no prompt on the terminal, or None when nobody is there to answer."""
+    if not sys.stdin.isatty():
+        return None
+    return lambda question: input(f"{question} [y/N] ").strip().lower() in ("y", "yes")
+
+
+def resume_sweep(store: Store, run_ref: str, reporter=None,
+                 confirm: Callable[[str], bool] | None = None) -> tuple[Outcome, int]:
     """Continue a stopped run from its first unfinished point, in the same run id."""
     run_id, setup, start_idx, t_used = resolve_resume(store, run_ref)
     previous = store.run(run_id)["status"]
@@ -111,13 +121,14 @@ def resume_sweep(store: Store, run_ref: str, reporter=None) -> tuple[Outcome, in
         store.reopen_run(run_id)
         store.add_event(run_id, "resumed", {"from_idx": start_idx, "previous_status": previous},
                         t_s=t_used)
-        engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter)
+        engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter, confirm)
         return engine.run(start_idx, t_offset_s=t_used + 1.0), len(setup.plan)
     finally:
         rigset.close()
 
 
-def run_sweep(setup: SweepSetup, store: Store, reporter=None) -> Outcome:
+def run_sweep(setup: SweepSetup, store: Store, reporter=None,
+              confirm: Callable[[str], bool] | None = None) -> Outcome:
     """Create the run in the store and execute the plan on the rig."""
     rigset = open_checked(setup)
     try:
@@ -134,7 +145,7 @@ def run_sweep(setup: SweepSetup, store: Store, reporter=None) -> Outcome:
             command_unit=rigset.actuator.info.command_unit,
             tool_version=__version__,
         )
-        engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter)
+        engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter, confirm)
         return engine.run()
     finally:
         rigset.close()

@@ -258,3 +258,31 @@ def test_lost_device_aborts_with_event_and_neutral(write_yaml, db_path):
     assert outcome.status == "aborted" and "device fault" in outcome.reason
     assert store.events(outcome.run_id, "device_fault")
     assert rigset.actuator.sent[-1] == 0.0
+
+
+def test_pause_on_trip_asks_and_retries_the_point(write_yaml, db_path):
+    text = SMALL_PROTOCOL.replace("max_thrust_n: 90", "max_thrust_n: 20\n  on_trip: pause")
+    setup, rigset = _setup(write_yaml, text)
+    questions = []
+
+    def confirm(question):
+        questions.append(question)
+        return len(questions) == 1  # retry once, then give up
+
+    store = Store(db_path)
+    run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                              metadata={}, seed=1, command_unit="percent", tool_version="test")
+    outcome = Engine(setup.protocol, setup.plan, rigset, store, run_id, confirm=confirm).run()
+    assert len(questions) == 2 and "Thruster at neutral" in questions[0]
+    assert outcome.status == "aborted" and "operator stopped" in outcome.reason
+    assert [s["command"] for s in store.steps(run_id)] == [-50, 0, 50]
+    assert rigset.actuator.sent[-1] == 0.0
+    paused = [e for e in store.events(run_id, "limit_trip") if e["detail"].get("action") == "paused"]
+    assert len(paused) == 2 and len(store.events(run_id, "resumed")) == 1
+
+
+def test_pause_without_an_operator_aborts(write_yaml, db_path):
+    text = SMALL_PROTOCOL.replace("max_thrust_n: 90", "max_thrust_n: 20\n  on_trip: pause")
+    setup, rigset = _setup(write_yaml, text)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and "limit trip" in outcome.reason
