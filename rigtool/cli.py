@@ -234,10 +234,20 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     for warning in cal.warnings:
         err.print(f"warning: {warning}")
     out.print(f"artefacts: {', '.join(str(p) for p in paths)}")
+    cav = None
+    from rigtool.analysis.cavitation import calibrate_cavitation, is_shallow
+
+    if is_shallow(store, run_id):
+        from rigtool.cavitation_artefacts import write_cavitation_artefacts
+
+        cav = calibrate_cavitation(store, run_id, args.base, Path(args.out))
+        cav_paths = write_cavitation_artefacts(cav, Path(args.out), created_utc=created)
+        out.print(f"quasi-cavitation (BETM base run {cav.base_run_id}): "
+                  f"{', '.join(str(p) for p in cav_paths)}")
     if args.report:
         from rigtool.report import write_report
 
-        out.print(f"report: {write_report(store, run_id, folder, cal)}")
+        out.print(f"report: {write_report(store, run_id, folder, cal, cavitation=cav)}")
     return 0
 
 
@@ -334,6 +344,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="run id, unique prefix, or `last`")
     p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
     p.add_argument("--report", action="store_true", help="also write the HTML report")
+    p.add_argument("--base", metavar="RUN_ID", help="deep run giving the BETM coefficients of a "
+                   "shallow (cavitation) run (default: the latest deep run of the same thruster)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_calibrate)
 

@@ -54,9 +54,11 @@ class SectionView:
 
 
 def write_report(store: Store, run_id: str, out_dir: Path,
-                 calibration: Calibration | None = None, *, image_format: str = "svg") -> Path:
+                 calibration: Calibration | None = None, *, image_format: str = "svg",
+                 cavitation: object | None = None) -> Path:
     """Write `out_dir`/report.html for `run_id` (calibrating it unless given) and return the path."""
-    text = render_report(store, run_id, calibration, image_format=image_format)
+    text = render_report(store, run_id, calibration, image_format=image_format,
+                         cavitation=cavitation)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / REPORT_FILE
@@ -67,7 +69,7 @@ def write_report(store: Store, run_id: str, out_dir: Path,
 
 
 def render_report(store: Store, run_id: str, calibration: Calibration | None = None, *,
-                  image_format: str = "svg") -> str:
+                  image_format: str = "svg", cavitation: object | None = None) -> str:
     """The report of `run_id` as one HTML string."""
     if image_format not in IMAGE_FORMATS:
         raise ValueError(f"image_format must be one of {IMAGE_FORMATS}, not {image_format!r}")
@@ -92,7 +94,12 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
                                                  suffix, image_format))
                 sections.append(view)
             drift = _drift_figure(cal, events, image_format)
-    return _template().render(
+    cav_html = Markup("")
+    if cavitation is not None:
+        from rigtool.cavitation_artefacts import cavitation_section_html
+
+        cav_html = Markup(cavitation_section_html(cavitation, image_format))  # type: ignore[arg-type]
+    return _template().render(cavitation=cav_html,
         run=run, meta=_meta_rows(run, steps, cal), protocol=_flatten(run.get("protocol") or {}),
         warnings=_warnings(run, events, cal), events=_event_counts(events), cal=cal,
         sections=sections, drift=drift, unit=unit, generated=utc_now(),

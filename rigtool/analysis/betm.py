@@ -1,0 +1,203 @@
+"""BETM: inverse-variance fusion of speed- and current-based thrust (domain.md section 3).
+
+f_n = C_p |n| n (C_p per direction), f_i = s C_i (I - I_0)^(2/3) with s the sign of the speed;
+both are fused with a prior N(u0, sigma0^2). The consistency test compares the normalised
+distance d = |f_n - f_i| / sqrt(sigma_n^2 + sigma_i^2) with gamma: when d > gamma the current
+estimate (the noisier one) is dropped for that sample. The estimator variances are those of
+the deep calibration's residuals, split into the two estimators' own errors and the force
+measurement noise (see `split_variances`), because both residuals share the force noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from rigtool.analysis.calibrate import Calibration, DepthSection
+from rigtool.errors import UsageError
+
+DEEP_DEPTH_M = 0.6  # shallower than this, ventilation is possible (domain.md section 4)
+
+
+@dataclass(frozen=True)
+class Betm:
+    """Coefficients and variances of the fused thrust estimate; all SI units (N, r/min, A)."""
+
+    cp_fwd: float
+    cp_rev: float
+    c_n: float
+    i_0: float
+    ci_fwd: float
+    ci_rev: float
+    sigma_n: float  # std of the speed-based estimate's own error (N)
+    sigma_i: float  # std of the current-based estimate's own error (N)
+    sigma_meas: float = 0.0  # force measurement noise at the calibration's time base (N)
+    u0: float = 0.0  # prior mean (N)
+    sigma0: float = 1e3  # prior std (N); the default is uninformative
+    gamma: float = 3.0  # consistency threshold on the normalised distance
+    level_n: tuple[float, ...] = ()  # |f_n| knots (N) of the level-dependent stds below
+    sigma_n_level: tuple[float, ...] = ()  # std of f_n's error at each knot (N)
+    sigma_i_level: tuple[float, ...] = ()  # std of f_i's error at each knot (N)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def speed_estimate(self, speed_rpm: np.ndarray) -> np.ndarray:
+        """f_n = C_p |n| n with the forward or reverse coefficient."""
+        n = np.asarray(speed_rpm, dtype=float)
+        return np.where(n >= 0, self.cp_fwd, self.cp_rev) * np.abs(n) * n
+
+    def current_estimate(self, current_a: np.ndarray, sign: np.ndarray) -> np.ndarray:
+        """f_i = sign C_i (|I| - I_0)^(2/3); sign from the speed (or command) direction."""
+        s = np.sign(np.asarray(sign, dtype=float))
+        d = np.maximum(np.abs(np.asarray(current_a, dtype=float)) - self.i_0, 0.0)
+        return s * np.where(s >= 0, self.ci_fwd, self.ci_rev) * d ** (2 / 3)
+
+    def variances(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(sigma_n^2, sigma_i^2) at thrust level f: interpolated in |f| when knots exist."""
+        a = np.abs(np.asarray(f, dtype=float))
+        if not self.level_n:
+            return np.full(a.shape, self.sigma_n**2), np.full(a.shape, self.sigma_i**2)
+        knots = np.asarray(self.level_n)
+        return (np.interp(a, knots, np.asarray(self.sigma_n_level)) ** 2,
+                np.interp(a, knots, np.asarray(self.sigma_i_level)) ** 2)
+
+    def fuse(self, speed_rpm: np.ndarray, current_a: np.ndarray,
+             sign: np.ndarray | None = None) -> BetmEstimate:
+        """Fused estimate, its variance and the consistency flag for every sample."""
+        n = np.asarray(speed_rpm, dtype=float)
+        f_n = self.speed_estimate(n)
+        f_i = self.current_estimate(current_a, n if sign is None else sign)
+        return fuse_estimates(f_n, f_i, *self.variances(f_n), self.u0, self.sigma0**2,
+                              self.gamma)
+
+
+@dataclass
+class BetmEstimate:
+    """Per-sample BETM output: fused thrust, its variance, the two inputs, and the test result."""
+
+    thrust_n: np.ndarray
+    var: np.ndarray
+    f_n: np.ndarray
+    f_i: np.ndarray
+    distance: np.ndarray
+    consistent: np.ndarray
+
+
+def fuse_estimates(f_n: np.ndarray, f_i: np.ndarray, var_n: np.ndarray, var_i: np.ndarray,
+                   u0: float, var0: float, gamma: float) -> BetmEstimate:
+    """Inverse-variance fusion of f_n, f_i and the prior; f_i is dropped where d > gamma.
+
+    A missing current (NaN) counts as dropped.
+    """
+    f_n = np.asarray(f_n, dtype=float)
+    f_i = np.asarray(f_i, dtype=float)
+    var_n = np.broadcast_to(np.asarray(var_n, dtype=float), f_n.shape)
+    var_i = np.broadcast_to(np.asarray(var_i, dtype=float), f_n.shape)
+    with np.errstate(invalid="ignore"):
+        d = np.abs(f_n - f_i) / np.sqrt(var_n + var_i)
+        ok = np.isfinite(f_i) & (d <= gamma)
+    w_n, w_0 = 1.0 / var_n, 1.0 / var0
+    w_i = np.where(ok, 1.0 / var_i, 0.0)
+    num = f_n * w_n + np.where(ok, f_i, 0.0) * w_i + u0 * w_0
+    den = w_n + w_i + w_0
+    return BetmEstimate(num / den, 1.0 / den, f_n, f_i, d, ok)
+
+
+def split_variances(e_n: np.ndarray, e_i: np.ndarray) -> tuple[float, float, float]:
+    """(sigma_n, sigma_i, sigma_meas) from residuals e_n = f - f_n and e_i = f - f_i.
+
+    Both residuals contain the force noise m: var(e_n) = s_n^2 + m^2, var(e_i) = s_i^2 + m^2,
+    var(e_n - e_i) = s_n^2 + s_i^2 (three-cornered hat), assuming independent errors.
+    """
+    ok = np.isfinite(e_n) & np.isfinite(e_i)
+    vn, vi = float(np.var(e_n[ok])), float(np.var(e_i[ok]))
+    vd = float(np.var((e_n - e_i)[ok]))
+    floor = 1e-6 * max(vn, vi, 1e-12)
+    s_n2 = max((vn - vi + vd) / 2, floor)
+    s_i2 = max((vi - vn + vd) / 2, floor)
+    m2 = max((vn + vi - vd) / 2, 0.0)
+    return math.sqrt(s_n2), math.sqrt(s_i2), math.sqrt(m2)
+
+
+def deep_section(cal: Calibration) -> DepthSection:
+    """The deepest section of a calibration with BETM coefficients (C_p, C_n, C_i)."""
+    need = ("C_p_fwd", "C_n", "I_0", "C_i_fwd_direct")
+    ok = [s for s in cal.sections if all(k in s.fits for k in need)]
+    if not ok:
+        raise UsageError(f"run {cal.run_id} has no depth with C_p, C_n and C_i fits: "
+                         "use a deep, full-range calibration run as --base")
+    return max(ok, key=lambda s: -math.inf if s.depth_m is None else s.depth_m)
+
+
+def betm_from_section(sec: DepthSection, **kw: float) -> Betm:
+    """Betm with the section's coefficients and its per-sample residual spreads as variances."""
+    f = sec.fits
+
+    def v(name: str, fallback: str | None = None) -> float:
+        c = f.get(name) or (f.get(fallback) if fallback else None)
+        return float(c.value) if c is not None else math.nan
+
+    return Betm(cp_fwd=v("C_p_fwd"), cp_rev=v("C_p_rev", "C_p_fwd"), c_n=v("C_n"), i_0=v("I_0"),
+                ci_fwd=v("C_i_fwd_direct", "C_i_fwd"),
+                ci_rev=v("C_i_rev_direct", "C_i_rev_direct") if "C_i_rev_direct" in f
+                else v("C_i_rev", "C_i_fwd_direct"),
+                sigma_n=v("sigma_n_sample"), sigma_i=v("sigma_i_sample"), **kw)
+
+
+def level_variances(betm: Betm, f: np.ndarray, speed_rpm: np.ndarray, current_a: np.ndarray,
+                    n_levels: int = 8, min_count: int = 20) -> Betm:
+    """`betm` with level-dependent estimator stds from deep residuals (f zero-corrected).
+
+    Residuals are binned by quantiles of |f_n|; each bin's stds come from `split_variances`.
+    The current estimate's error grows at low current, where (I - I_0)^(2/3) is steep, so one
+    number per estimator would mis-weight the fusion at one end of the range.
+    """
+    f_n = betm.speed_estimate(speed_rpm)
+    f_i = betm.current_estimate(current_a, speed_rpm)
+    e_n, e_i = f - f_n, f - f_i
+    ok = np.isfinite(e_n) & np.isfinite(e_i)
+    s_n, s_i, m = split_variances(e_n[ok], e_i[ok])
+    a = np.abs(f_n[ok])
+    edges = np.unique(np.quantile(a, np.linspace(0, 1, n_levels + 1)))
+    knots, sn, si = [], [], []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (a >= lo) & (a <= hi)
+        if sel.sum() < min_count:
+            continue
+        b_n, b_i, _ = split_variances(e_n[ok][sel], e_i[ok][sel])
+        knots.append(float(np.median(a[sel])))
+        sn.append(b_n)
+        si.append(b_i)
+    return Betm(**{**betm.to_dict(), "sigma_n": s_n, "sigma_i": s_i, "sigma_meas": m,
+                   "level_n": tuple(knots), "sigma_n_level": tuple(sn),
+                   "sigma_i_level": tuple(si)})
+
+
+@dataclass
+class EstimatorErrors:
+    """Error summary of one thrust estimator against zero-corrected measured thrust."""
+
+    name: str
+    n: int
+    max_abs_n: float
+    p95_abs_n: float
+    rms_n: float
+    within_1n: float
+
+    @classmethod
+    def of(cls, name: str, err: np.ndarray) -> EstimatorErrors:
+        e = np.abs(err[np.isfinite(err)])
+        return cls(name, int(e.size), float(e.max()), float(np.quantile(e, 0.95)),
+                   float(np.sqrt(np.mean(e**2))), float(np.mean(e <= 1.0)))
+
+
+def compare_estimators(betm: Betm, f: np.ndarray, speed_rpm: np.ndarray,
+                       current_a: np.ndarray) -> list[EstimatorErrors]:
+    """Errors of speed-only, current-only and BETM estimates against measured thrust f."""
+    est = betm.fuse(speed_rpm, current_a)
+    return [EstimatorErrors.of("speed only (C_p |n| n)", est.f_n - f),
+            EstimatorErrors.of("current only (C_i (I - I_0)^(2/3))", est.f_i - f),
+            EstimatorErrors.of("BETM (fused)", est.thrust_n - f)]

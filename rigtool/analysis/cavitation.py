@@ -1,0 +1,421 @@
+"""Quasi-cavitation calibration of a shallow run: BETM, events, GP training set, QCTM-GP, evaluation.
+
+BETM coefficients come from a deep, full-range base run (`--base`, or the most recent
+completed run of the same thruster whose depths are all >= 0.6 m). All analysis works on
+short block means (see blocks.py): events on `detect_block_s`, the GP on `train_block_s`.
+The in-run evaluation is a time-blocked 2-fold split (alternate `fold_s` slices of every
+point), with the main fit's hyperparameters; held-out runs use `evaluate_on_run`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from rigtool.analysis.betm import (
+    DEEP_DEPTH_M,
+    Betm,
+    EstimatorErrors,
+    betm_from_section,
+    compare_estimators,
+    deep_section,
+    level_variances,
+)
+from rigtool.analysis.blocks import Blocks, block_means
+from rigtool.analysis.calibrate import calibrate
+from rigtool.analysis.dataset import RunData, load_run
+from rigtool.analysis.events import (
+    Event,
+    EventParams,
+    MatchResult,
+    clip_to_windows,
+    detect_events,
+    match_events,
+    relative_drop,
+)
+from rigtool.analysis.gp import ExactGp, GpParams, fit_exact
+from rigtool.analysis.trainset import (
+    TrainingSet,
+    huber_weights,
+    strata_keys,
+    stratified_pick,
+)
+from rigtool.errors import UsageError
+from rigtool.models import Z95
+from rigtool.store import Store
+
+EVENT_KIND = "ventilation"
+TRUTH_KIND = "sim.ventilation"
+Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class CavitationParams:
+    """Every option of the quasi-cavitation analysis (written to cavitation.json)."""
+
+    detect_block_s: float = 0.1
+    train_block_s: float = 0.2
+    budget: int = 2000
+    gamma: float = 3.0
+    edge_s: float = 0.5
+    fold_s: float = 5.0
+    events: EventParams = field(default_factory=EventParams)
+    gp: GpParams = field(default_factory=GpParams)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class ClassErrors:
+    """Prediction errors of one class of blocks (during/outside events, edges, steps)."""
+
+    name: str
+    n: int
+    p95_abs_n: float
+    max_abs_n: float
+    rms_n: float
+    coverage95: float
+    max_at: str
+
+
+@dataclass
+class Evaluation:
+    """Errors by class, overall coverage, event matching against truth, and where from."""
+
+    source: str
+    classes: list[ClassErrors]
+    coverage95: float
+    matching: MatchResult | None
+    truth_source: str
+
+
+@dataclass
+class CavitationResult:
+    """Everything `calibrate_cavitation` found; arrays are ready to plot and export."""
+
+    run_id: str
+    base_run_id: str
+    params: CavitationParams
+    betm: Betm
+    deep_errors: list[EstimatorErrors]
+    deep_errors_samples: list[EstimatorErrors]
+    events: list[dict]
+    event_table: list[dict]
+    training: TrainingSet
+    n_blocks_total: int
+    gp: ExactGp
+    evaluation: Evaluation
+    series: dict[str, np.ndarray]
+    warnings: list[str] = field(default_factory=list)
+
+
+def is_shallow(store: Store, run_id: str) -> bool:
+    """True when any point of the run is shallower than the deep limit (0.6 m)."""
+    return any(s["depth_m"] is not None and s["depth_m"] < DEEP_DEPTH_M
+               for s in store.steps(run_id))
+
+
+def find_base_run(store: Store, run_id: str) -> str:
+    """Most recent completed run of the same thruster, all points deep, >= 10 commands."""
+    me = store.run(run_id)
+    tid = (me.get("metadata") or {}).get("thruster_id") or \
+        ((me.get("protocol") or {}).get("metadata") or {}).get("thruster_id")
+    for row in store.runs(limit=10_000):
+        if row["id"] == run_id or row["status"] != "completed":
+            continue
+        steps = store.steps(row["id"])
+        depths = [s["depth_m"] for s in steps]
+        if not steps or any(d is None or d < DEEP_DEPTH_M for d in depths):
+            continue
+        if len({s["command"] for s in steps}) < 10:
+            continue
+        other = store.run(row["id"])
+        otid = (other.get("metadata") or {}).get("thruster_id") or \
+            ((other.get("protocol") or {}).get("metadata") or {}).get("thruster_id")
+        if tid is None or otid == tid:
+            return row["id"]
+    raise UsageError(f"no deep base run found for {run_id}: record a deep full-range run "
+                     "(e.g. protocols/luo2020-baseline.yaml) or pass --base RUN_ID")
+
+
+def build_betm(base: RunData, params: CavitationParams) -> tuple[Betm, list[EstimatorErrors],
+                                                                  list[EstimatorErrors]]:
+    """BETM from the base run; deep-point errors of the three estimators on held-out points.
+
+    Level variances are estimated on even points and errors measured on odd points; the
+    returned Betm uses the variances of all points.
+    """
+    cal = calibrate(base)
+    sec = deep_section(cal)
+    betm0 = betm_from_section(sec, gamma=params.gamma)
+    errors = []
+    final = betm0
+    for block_s in (params.train_block_s, 0.0):
+        b = block_means(base, block_s)
+        f = b.thrust_n - (sec.zero.at(b.t_s) if sec.zero else 0.0)
+        ok = (np.abs(b.speed_rpm) > 50) & np.isfinite(f)
+        even, odd = ok & (b.point % 2 == 0), ok & (b.point % 2 == 1)
+        half = level_variances(betm0, f[even], b.speed_rpm[even], b.current_a[even])
+        errors.append(compare_estimators(half, f[odd], b.speed_rpm[odd], b.current_a[odd]))
+        if block_s == params.train_block_s:
+            final = level_variances(betm0, f[ok], b.speed_rpm[ok], b.current_a[ok])
+    return final, errors[0], errors[1]
+
+
+def find_events(run: RunData, betm: Betm, params: CavitationParams) -> tuple[list[Event], Blocks]:
+    """Detected ventilation events of a run (on `detect_block_s` blocks) and those blocks."""
+    b = block_means(run, params.detect_block_s)
+    est = betm.fuse(b.speed_rpm, b.current_a)
+    drop = relative_drop(b.thrust_n, est.thrust_n, params.events.min_thrust_n)
+    i_hat = betm.c_n * np.abs(b.speed_rpm) ** 3 + betm.i_0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        deficit = 1.0 - np.abs(b.current_a) / i_hat
+    return detect_events(b.t_s, drop, b.point, params.events, deficit), b
+
+
+def event_records(run: RunData, events: list[Event]) -> list[dict]:
+    """Event details as stored (kind "ventilation")."""
+    out = []
+    for e in events:
+        p = e.segment
+        out.append({
+            "t_start_s": e.t_start_s, "t_end_s": e.t_end_s, "duration_s": e.duration_s,
+            "depth_m": float(run.steps.depth_m[p]), "command": float(run.steps.command[p]),
+            "step_idx": int(run.steps.idx[p]), "mean_drop_frac": e.mean_drop,
+            "peak_drop_frac": e.peak_drop, "current_deficit_frac": e.current_deficit,
+            "current_supports": e.current_supports, "open_start": e.open_start,
+            "open_end": e.open_end})
+    return out
+
+
+def event_table(run: RunData, blocks: Blocks, records: list[dict]) -> list[dict]:
+    """Per (depth, command): observed time, events per minute, mean duration, time ventilated."""
+    rows = []
+    for p in range(len(run.steps)):
+        sel = blocks.point == p
+        if not sel.any():
+            continue
+        seconds = float(blocks.t1_s[sel].max() - blocks.t0_s[sel].min())
+        mine = [r for r in records if r["step_idx"] == int(run.steps.idx[p])]
+        dur = [r["duration_s"] for r in mine]
+        rows.append({"depth_m": float(run.steps.depth_m[p]), "command": float(run.steps.command[p]),
+                     "observed_s": seconds, "n_events": len(mine),
+                     "rate_per_min": 60.0 * len(mine) / seconds if seconds > 0 else math.nan,
+                     "mean_duration_s": float(np.mean(dur)) if dur else math.nan,
+                     "ventilated_frac": float(np.sum(dur)) / seconds if seconds > 0 else math.nan})
+    return rows
+
+
+def in_intervals(t: np.ndarray, intervals: list[tuple[float, float]]) -> np.ndarray:
+    """Mask of times inside any [a, b] interval."""
+    m = np.zeros(t.size, bool)
+    for a, b in intervals:
+        m |= (t >= a) & (t <= b)
+    return m
+
+
+def training_blocks(run: RunData, betm: Betm, events: list[Event],
+                    params: CavitationParams) -> tuple[TrainingSet, float]:
+    """Every train-size block of the run as a weighted (x, y) set; returns the Huber scale."""
+    b = block_means(run, params.train_block_s)
+    ok = np.isfinite(b.thrust_n) & np.isfinite(b.speed_rpm) & np.isfinite(b.current_a)
+    b = b.take(np.flatnonzero(ok))
+    f_betm = betm.fuse(b.speed_rpm, b.current_a).thrust_n
+    y = b.thrust_n - f_betm
+    vent = in_intervals(b.t_s, [(e.t_start_s, e.t_end_s) for e in events])
+    w, scale = huber_weights(y, b.point)
+    ts = TrainingSet(
+        x=np.column_stack([b.speed_rpm, b.current_a, b.depth_m]), y=y, w=w, t_s=b.t_s,
+        command=b.command, ventilated=vent, thrust_n=b.thrust_n, betm_n=f_betm,
+        run_id=np.full(len(b), run.run_id), provenance={"run_ids": [run.run_id]})
+    ts.provenance["fold"] = (np.floor(b.t_in_point_s / params.fold_s).astype(int) % 2).tolist()
+    ts.provenance["point"] = b.point.tolist()
+    ts.provenance["t_in_point_s"] = b.t_in_point_s.tolist()
+    return ts, scale
+
+
+def select(ts: TrainingSet, budget: int) -> TrainingSet:
+    """Stratified selection of at most `budget` rows (see trainset.py)."""
+    keys = strata_keys(ts.x[:, 2], ts.command, ts.ventilated)
+    picked = ts.take(stratified_pick(keys, budget))
+    picked.provenance = {k: v for k, v in ts.provenance.items()
+                         if k in ("run_ids", "block_s", "huber_scale_n")}
+    return picked
+
+
+def truth_intervals(store: Store, run_id: str) -> list[tuple[float, float]]:
+    """Twin ground-truth ventilation intervals (evaluation only)."""
+    return [(float(e["detail"]["t_start_s"]), float(e["detail"]["t_end_s"]))
+            for e in store.events(run_id, TRUTH_KIND)]
+
+
+def windows_of(blocks: Blocks) -> list[tuple[float, float]]:
+    """Acquisition window (first to last sample time) of every point."""
+    return [(float(blocks.t0_s[blocks.point == p].min()), float(blocks.t1_s[blocks.point == p].max()))
+            for p in np.unique(blocks.point)]
+
+
+def classify(blocks: Blocks, events: list[tuple[float, float]], edge_s: float) -> np.ndarray:
+    """Class per block: 'step' (within edge_s of a point start), 'edge' (of an event start or
+    end inside the window), 'event', 'outside'."""
+    cls = np.full(len(blocks), "outside", dtype=object)
+    ev = in_intervals(blocks.t_s, events)
+    cls[ev] = "event"
+    wins = windows_of(blocks)
+    edges = [x for a, b in events for x in (a, b) if any(wa < x < wb for wa, wb in wins)]
+    near = np.zeros(len(blocks), bool)
+    for x in edges:
+        near |= np.abs(blocks.t_s - x) <= edge_s
+    cls[near] = "edge"
+    cls[blocks.t_in_point_s <= edge_s] = "step"
+    return cls
+
+
+def class_errors(err: np.ndarray, inside: np.ndarray, cls: np.ndarray, blocks: Blocks) -> list[ClassErrors]:
+    """Error summary per class and for all blocks."""
+    out = []
+    for name in ("event", "outside", "edge", "step", "all"):
+        m = np.ones(err.size, bool) if name == "all" else cls == name
+        if not m.any():
+            out.append(ClassErrors(name, 0, math.nan, math.nan, math.nan, math.nan, ""))
+            continue
+        e = np.abs(err[m])
+        j = np.flatnonzero(m)[int(np.argmax(e))]
+        where = (f"t = {blocks.t_s[j]:.1f} s, {blocks.depth_m[j]:g} m, "
+                 f"command {blocks.command[j]:g}, {cls[j]}")
+        out.append(ClassErrors(name, int(m.sum()), float(np.quantile(e, 0.95)), float(e.max()),
+                               float(np.sqrt(np.mean(e**2))), float(np.mean(inside[m])), where))
+    return out
+
+
+def evaluate_blocks(blocks: Blocks, pred: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                    events: list[tuple[float, float]], edge_s: float, source: str,
+                    matching: MatchResult | None, truth_source: str) -> Evaluation:
+    """Errors of predictions on blocks against measured block thrust, by class."""
+    err = pred - blocks.thrust_n
+    inside = (blocks.thrust_n >= lo) & (blocks.thrust_n <= hi)
+    cls = classify(blocks, events, edge_s)
+    return Evaluation(source, class_errors(err, inside, cls, blocks), float(np.mean(inside)),
+                      matching, truth_source)
+
+
+def evaluate_on_run(store: Store, run_id: str, predict: Predictor, betm: Betm,
+                    params: CavitationParams | None = None) -> Evaluation:
+    """Held-out evaluation of `predict` on another run (twin truth if stored, else detection)."""
+    p = params or CavitationParams()
+    run = load_run(store, run_id)
+    blocks = block_means(run, p.train_block_s)
+    pred, lo, hi = predict(blocks.speed_rpm, blocks.current_a, blocks.depth_m)
+    detected, det_blocks = find_events(run, betm, p)
+    return _evaluate(store, run_id, blocks, det_blocks, detected, pred, lo, hi, p,
+                     f"held-out run {run_id}")
+
+
+def _evaluate(store: Store, run_id: str, blocks: Blocks, det_blocks: Blocks,
+              detected: list[Event], pred: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+              p: CavitationParams, source: str) -> Evaluation:
+    truth = truth_intervals(store, run_id)
+    wins = windows_of(det_blocks)
+    det = [(e.t_start_s, e.t_end_s) for e in detected]
+    if truth:
+        clipped = clip_to_windows(truth, wins)
+        matching = match_events(det, clipped, p.events.min_duration_s)
+        return evaluate_blocks(blocks, pred, lo, hi, truth, p.edge_s, source, matching,
+                               f"{TRUTH_KIND} (twin ground truth)")
+    return evaluate_blocks(blocks, pred, lo, hi, det, p.edge_s, source, None,
+                           "detected events (no ground truth stored)")
+
+
+def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
+                         out_dir: object = None,
+                         params: CavitationParams | None = None) -> CavitationResult:
+    """Full quasi-cavitation analysis of `run_id`; stores its "ventilation" events.
+
+    `out_dir` is accepted for the CLI's convenience and not used: write the files with
+    `cavitation_artefacts.write_cavitation_artefacts`.
+    """
+    p = params or CavitationParams()
+    base_id = base_run_id or find_base_run(store, run_id)
+    betm, deep_blocks, deep_samples = build_betm(load_run(store, base_id), p)
+    run = load_run(store, run_id)
+    events, det_blocks = find_events(run, betm, p)
+    records = event_records(run, events)
+    _store_events(store, run_id, records)
+    table = event_table(run, det_blocks, records)
+
+    all_blocks, scale = training_blocks(run, betm, events, p)
+    all_blocks.provenance.update({"block_s": p.train_block_s, "huber_scale_n": scale})
+    training = select(all_blocks, p.budget)
+    gp = fit_exact(training.x, training.y, training.w, p.gp)
+
+    evaluation, series = _time_blocked(store, run, all_blocks, det_blocks, events, gp, p)
+    warnings = []
+    if len(training) < 50:
+        warnings.append(f"only {len(training)} training blocks: the GP is poorly constrained")
+    return CavitationResult(run_id, base_id, p, betm, deep_blocks, deep_samples, records, table,
+                            training, len(all_blocks), gp, evaluation, series, warnings)
+
+
+def _time_blocked(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: Blocks,
+                  events: list[Event], gp: ExactGp, p: CavitationParams
+                  ) -> tuple[Evaluation, dict[str, np.ndarray]]:
+    """2-fold time-blocked evaluation inside the run, hyperparameters fixed from the main fit."""
+    fold = np.asarray(all_blocks.provenance["fold"])
+    n = len(all_blocks)
+    pred, std = np.full(n, np.nan), np.full(n, np.nan)
+    for k in (0, 1):
+        train = select(all_blocks.take(np.flatnonzero(fold != k)), p.budget)
+        test = np.flatnonzero(fold == k)
+        model = fit_exact(train.x, train.y, train.w, p.gp, hyper=gp.hyper)
+        m, s = model.predict(all_blocks.x[test])
+        pred[test] = all_blocks.betm_n[test] + m
+        std[test] = s
+    blocks = block_means(run, p.train_block_s)
+    ok = np.isfinite(blocks.thrust_n) & np.isfinite(blocks.speed_rpm) & np.isfinite(blocks.current_a)
+    blocks = blocks.take(np.flatnonzero(ok))
+    lo, hi = pred - Z95 * std, pred + Z95 * std
+    ev = _evaluate(store, run.run_id, blocks, det_blocks, events, pred, lo, hi, p,
+                   f"time-blocked 2-fold split of run {run.run_id} ({p.fold_s:g} s slices)")
+    series = {"t_s": blocks.t_s, "thrust_n": blocks.thrust_n, "betm_n": all_blocks.betm_n,
+              "pred_n": pred, "lo95_n": lo, "hi95_n": hi, "depth_m": blocks.depth_m,
+              "command": blocks.command, "point": blocks.point}
+    return ev, series
+
+
+def _store_events(store: Store, run_id: str, records: list[dict]) -> None:
+    """Replace the run's "ventilation" events by `records` (a rerun must not duplicate them)."""
+    with store.transaction():
+        store.conn.execute("DELETE FROM events WHERE run_id = ? AND kind = ?", (run_id, EVENT_KIND))
+    for r in records:
+        store.add_event(run_id, EVENT_KIND, r, t_s=r["t_start_s"], step_idx=r["step_idx"])
+
+
+def train_model(store: Store, run_ids: list[str], base_run_id: str,
+                params: CavitationParams | None = None) -> tuple[Betm, ExactGp, TrainingSet]:
+    """BETM from the base run and an exact GP trained on the selected blocks of several runs."""
+    from rigtool.analysis.trainset import concat
+
+    p = params or CavitationParams()
+    betm, _, _ = build_betm(load_run(store, base_run_id), p)
+    sets = []
+    for rid in run_ids:
+        run = load_run(store, rid)
+        events, _ = find_events(run, betm, p)
+        ts, _ = training_blocks(run, betm, events, p)
+        sets.append(ts)
+    training = select(concat(sets), p.budget)
+    return betm, fit_exact(training.x, training.y, training.w, p.gp), training
+
+
+def predictor(betm: Betm, gp: ExactGp | object) -> Predictor:
+    """(speed, current, depth) -> (thrust, lo95, hi95) from BETM plus a fitted GP correction."""
+    def predict(n: np.ndarray, i: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, ...]:
+        mean, std = gp.predict(np.column_stack([n, i, h]))  # type: ignore[attr-defined]
+        f = betm.fuse(n, i).thrust_n + mean
+        return f, f - Z95 * std, f + Z95 * std
+
+    return predict  # type: ignore[return-value]

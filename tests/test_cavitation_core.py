@@ -1,0 +1,159 @@
+"""BETM fusion, event detection, training-set selection and GP export on synthetic data."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rigtool.analysis.betm import Betm, fuse_estimates, split_variances
+from rigtool.analysis.events import (
+    EventParams,
+    clip_to_windows,
+    detect_events,
+    match_events,
+    relative_drop,
+)
+from rigtool.analysis.gp import GpParams, fit_exact, sklearn_predict
+from rigtool.analysis.trainset import huber_weights, strata_keys, stratified_pick
+from rigtool.models import MODEL_FILE, VARIANCE_FILE, load_model, model_document
+
+BETM = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,
+            sigma_n=0.1, sigma_i=1.0)
+
+
+def test_fusion_is_inverse_variance_mean():
+    est = fuse_estimates(np.array([10.0]), np.array([11.0]), 1.0, 4.0, 0.0, 1e12, 3.0)
+    assert est.thrust_n[0] == pytest.approx((10 / 1 + 11 / 4) / (1 + 1 / 4))
+    assert est.var[0] == pytest.approx(1 / (1 + 1 / 4 + 1e-12))
+    assert est.consistent[0]
+
+
+def test_prior_pulls_towards_u0():
+    est = fuse_estimates(np.array([10.0]), np.array([10.0]), 1.0, 1.0, 0.0, 1.0, 3.0)
+    assert est.thrust_n[0] == pytest.approx(20 / 3)
+
+
+def test_consistency_test_drops_current_estimate():
+    # d = |10 - 20| / sqrt(1 + 4) = 4.47 > 3: f_i dropped, fused = f_n (flat prior)
+    est = fuse_estimates(np.array([10.0, 10.0]), np.array([20.0, 12.0]), 1.0, 4.0, 0.0, 1e12, 3.0)
+    assert est.distance[0] == pytest.approx(10 / np.sqrt(5))
+    assert not est.consistent[0] and est.consistent[1]
+    assert est.thrust_n[0] == pytest.approx(10.0)
+    nan = fuse_estimates(np.array([5.0]), np.array([np.nan]), 1.0, 1.0, 0.0, 1e12, 3.0)
+    assert nan.thrust_n[0] == pytest.approx(5.0) and not nan.consistent[0]
+
+
+def test_betm_models_and_sign():
+    n = np.array([1000.0, -1000.0])
+    assert BETM.speed_estimate(n) == pytest.approx([20.0, -16.0])
+    f_i = BETM.current_estimate(np.array([1.3, 1.3]), n)
+    assert f_i == pytest.approx([17.0, -13.6])
+    fused = BETM.fuse(n, np.array([1.3, 1.3]))
+    assert np.all(np.sign(fused.thrust_n) == np.sign(n))
+
+
+def test_split_variances_recovers_components():
+    rng = np.random.default_rng(0)
+    m, en, ei = (rng.normal(0, s, 200_000) for s in (0.5, 0.1, 1.0))
+    s_n, s_i, s_m = split_variances(m - en, m - ei)
+    assert (s_n, s_i, s_m) == pytest.approx((0.1, 1.0, 0.5), rel=0.12)
+
+
+def _series(events: list[tuple[float, float, float]], t_end: float = 20.0, dt: float = 0.1,
+            seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(0.0, t_end, dt) + dt / 2
+    drop = np.random.default_rng(seed).normal(0.0, 0.01, t.size)
+    for a, b, d in events:
+        drop[(t >= a) & (t < b)] += d
+    return t, drop
+
+
+def test_detect_none():
+    t, r = _series([])
+    assert detect_events(t, r, np.zeros(t.size)) == []
+
+
+def test_detect_known_events_back_to_back_and_at_start():
+    t, r = _series([(0.0, 2.0, 0.5), (5.0, 8.0, 0.3), (8.6, 10.0, 0.4), (15.0, 15.2, 0.5)])
+    ev = detect_events(t, r, np.zeros(t.size), EventParams(min_gap_s=0.2))
+    spans = [(round(e.t_start_s, 1), round(e.t_end_s, 1)) for e in ev]
+    assert spans == [(0.0, 2.0), (5.0, 8.0), (8.6, 10.0)]  # 0.2 s blip below min duration
+    assert ev[0].open_start and not ev[1].open_start
+    assert ev[1].mean_drop == pytest.approx(0.3, abs=0.01)
+
+
+def test_detect_bridges_short_gap_and_respects_segments():
+    t, r = _series([(2.0, 4.0, 0.5), (4.1, 6.0, 0.5)])
+    seg = (t > 5.0).astype(int)
+    ev = detect_events(t, r, seg)
+    assert [(round(e.t_start_s, 1), round(e.t_end_s, 1), e.segment) for e in ev] == [
+        (2.0, 5.0, 0), (5.0, 6.0, 1)]
+    assert ev[0].open_end and ev[1].open_start
+
+
+def test_hysteresis_keeps_event_between_thresholds():
+    t, r = _series([(2.0, 3.0, 0.2), (3.0, 6.0, 0.08)])
+    ev = detect_events(t, r, np.zeros(t.size))
+    assert len(ev) == 1 and ev[0].t_end_s == pytest.approx(6.0, abs=0.11)
+
+
+def test_relative_drop_and_matching():
+    assert np.isnan(relative_drop(np.array([1.0]), np.array([1.0]), 2.0))[0]
+    assert relative_drop(np.array([5.0]), np.array([10.0]), 2.0)[0] == pytest.approx(0.5)
+    truth = clip_to_windows([(1, 3), (9, 9.1), (20, 30)], [(0, 10)])
+    m = match_events([(1.5, 2.5), (5, 6)], truth, 0.3)
+    assert (m.n_true, m.n_true_found, m.n_false, m.n_true_short) == (1, 1, 1, 1)
+
+
+def test_stratified_pick_bounds_and_balance():
+    strata = np.array(["a"] * 1000 + ["b"] * 50 + ["c"] * 500)
+    idx = stratified_pick(strata, 300)
+    assert idx.size == 300 and np.all(np.diff(idx) > 0)
+    counts = {k: int(np.sum(strata[idx] == k)) for k in "abc"}
+    assert counts == {"a": 125, "b": 50, "c": 125}
+    assert stratified_pick(strata, 5000).size == strata.size
+    keys = strata_keys(np.array([0.2, 0.2]), np.array([40.0, 40.0]), np.array([True, False]))
+    assert keys[0] != keys[1]
+
+
+def test_huber_weights_downweight_outliers():
+    y = np.random.default_rng(2).normal(0, 0.1, 400)
+    y[100] += 5.0
+    w, scale = huber_weights(y, np.zeros(y.size, int))
+    assert w[100] < 0.1 and np.median(w) == 1.0 and 0.05 < scale < 0.2
+    assert np.all((w > 0) & (w <= 1))
+
+
+def _gp_data(n: int = 150) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    x = np.column_stack([rng.uniform(600, 1700, n), rng.uniform(0.5, 5.5, n),
+                         rng.choice([0.2, 0.3, 0.4], n)])
+    y = -5 * np.sin(x[:, 1]) * (0.6 - x[:, 2]) + rng.normal(0, 0.2, n)
+    w = np.where(rng.random(n) < 0.1, 0.3, 1.0)
+    return x, y, w
+
+
+def test_gp_export_reload_matches_sklearn(tmp_path):
+    x, y, w = _gp_data()
+    gp = fit_exact(x, y, w, GpParams(hyper_n=150, n_restarts=0))
+    doc = model_document(BETM, gp, {"run_ids": ["synthetic"]})
+    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
+    model = load_model(tmp_path)
+    xq = _gp_data(60)[0] * 1.01
+    mean_sk, std_sk = sklearn_predict(gp, xq)
+    mean, std = model.correction(xq[:, 0], xq[:, 1], xq[:, 2])
+    np.testing.assert_allclose(mean, mean_sk, atol=1e-6)
+    np.testing.assert_allclose(std, std_sk, atol=1e-6)
+    f, lo, hi = model.predict(xq[:, 0], xq[:, 1], xq[:, 2])
+    base = BETM.fuse(xq[:, 0], xq[:, 1]).thrust_n
+    np.testing.assert_allclose(f, base + mean_sk, atol=1e-6)
+    assert np.all(lo < f) and np.all(f < hi)
+    # the documented C formula: y_mean + sum_j a_j m(r_j)
+    g = doc["gp"]
+    d = (xq[:1] - np.array(g["x_train"])) / (np.array(g["x_scale"]) * np.array(g["length_scales"]))
+    s = np.sqrt(5.0) * np.sqrt((d**2).sum(axis=1))
+    c_mean = g["y_mean"] + np.sum(np.array(g["a_n"]) * (1 + s + s * s / 3) * np.exp(-s))
+    assert c_mean == pytest.approx(mean_sk[0], abs=1e-6)

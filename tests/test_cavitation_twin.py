@@ -1,0 +1,136 @@
+"""Quasi-cavitation pipeline on small twin runs (reduced protocols: few points, short dwell)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rigtool.analysis.cavitation import (
+    CavitationParams,
+    calibrate_cavitation,
+    evaluate_on_run,
+    find_base_run,
+    is_shallow,
+)
+from rigtool.analysis.gp import GpParams
+from rigtool.cavitation_artefacts import (
+    TRAIN_CSV,
+    TRAIN_PARQUET,
+    cavitation_section_html,
+    write_cavitation_artefacts,
+)
+from rigtool.cli import main
+from rigtool.models import load_model
+from rigtool.store import Store
+
+BASE = """rigtool_protocol: 1
+name: mini-baseline
+simulator: {profile: can-bldc, seed: 7}
+metadata: {thruster_id: bldc-350w}
+command: {unit: percent, range: {start: -100, stop: 100, step: 10}, order: up}
+depth: {unit: m, values: [1.0], mode: preset}
+timing: {settle: {seconds: 1.0}, acquire: {samples: 600, rate_hz: 500}, rest_s: 0.2,
+         tare: per_depth, tare_s: 0.5}
+limits: {max_thrust_n: 90, max_current_a: 12, max_speed_rpm: 2000, slew_per_s: 200}
+"""
+CAV = """rigtool_protocol: 1
+name: mini-cavitation
+simulator: {profile: can-bldc, seed: 4}
+metadata: {thruster_id: bldc-350w}
+command: {unit: percent, values: [69, 90], order: up}
+depth: {unit: cm, values: [20, 40], mode: manual}
+timing: {settle: {seconds: 1.0}, acquire: {seconds: 12, rate_hz: 250}, rest_s: 1.0,
+         tare: per_depth}
+limits: {max_thrust_n: 90, max_current_a: 12, max_speed_rpm: 2000, slew_per_s: 200}
+"""
+PARAMS = CavitationParams(budget=150, gp=GpParams(hyper_n=250, n_restarts=0))
+
+
+def _sweep(tmp: Path, text: str, name: str, seed: int) -> str:
+    path = tmp / name
+    path.write_text(text)
+    assert main(["sweep", str(path), "--sim", "--seed", str(seed), "--db", str(tmp / "db.sqlite")]) == 0
+    return Store(tmp / "db.sqlite").runs(limit=1)[0]["id"]
+
+
+@pytest.fixture(scope="module")
+def twin(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("cav")
+    base = _sweep(tmp, BASE, "base.yaml", 7)
+    train = _sweep(tmp, CAV, "cav.yaml", 31)
+    test = _sweep(tmp, CAV, "cav.yaml", 32)
+    store = Store(tmp / "db.sqlite")
+    res = calibrate_cavitation(store, train, None, tmp / "out", PARAMS)
+    return tmp, store, base, train, test, res
+
+
+def test_base_run_found_and_shallow_flag(twin):
+    _, store, base, train, _, res = twin
+    assert find_base_run(store, train) == base == res.base_run_id
+    assert is_shallow(store, train) and not is_shallow(store, base)
+
+
+def test_events_stored_once_and_match_truth(twin):
+    _, store, _, train, _, res = twin
+    stored = store.events(train, "ventilation")
+    assert len(stored) == len(res.events) > 0
+    d = stored[0]["detail"]
+    assert {"t_start_s", "t_end_s", "depth_m", "command", "mean_drop_frac"} <= set(d)
+    m = res.evaluation.matching
+    assert m is not None and m.recall >= 0.9 and m.false_rate <= 0.1
+
+
+def test_betm_not_worse_than_single_sources_on_deep_points(twin):
+    speed, current, fused = twin[-1].deep_errors_samples
+    assert fused.rms_n <= 1.01 * speed.rms_n and fused.rms_n < current.rms_n
+    assert fused.max_abs_n < current.max_abs_n
+
+
+def test_training_set_bounded_and_weighted(twin):
+    res = twin[-1]
+    t = res.training
+    assert 0 < len(t) <= PARAMS.budget < res.n_blocks_total
+    assert np.all((t.w > 0) & (t.w <= 1)) and t.ventilated.any() and (~t.ventilated).any()
+
+
+def test_artefacts_and_model_reload(twin):
+    tmp, _, _, train, _, res = twin
+    paths = write_cavitation_artefacts(res, tmp / "out", created_utc="2026-01-01T00:00:00+00:00")
+    folder = tmp / "out" / train
+    assert {p.name for p in paths} >= {TRAIN_CSV, TRAIN_PARQUET, "qctm_gp.json", "cavitation.json"}
+    head = [ln for ln in (folder / TRAIN_CSV).read_text().splitlines() if ln.startswith("#")]
+    assert any("decimation" in ln for ln in head) and any("y_n [N]" in ln for ln in head)
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(folder / TRAIN_PARQUET)
+    assert table.num_rows == len(res.training) and b"rigtool" in table.schema.metadata
+    model = load_model(folder)
+    x = res.training.x[:20]
+    f, lo, hi = model.predict(x[:, 0], x[:, 1], x[:, 2])
+    mean, _ = res.gp.sklearn.predict((x - res.gp.x_mean) / res.gp.x_scale, return_std=True)
+    np.testing.assert_allclose(f, res.training.betm_n[:20] + mean, atol=1e-6)
+    summary = json.loads((folder / "cavitation.json").read_text())
+    assert summary["base_run_id"] == res.base_run_id
+    html = cavitation_section_html(res, "png")
+    assert "Quasi-cavitation" in html and "data:image/png" in html
+
+
+def test_held_out_run_gp_beats_betm_alone(twin):
+    """Smoke test on a tiny held-out run; the acceptance figures come from the benchmark."""
+    tmp, store, _, _, test, res = twin
+    model = load_model(tmp / "out" / res.run_id)
+    ev = evaluate_on_run(store, test, model.predict, res.betm, PARAMS)
+
+    def betm_only(n, i, h):
+        f = res.betm.fuse(n, i).thrust_n
+        return f, f - 1, f + 1
+
+    plain = evaluate_on_run(store, test, betm_only, res.betm, PARAMS)
+    by = {c.name: c for c in ev.classes}
+    base = {c.name: c for c in plain.classes}
+    assert by["outside"].p95_abs_n <= 4.0
+    assert by["event"].rms_n < base["event"].rms_n
+    assert 0.7 <= ev.coverage95 <= 1.0
