@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -58,11 +60,16 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def _report_outcome(outcome, n_plan: int, store: Store) -> int:
     steps = f"{len(store.steps(outcome.run_id))}/{n_plan} points"
-    if outcome.status == "completed":
+    if outcome.status == "completed" and outcome.neutral_ok:
         out.print(f"run {outcome.run_id} completed: {steps} stored in {store.path}")
         return 0
+    if not outcome.neutral_ok:
+        err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in {store.path}. "
+                  "ERROR: THE NEUTRAL COMMAND FAILED: check the thruster and cut its power.")
+        return 1
     err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in "
-              f"{store.path}; actuator at neutral. Continue with: rigtool sweep --resume {outcome.run_id}")
+              f"{store.path}; actuator at neutral. Continue with: "
+              f"rigtool sweep --resume {outcome.run_id} --db {store.path}")
     return 130 if "Ctrl-C" in (outcome.reason or "") else 1
 
 
@@ -151,14 +158,35 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def stop_on_signals():
+    """Turn SIGTERM/SIGHUP into KeyboardInterrupt so `finally` blocks (neutral) still run."""
+    def _raise(signum, frame):
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    old = {sig: signal.signal(sig, _raise) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     from rigtool.check import run_check
     from rigtool.rig import load_rig, open_rig
 
+    if args.rate <= 0 or args.seconds <= 0:
+        raise UsageError("--rate and --seconds must be positive")
     rig, _ = load_rig(args.rig)
     rigset = open_rig(rig, start_depth_m=1.0)
     try:
-        report = run_check(rigset, args.seconds, args.rate, args.command)
+        info = rigset.actuator.info
+        if args.command is not None and not info.command_min <= args.command <= info.command_max:
+            raise UsageError(f"--command {args.command:g} is outside the actuator's range "
+                             f"{info.command_min:g}..{info.command_max:g} {info.command_unit}")
+        with stop_on_signals():
+            report = run_check(rigset, args.seconds, args.rate, args.command)
     finally:
         rigset.close()
     out.print(f"rig {rig.name!r}: {report.samples} force samples in {report.seconds:.2f} s "

@@ -41,6 +41,7 @@ class Outcome:
     status: str
     reason: str | None
     steps_done: int
+    neutral_ok: bool = True  # False: the final neutral command could not be confirmed sent
 
 
 class _Signals:
@@ -48,10 +49,13 @@ class _Signals:
 
     def __init__(self, reporter) -> None:
         self.stop_requested = False
+        self.closing = False  # while the run is being made safe, signals are only noted
         self.reporter = reporter
         self._old: dict[int, object] = {}
 
     def _on_int(self, signum: int, frame: FrameType | None) -> None:
+        if self.closing:
+            return
         if self.stop_requested:
             raise StopNow("second Ctrl-C: stopped at once")
         self.stop_requested = True
@@ -59,13 +63,15 @@ class _Signals:
                            "(Ctrl-C again to stop at once)")
 
     def _on_term(self, signum: int, frame: FrameType | None) -> None:
-        raise StopNow(f"stopped by {signal.Signals(signum).name}")
+        if not self.closing:
+            raise StopNow(f"stopped by {signal.Signals(signum).name}")
 
     def __enter__(self) -> _Signals:
         if threading.current_thread() is threading.main_thread():
             self._old[signal.SIGINT] = signal.signal(signal.SIGINT, self._on_int)
             for sig in (signal.SIGTERM, signal.SIGHUP):
-                self._old[sig] = signal.signal(sig, self._on_term)
+                if signal.getsignal(sig) is not signal.SIG_IGN:  # e.g. nohup: keep ignoring
+                    self._old[sig] = signal.signal(sig, self._on_term)
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -94,6 +100,7 @@ class Engine:
         self._depth: float | None = None
         self._fb_last = dict.fromkeys(FEEDBACK_FIELDS, np.nan)
         self._bias_total = np.zeros(6)
+        self._stored_idx: int | None = None
         self.samples_read = 0  # every sample taken from the sensor, stored or not (reconciliation)
 
     # -- public ---------------------------------------------------------------------------
@@ -105,36 +112,40 @@ class Engine:
         """
         status, reason, done = "failed", None, 0
         self.reporter.start(self.run_id, len(self.plan), self.unit, done=start_idx)
-        try:
-            with _Signals(self.reporter) as signals:
+        with _Signals(self.reporter) as signals:
+            try:
                 self._begin(t_offset_s)
-                for step in self.plan[start_idx:]:
+                remaining = self.plan[start_idx:]
+                for i, step in enumerate(remaining):
                     self._prepare_depth(step)
                     self._run_step_or_pause(step)
                     done += 1
-                    if signals.stop_requested:
+                    if signals.stop_requested and i < len(remaining) - 1:
                         status, reason = "aborted", "stopped by the operator (Ctrl-C)"
                         break
                 else:
                     status = "completed"
-        except (KeyboardInterrupt, StopNow) as exc:
-            status, reason = "aborted", str(exc) or "interrupted (Ctrl-C)"
-        except SafetyTrip as exc:
-            status, reason = "aborted", str(exc)
-            self._safe_neutral()
-            self._event("limit_trip", {"message": str(exc)})
-        except DeviceError as exc:
-            status, reason = "aborted", f"device fault: {exc}"
-            self._safe_neutral()
-            self._event("device_fault", {"message": str(exc)})
-        except BaseException as exc:
-            status, reason = "failed", f"{type(exc).__name__}: {exc}"
-            raise
-        finally:
-            self._safe_neutral()
-            self.reporter.finish()
-            self._close_run(status, reason)
-        return Outcome(self.run_id, status, reason, done)
+            except (KeyboardInterrupt, StopNow) as exc:
+                status, reason = "aborted", str(exc) or "interrupted (Ctrl-C)"
+            except SafetyTrip as exc:
+                status, reason = "aborted", str(exc)
+                signals.closing = True
+                self._safe_neutral()
+                self._event("limit_trip", {"message": str(exc)})
+            except DeviceError as exc:
+                status, reason = "aborted", f"device fault: {exc}"
+                signals.closing = True
+                self._safe_neutral()
+                self._event("device_fault", {"message": str(exc)})
+            except BaseException as exc:
+                status, reason = "failed", f"{type(exc).__name__}: {exc}"
+                raise
+            finally:
+                signals.closing = True
+                neutral_ok = self._safe_neutral()
+                self.reporter.finish()
+                self._close_run(status, reason, neutral_ok)
+        return Outcome(self.run_id, status, reason, done, neutral_ok)
 
     # -- phases ---------------------------------------------------------------------------
     def _begin(self, t_offset_s: float) -> None:
@@ -157,7 +168,11 @@ class Engine:
             self._tare("per_point", step.idx)
 
     def _run_step_or_pause(self, step: PlanStep) -> None:
-        """Run a point; with `on_trip: pause`, a trip goes neutral and the operator may retry it."""
+        """Run a point; with `on_trip: pause`, a trip goes neutral and the operator may go on.
+
+        A trip before the point was stored retries the point; a trip while resting after
+        it was stored just continues with the next point.
+        """
         while True:
             try:
                 self._run_step(step)
@@ -165,28 +180,37 @@ class Engine:
             except SafetyTrip as trip:
                 if self.protocol.limits.on_trip != "pause" or self.confirm is None:
                     raise
-                self._safe_neutral()
+                stored = self._stored_idx == step.idx
+                neutral = "Thruster at neutral" if self._safe_neutral() else "NEUTRAL FAILED"
                 self._event("limit_trip", {"message": str(trip), "action": "paused"}, step.idx)
                 self.limits.reset()
-                if not self.confirm(f"{trip}. Thruster at neutral. Retry point {step.idx}?"):
-                    raise SafetyTrip(f"{trip}; the operator stopped the run") from None
+                what = "Continue with the next point" if stored else f"Retry point {step.idx}"
+                try:
+                    go_on = self.confirm(f"{trip}. {neutral}. {what}?")
+                except EOFError:
+                    go_on = False
+                if not go_on:
+                    raise StopNow(f"{trip}; the operator stopped the run") from None
                 self._event("resumed", {"after": "limit_trip", "retry_idx": step.idx}, step.idx)
+                if stored:
+                    return
 
     def _run_step(self, step: PlanStep) -> None:
         timing = self.protocol.timing
         rate = timing.acquire.rate_hz
         t_start = self._now()
-        self._ramp_to(step.command)
+        self._ramp_to(step.command, step)
         settle_s, settled = self._settle(step, rate)
         t_acq = self._now()
         samples = self._acquire(step, timing.acquire.n_samples, rate)
-        self._ramp_to(self.rig.actuator.info.neutral)
+        self._ramp_to(self.rig.actuator.info.neutral, step)
         record = StepRecord(
             idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
             repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
             t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
         )
         self.store.add_step(self.run_id, record, samples)
+        self._stored_idx = step.idx
         thrust = samples["thrust_n"]
         self.reporter.step_done(step, float(np.mean(thrust)) if thrust.size else None)
         if timing.rest_s > 0:
@@ -199,17 +223,22 @@ class Engine:
     def _event(self, kind: str, detail: dict, step_idx: int | None = None) -> None:
         self.store.add_event(self.run_id, kind, detail, t_s=self._now(), step_idx=step_idx)
 
-    def _safe_neutral(self) -> None:
-        """Neutral, whatever state the actuator is in; never raises past the exit path."""
+    def _safe_neutral(self) -> bool:
+        """Neutral, whatever state the actuator is in; never raises. Returns whether it worked."""
         try:
             self.rig.actuator.neutral()
             self._command = self.rig.actuator.info.neutral
-        except Exception as exc:  # noqa: BLE001 - the run is ending; report, do not mask
-            self.reporter.note(f"WARNING: could not command neutral: {exc}")
+            return True
+        except BaseException as exc:  # noqa: BLE001 - the run is ending; report, do not mask
+            self.reporter.note(f"ERROR: could not command neutral: {exc!r}. "
+                               "CHECK THE THRUSTER AND CUT ITS POWER IF IT IS STILL RUNNING.")
+            return False
 
-    def _close_run(self, status: str, reason: str | None) -> None:
+    def _close_run(self, status: str, reason: str | None, neutral_ok: bool = True) -> None:
         """Record how the run ended; a store that fails here must not mask the original error."""
         try:
+            if not neutral_ok:
+                self._event("neutral_failed", {"message": "the final neutral command failed"})
             for ann in self.rig.annotations():
                 self.store.add_event(self.run_id, ann["kind"], ann["detail"],
                                      t_s=ann["t_s"] - self._t0)
@@ -217,21 +246,23 @@ class Engine:
         except StoreError as exc:
             self.reporter.note(f"WARNING: could not record the end of the run: {exc}")
 
-    def _ramp_to(self, target: float) -> None:
-        """Move the command to `target`, no faster than the protocol's slew limit."""
+    def _ramp_to(self, target: float, step: PlanStep | None = None) -> None:
+        """Move the command to `target`, no faster than the slew limit, checking limits as it goes."""
         slew = self.protocol.limits.slew_per_s
         act = self.rig.actuator
         if slew is not None:
             max_step = slew * RAMP_DT_S
+            rate = self.protocol.timing.acquire.rate_hz
+            n = max(1, round(RAMP_DT_S * rate))
             while abs(target - self._command) > max_step:
                 self._command += max_step if target > self._command else -max_step
                 act.set_command(self._command)
-                self.clock.sleep(RAMP_DT_S)
+                self._read(n, rate, step)
         if target != self._command or slew is None:
             act.set_command(target)
             self._command = target
 
-    def _read(self, n: int, rate: float, step: PlanStep) -> dict[str, np.ndarray]:
+    def _read(self, n: int, rate: float, step: PlanStep | None) -> dict[str, np.ndarray]:
         """Read `n` samples, attach feedback and thrust, check limits."""
         block = self.rig.sensor.read(n, rate)
         self.samples_read += len(block)
@@ -240,6 +271,9 @@ class Engine:
         for i, name in enumerate(FT_CHANNELS):
             out[name] = ft[:, i]
         out["thrust_n"] = self.rig.thrust_sign * ft[:, self.rig.thrust_channel]
+        if len(block) and np.isnan(out["thrust_n"]).all():
+            raise SafetyTrip(f"no thrust readings on channel {FT_CHANNELS[self.rig.thrust_channel]}: "
+                             "check the rig's `thrust:` channel against the sensor")
         self._device_warnings(step)
         feedback = self.rig.actuator.read_feedback()
         if feedback.fault:
@@ -252,7 +286,8 @@ class Engine:
         out["command"] = np.full(len(block), self._command)
         out["seq"] = block.seq if block.seq is not None else np.full(len(block), np.nan)
         self.limits.check(out)
-        self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
+        if step is not None:
+            self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
         return out
 
     def _device_warnings(self, step: PlanStep) -> None:

@@ -29,7 +29,7 @@ DEPTH_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class CommandRange(_Strict):

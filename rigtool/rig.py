@@ -32,7 +32,7 @@ from rigtool.protocol import SimulatorSpec
 class ThrustAxis(BaseModel):
     """Which F/T channel carries the thruster's axial force, and its sign (forward positive)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     channel: Literal["fx", "fy", "fz", "tx", "ty", "tz"] = "fx"
     sign: Literal[1, -1] = 1
 
@@ -40,7 +40,7 @@ class ThrustAxis(BaseModel):
 class Mount(BaseModel):
     """How a six-axis sensor is mounted: rotation into thruster axes and the propeller centre."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     rotation_axis: Literal["x", "y", "z"] = "z"
     rotation_deg: float = 0.0
     offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -52,7 +52,7 @@ class Mount(BaseModel):
 class Rig(BaseModel):
     """A whole rig file: the simulator, or an actuator + force sensor (+ depth stage)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     rigtool_rig: Literal[1] = 1
     name: str = Field(min_length=1)
     description: str = ""

@@ -319,13 +319,18 @@ class Store:
             )
 
     def reopen_run(self, run_id: str) -> None:
-        """Mark an interrupted/aborted/failed run as running again, owned by this process."""
+        """Mark an interrupted/aborted/failed run as running again, owned by this process.
+
+        A single conditional UPDATE, so two resumes of one run cannot both win.
+        """
         with self.transaction():
-            self.conn.execute(
+            cur = self.conn.execute(
                 "UPDATE runs SET status = 'running', finished_utc = NULL, stop_reason = NULL, "
-                "host = ?, pid = ? WHERE id = ?",
+                "host = ?, pid = ? WHERE id = ? AND status IN ('interrupted', 'aborted', 'failed')",
                 (socket.gethostname(), os.getpid(), run_id),
             )
+        if cur.rowcount != 1:
+            raise UsageError(f"run {run_id} is no longer resumable (another process resumed it?)")
 
     def add_calibration(self, run_id: str, out_dir: str, summary: dict, tool_version: str) -> None:
         with self.transaction():

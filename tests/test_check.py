@@ -32,3 +32,8 @@ def test_check_cli_prints_table(capsys):
 def test_check_missing_rig_file_is_usage_error(capsys, tmp_path):
     assert main(["check", str(tmp_path / "rig.yaml")]) == 2
     assert "rig.yaml: file not found" in capsys.readouterr().err
+
+
+def test_check_refuses_a_command_outside_the_range(capsys):
+    assert main(["check", str(RIG), "--command", "1500"]) == 2
+    assert "outside the actuator's range" in capsys.readouterr().err

@@ -111,3 +111,16 @@ def test_resume_refuses_completed_run(write_yaml, tmp_path, capsys):
     assert main(["sweep", str(write_yaml(SMALL_PROTOCOL)), "--sim", "--db", str(db)]) == 0
     assert main(["sweep", "--resume", "last", "--db", str(db)]) == 2
     assert "only interrupted, aborted, failed runs resume" in capsys.readouterr().err
+
+
+def test_resume_is_claimed_once(write_yaml, tmp_path):
+    from rigtool.errors import UsageError
+
+    db = tmp_path / "twice.sqlite"
+    store = Store(db)
+    run_id = store.create_run(name="r", protocol={}, protocol_path=None, rig={}, plan=[], metadata={},
+                              seed=1, command_unit="percent", tool_version="t")
+    store.finish_run(run_id, "aborted", "test")
+    store.reopen_run(run_id)
+    with pytest.raises(UsageError, match="no longer resumable"):
+        store.reopen_run(run_id)

@@ -286,3 +286,59 @@ def test_pause_without_an_operator_aborts(write_yaml, db_path):
     setup, rigset = _setup(write_yaml, text)
     store, outcome = _run(setup, rigset, db_path)
     assert outcome.status == "aborted" and "limit trip" in outcome.reason
+
+
+def test_limits_are_checked_during_the_slew_ramp(write_yaml, db_path):
+    text = SMALL_PROTOCOL.replace("max_thrust_n: 90", "max_thrust_n: 10").replace(
+        "slew_per_s: 400", "slew_per_s: 5").replace("[-50, 0, 50, 100]", "[100]")
+    setup, rigset = _setup(write_yaml, text)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and "limit trip" in outcome.reason
+    peak = max(rigset.actuator.sent)
+    assert peak < 60, f"the ramp went on to {peak} % past a 10 N limit"
+    assert rigset.actuator.sent[-1] == 0.0
+
+
+def test_pause_after_a_stored_point_continues_without_duplicating(write_yaml, db_path):
+    text = SMALL_PROTOCOL.replace("max_thrust_n: 90", "max_thrust_n: 90\n  on_trip: pause").replace(
+        "rest_s: 0.2", "rest_s: 1.0")
+    setup, rigset = _setup(write_yaml, text)
+    inner = rigset.actuator.inner
+    store = Store(db_path)
+    run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                              metadata={}, seed=1, command_unit="percent", tool_version="test")
+    fired = []
+
+    class FaultOnceInRest(FaultyActuator):
+        def read_feedback(self):
+            fb = self.inner.read_feedback()
+            if not fired and len(store.steps(run_id)) == 1:  # resting after point 0 was stored
+                fired.append(True)
+                fb.fault = "transient over-current"
+            return fb
+
+    rigset.actuator = FaultOnceInRest(inner, at=0)
+    asked = []
+    outcome = Engine(setup.protocol, setup.plan, rigset, store, run_id,
+                     confirm=lambda q: asked.append(q) or True).run()
+    assert outcome.status == "completed", outcome
+    assert asked and "Continue with the next point" in asked[0]
+    assert [s["idx"] for s in store.steps(run_id)] == [0, 1, 2, 3]
+
+
+def test_failed_neutral_is_reported_not_hidden(write_yaml, db_path):
+    from rigtool.errors import DeviceError
+
+    text = SMALL_PROTOCOL.replace("max_thrust_n: 90", "max_thrust_n: 20")
+    setup, rigset = _setup(write_yaml, text)
+
+    class BrokenNeutral(RecordingActuator):
+        def neutral(self):
+            if len(self.sent) > 2:
+                raise DeviceError("port closed")
+            super().neutral()
+
+    rigset.actuator = BrokenNeutral(rigset.actuator.inner)
+    store, outcome = _run(setup, rigset, db_path)
+    assert outcome.status == "aborted" and outcome.neutral_ok is False
+    assert store.events(outcome.run_id, "neutral_failed")

@@ -121,3 +121,10 @@ def test_no_rig_is_usage_error(write_yaml, capsys, db_path):
     path = write_yaml(SMALL_PROTOCOL)
     assert main(["sweep", str(path), "--db", str(db_path)]) == 2
     assert "--sim" in capsys.readouterr().err
+
+
+def test_aliases_non_finite_and_complex_keys_are_config_errors(write_yaml):
+    assert "aliases" in _error(write_yaml, "name: x\na: &x [*x]\n")
+    assert "plain names" in _error(write_yaml, "? [a, b]\n: 1\n")
+    assert "finite number" in _error(write_yaml, SMALL_PROTOCOL.replace("[-50, 0, 50, 100]", "[.nan]"))
+    assert "finite number" in _error(write_yaml, SMALL_PROTOCOL.replace("rate_hz: 500", "rate_hz: .inf"))

@@ -42,7 +42,7 @@ def test_disk_full_mid_run_keeps_committed_points_and_neutral(write_yaml, db_pat
         pages = store.conn.execute("PRAGMA page_count").fetchone()[0]
         store.conn.execute(f"PRAGMA max_page_count = {pages + 1}")
 
-    rigset.sensor = FaultySensor(rigset.sensor, at=10, action=fill_disk)
+    rigset.sensor = FaultySensor(rigset.sensor, at=20, action=fill_disk)
     with pytest.raises(StoreError, match="full"):
         Engine(setup.protocol, setup.plan, rigset, store, run_id).run()
     assert rigset.actuator.sent[-1] == 0.0

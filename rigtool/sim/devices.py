@@ -45,7 +45,8 @@ class SimActuator:
 
     def set_command(self, value: float) -> None:
         self.command = float(value)
-        self.world.twin.set_command(self.world.clock.now(), self.command)
+        twin = self.world.twin
+        twin.set_command(max(self.world.clock.now(), twin.t_s), self.command)
 
     def neutral(self) -> None:
         self.set_command(self.info.neutral)
