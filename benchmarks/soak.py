@@ -46,6 +46,8 @@ def rss_mb() -> float:
 class RssReporter:
     """Records RSS after every point."""
 
+    wants_live = False
+
     def __init__(self) -> None:
         self.rss: list[float] = []
 

@@ -286,7 +286,7 @@ class Engine:
         out["command"] = np.full(len(block), self._command)
         out["seq"] = block.seq if block.seq is not None else np.full(len(block), np.nan)
         self.limits.check(out)
-        if step is not None:
+        if step is not None and self.reporter.wants_live:
             self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
         return out
 

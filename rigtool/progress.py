@@ -30,6 +30,8 @@ def _live_text(step: PlanStep, unit: str, thrust_n: float | None) -> str:
 class RichReporter:
     """Live progress bar: point i/N, command, depth, live thrust, elapsed and ETA."""
 
+    wants_live = True  # the engine computes live thrust only for reporters that show it
+
     def __init__(self, console: Console | None = None) -> None:
         self.console = console or Console(stderr=True)
         self._progress: Progress | None = None
@@ -72,6 +74,8 @@ class RichReporter:
 class PlainReporter:
     """For logs and pipes: a line at start, every tenth of the run, on notes, and at the end."""
 
+    wants_live = False
+
     def __init__(self, stream: TextIO | None = None) -> None:
         self.stream = stream or sys.stderr
         self._n = 0
@@ -109,6 +113,8 @@ class PlainReporter:
 
 class SilentReporter:
     """Reports nothing (tests, library use)."""
+
+    wants_live = False
 
     def start(self, run_id: str, n_steps: int, unit: str, done: int = 0) -> None:
         return None
