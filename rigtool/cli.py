@@ -33,11 +33,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from rigtool.sweep import open_checked, resolve, resume_sweep, run_sweep, terminal_confirm
 
     if args.resume:
-        if args.protocol or args.rig or args.sim or args.dry_run:
-            raise UsageError("--resume RUN_ID takes the protocol and rig stored with the run; "
-                             "give no protocol, --rig, --sim or --dry-run")
+        if args.protocol or args.rig or args.sim or args.dry_run or args.seed is not None:
+            raise UsageError("--resume RUN_ID takes the protocol, rig and seed stored with the run; "
+                             "give no protocol, --rig, --sim, --seed or --dry-run")
         store = Store(resolve_db_path(args.db), create=False)
         try:
+            if args.force:
+                run_id = store.resolve_run_id(args.resume)
+                if store.run(run_id)["status"] == "running":
+                    store.finish_run(run_id, "interrupted", "marked interrupted by --force")
             outcome, n_plan = resume_sweep(store, args.resume, default_reporter(), terminal_confirm())
             return _report_outcome(outcome, n_plan, store)
         finally:
@@ -351,6 +355,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("sweep", help="run a protocol on a rig and store the run")
     p.add_argument("protocol", nargs="?", help="protocol YAML file")
     p.add_argument("--resume", metavar="RUN_ID", help="continue a stopped run from its first unfinished point")
+    p.add_argument("--force", action="store_true",
+                   help="with --resume: take over a run still marked running (its process is gone "
+                        "but was on another host, or its pid was reused)")
     p.add_argument("--rig", help="rig YAML file (overrides the protocol's `rig:`)")
     p.add_argument("--sim", action="store_true", help="run on the built-in simulator twin")
     p.add_argument("--seed", type=int, help="simulator seed (overrides the protocol's)")
@@ -457,6 +464,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RigtoolError as exc:
         err.print(f"rigtool: error: {exc}", markup=False)
         return exc.exit_status
+    except OSError as exc:  # a path or port the user gave that the system refuses
+        err.print(f"rigtool: error: {exc}", markup=False)
+        return 1
     except KeyboardInterrupt:
         err.print("rigtool: interrupted")
         return 130

@@ -124,3 +124,19 @@ def test_resume_is_claimed_once(write_yaml, tmp_path):
     store.reopen_run(run_id)
     with pytest.raises(UsageError, match="no longer resumable"):
         store.reopen_run(run_id)
+
+
+def test_force_takes_over_a_run_left_running(write_yaml, tmp_path, capsys):
+    db = tmp_path / "stuck.sqlite"
+    assert main(["sweep", str(write_yaml(MEDIUM)), "--sim", "--db", str(db)]) == 0
+    store = Store(db)
+    run_id = store.resolve_run_id("last")
+    last = store.steps(run_id)[-1]["id"]
+    store.conn.execute("DELETE FROM samples WHERE step_id = ?", (last,))
+    store.conn.execute("DELETE FROM steps WHERE id = ?", (last,))
+    store.conn.execute("UPDATE runs SET status = 'running', pid = 1 WHERE id = ?", (run_id,))
+    store.close()
+    assert main(["sweep", "--resume", "last", "--db", str(db)]) == 2
+    assert "only interrupted" in capsys.readouterr().err
+    assert main(["sweep", "--resume", "last", "--force", "--db", str(db)]) == 0
+    assert len(Store(db).steps(run_id)) == N_POINTS

@@ -141,3 +141,13 @@ def test_sim_fault_switches(tmp_path):
                 server.set_fault(bad)
     finally:
         server.stop()
+
+
+def test_sim_rejects_bad_endpoints():
+    from rigtool.errors import UsageError
+    from rigtool.sim.server import parse_host_port
+
+    with pytest.raises(UsageError, match="out of range"):
+        parse_host_port("127.0.0.1:99999")
+    with pytest.raises(UsageError, match="HOST:PORT"):
+        parse_host_port("localhost")

@@ -67,12 +67,15 @@ class LiveTwin:
         return q
 
     def set_command(self, command: float) -> None:
+        """Generate the samples due so far under the old command, then apply the new one."""
         with self._lock:
-            self.twin.set_command(max(self.now(), self.twin.t_s), command)
+            self._step_locked()
+            self.twin.set_command(max(self._next_t, self.twin.t_s), command)
 
     def set_depth(self, depth_m: float) -> None:
         with self._lock:
-            self.twin.set_depth(max(self.now(), self.twin.t_s), depth_m)
+            self._step_locked()
+            self.twin.set_depth(max(self._next_t, self.twin.t_s), depth_m)
 
     @property
     def command(self) -> float:
@@ -83,19 +86,21 @@ class LiveTwin:
         return self._latest
 
     def _step(self) -> None:
-        now = self.now()
-        n = int((now - self._next_t) * self.rate_hz)
+        with self._lock:
+            self._step_locked()
+
+    def _step_locked(self) -> None:
+        """Sample every instant from the last generated one up to now and publish the block."""
+        n = int((self.now() - self._next_t) * self.rate_hz)
         if n <= 0:
             return
-        with self._lock:
-            start = max(self._next_t, self.twin.t_s)
-            t = start + np.arange(n) / self.rate_hz
-            out = self.twin.sample(t)
-            self._next_t = float(t[-1]) + 1.0 / self.rate_hz
-            block = LiveBlock(t, out.ft, out.speed_rpm, out.current_a, out.voltage_v)
-            self._latest = block
-            subscribers = list(self._subscribers)
-        for q in subscribers:
+        start = max(self._next_t, self.twin.t_s)
+        t = start + np.arange(n) / self.rate_hz
+        out = self.twin.sample(t)
+        self._next_t = float(t[-1]) + 1.0 / self.rate_hz
+        block = LiveBlock(t, out.ft, out.speed_rpm, out.current_a, out.voltage_v)
+        self._latest = block
+        for q in self._subscribers:
             try:
                 q.put_nowait(block)
             except queue.Full:

@@ -24,9 +24,12 @@ def parse_host_port(text: str) -> tuple[str, int]:
     """HOST:PORT -> (host, port); port 0 picks a free one."""
     host, _, port = text.rpartition(":")
     try:
-        return host or "127.0.0.1", int(port)
+        number = int(port)
     except ValueError:
         raise UsageError(f"expected HOST:PORT, got {text!r}") from None
+    if not 0 <= number <= 65535:
+        raise UsageError(f"port {number} is out of range 0..65535")
+    return host or "127.0.0.1", number
 
 
 @dataclass
@@ -57,6 +60,10 @@ class SimServer:
         if switch.startswith("_") or not hasattr(obj, switch):
             raise UsageError(f"--fault {spec!r}: {name} has no fault switch {switch!r}")
         current = getattr(obj, switch)
+        if not isinstance(current, bool | int | float | str):
+            raise UsageError(f"--fault {spec!r}: {name}.{switch} is not a fault switch")
+        if isinstance(current, bool) and value.lower() not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
+            raise UsageError(f"--fault {spec!r}: expected true or false")
         try:
             parsed = (value.lower() in ("1", "true", "yes", "on")) if isinstance(current, bool) \
                 else type(current)(value)
