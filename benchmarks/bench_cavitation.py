@@ -43,7 +43,7 @@ def table(store: Store, tests: list[str], betm, gp, p: CavitationParams) -> dict
     rows: dict[str, list] = {}
     match = [0, 0, 0, 0, 0, 0]
     for rid in tests:
-        ev = evaluate_on_run(store, rid, predictor(betm, gp), betm, p)
+        ev = evaluate_on_run(store, rid, predictor(betm, gp, p.window_blocks), betm, p)
         for c in ev.classes:
             rows.setdefault(c.name, []).append(c)
         m = ev.matching

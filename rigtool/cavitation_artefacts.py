@@ -24,10 +24,12 @@ TRAIN_CSV = "gp_training.csv"
 TRAIN_PARQUET = "gp_training.parquet"
 TRAIN_COLUMNS = (
     ("speed_rpm", "r/min", "GP input n_p: block-mean propeller speed"),
-    ("current_a", "A", "GP input I: block-mean driver current"),
+    ("current_a", "A", "block-mean driver current (enters the GP through shortfall_thrust_n)"),
     ("depth_m", "m", "GP input h: depth of the propeller centre"),
+    ("shortfall_thrust_n", "N", "GP input z: f_n(n) * (1 - |I| / (C_n |n|^3 + I_0)), centred "
+     "mean over the shortfall window"),
     ("y_n", "N", "GP target: measured thrust minus BETM estimate"),
-    ("weight", "1", "Huber weight (outliers < 1) ; noise of row i is sigma^2 / weight"),
+    ("weight", "1", "Huber weight (outliers < 1) ; noise of row i is var(x_i) / weight"),
     ("thrust_n", "N", "block-mean measured thrust"),
     ("betm_n", "N", "BETM fused estimate"),
     ("t_s", "s", "block centre on the run clock"),
@@ -67,7 +69,9 @@ def summary_document(res: CavitationResult, created: str) -> dict:
         "training": {"n_selected": len(res.training), "n_blocks": res.n_blocks_total,
                      **res.training.provenance},
         "gp": {"length_scales": res.gp.hyper.length_scales, "signal_var": res.gp.hyper.signal_var,
-               "noise_var_n2": res.gp.noise_var_n2},
+               "noise_var_n2": res.gp.noise_var_n2,
+               "noise_model": None if res.gp.noise is None else "log-variance GP",
+               "shortfall_window_blocks": res.params.window_blocks},
         "evaluation": {"source": ev.source, "truth": ev.truth_source,
                        "coverage95": ev.coverage95, "classes": ev.classes,
                        "matching": None if ev.matching is None else {
@@ -86,7 +90,8 @@ def _atomic(path: Path, write: object) -> None:
 def training_table(res: CavitationResult) -> dict[str, np.ndarray]:
     """Column arrays of the selected GP training set."""
     t = res.training
-    return {"speed_rpm": t.x[:, 0], "current_a": t.x[:, 1], "depth_m": t.x[:, 2], "y_n": t.y,
+    return {"speed_rpm": t.x[:, 0], "current_a": t.x[:, 1], "depth_m": t.x[:, 2],
+            "shortfall_thrust_n": t.xf[:, 1], "y_n": t.y,
             "weight": t.w, "thrust_n": t.thrust_n, "betm_n": t.betm_n, "t_s": t.t_s,
             "command": t.command, "ventilated": t.ventilated.astype(int),
             "run_id": t.run_id.astype(str)}
@@ -117,7 +122,9 @@ def write_cavitation_artefacts(res: CavitationResult, out_dir: str | Path,
                          allow_nan=False) + "\n"
     model = json.dumps(_clean(model_document(res.betm, res.gp, {
         "run_ids": res.training.provenance.get("run_ids", []), "base_run_id": res.base_run_id,
-        "created_utc": created, "tool_version": rigtool.__version__})), allow_nan=False) + "\n"
+        "created_utc": created, "tool_version": rigtool.__version__},
+        window=res.params.window_blocks, block_s=res.params.train_block_s)),
+        allow_nan=False) + "\n"
     for name, text in ((SUMMARY_FILE, summary), (MODEL_FILE, model)):
         path = target / name
         _atomic(path, lambda p, text=text: p.write_text(text, encoding="utf-8", newline="\n"))

@@ -1,10 +1,15 @@
 """Load an exported QCTM-GP thrust model and evaluate it with numpy only (no scikit-learn).
 
     model = load_model("calibrations/<run-id>")
-    thrust_n, lo95, hi95 = model.predict(speed_rpm, current_a, depth_m)
+    thrust_n, lo95, hi95 = model.predict(speed_rpm, current_a, depth_m, segment)
 
-thrust = f_BETM(n, I) + y_mean + sum_j a_j m(r_j), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r),
-r_j = || (x - X_j) / (x_scale * length_scales) ||; see docs/cavitation.md for the format.
+Inputs are consecutive block means (`features.block_s`, 0.2 s) of one record; `segment` (one
+label per block, default: all one segment) marks where the record is cut (e.g. a new point).
+GP inputs x = (n, z, h) with z = f_n(n) * shortfall, shortfall = 1 - |I| / (C_n |n|^3 + I_0)
+averaged over a centred window of `features.window_blocks` blocks within the segment.
+thrust = f_BETM(n, I) + y_mean + beta z + sum_j a_j m(r_j), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r),
+r_j = || (x - X_j) / (x_scale * length_scales) ||; the noise variance of a new measurement is
+exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic); see docs/cavitation.md.
 """
 
 from __future__ import annotations
@@ -22,6 +27,8 @@ VARIANCE_FILE = "qctm_gp_kinv.npy"
 FORMAT = "rigtool-qctm-gp"
 Z95 = 1.959963984540054
 SQRT5 = 5.0**0.5
+LOG_CHI2_BIAS = 1.2703628454614782  # -E[log chi^2_1]: exp(E[log e^2] + this) = var(e), e Gaussian
+FEATURES = ("speed_rpm", "shortfall_thrust_n", "depth_m")
 
 
 def matern52(a: np.ndarray, b: np.ndarray, length_scales: np.ndarray) -> np.ndarray:
@@ -29,6 +36,81 @@ def matern52(a: np.ndarray, b: np.ndarray, length_scales: np.ndarray) -> np.ndar
     d = (a[:, None, :] - b[None, :, :]) / length_scales
     s = SQRT5 * np.sqrt(np.sum(d * d, axis=-1))
     return (1.0 + s + s * s / 3.0) * np.exp(-s)
+
+
+def segment_runs(segment: np.ndarray | None, size: int) -> list[tuple[int, int]]:
+    """(start, stop) of the runs of equal consecutive labels (one run if `segment` is None)."""
+    if segment is None or size == 0:
+        return [(0, size)]
+    seg = np.asarray(segment)
+    cuts = np.flatnonzero(seg[1:] != seg[:-1]) + 1
+    edges = np.r_[0, cuts, size]
+    return list(zip(edges[:-1].tolist(), edges[1:].tolist(), strict=True))
+
+
+def centred_mean(v: np.ndarray, segment: np.ndarray | None, window: int) -> np.ndarray:
+    """Mean of v over a centred window of `window` samples, truncated at segment ends."""
+    v = np.asarray(v, dtype=float)
+    if window <= 1:
+        return v.copy()
+    half_lo, half_hi = (window - 1) // 2, window // 2
+    out = np.empty_like(v)
+    for a, b in segment_runs(segment, v.size):
+        c = np.r_[0.0, np.cumsum(v[a:b])]
+        j = np.arange(b - a)
+        lo, hi = np.maximum(j - half_lo, 0), np.minimum(j + half_hi + 1, b - a)
+        out[a:b] = (c[hi] - c[lo]) / (hi - lo)
+    return out
+
+
+def gp_features(betm: Betm, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
+                segment: np.ndarray | None = None, window: int = 1) -> np.ndarray:
+    """GP inputs (n, z, h): z = f_n(n) * centred mean of 1 - |I| / (C_n |n|^3 + I_0) (N)."""
+    n, i, h = np.broadcast_arrays(np.atleast_1d(np.asarray(speed_rpm, float)),
+                                  np.atleast_1d(np.asarray(current_a, float)),
+                                  np.atleast_1d(np.asarray(depth_m, float)))
+    i_hat = betm.c_n * np.abs(n) ** 3 + betm.i_0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        short = np.where(i_hat > 0, 1.0 - np.abs(i) / i_hat, 0.0)
+    short = centred_mean(short, segment, window)
+    return np.column_stack([n, betm.speed_estimate(n) * short, h])
+
+
+@dataclass
+class LogNoise:
+    """Heteroscedastic noise: var(x) = exp(log_mean + log_bias + k(x)^T alpha) (N^2)."""
+
+    x_mean: np.ndarray
+    x_scale: np.ndarray
+    length_scales: np.ndarray
+    signal_var: float
+    log_mean: float
+    x_train: np.ndarray  # raw inputs
+    alpha: np.ndarray
+    log_bias: float = LOG_CHI2_BIAS  # fitted: makes 95 % of the training residuals covered
+
+    def var_n2(self, x: np.ndarray) -> np.ndarray:
+        xs = (np.asarray(x, dtype=float) - self.x_mean) / self.x_scale
+        xt = (self.x_train - self.x_mean) / self.x_scale
+        out = np.empty(len(xs))
+        for s in range(0, len(xs), 2048):
+            k = self.signal_var * matern52(xs[s:s + 2048], xt, self.length_scales)
+            out[s:s + 2048] = k @ self.alpha
+        return np.exp(self.log_mean + self.log_bias + out)
+
+    def to_dict(self) -> dict:
+        return {"kernel": "matern", "nu": 2.5, "x_mean": self.x_mean.tolist(),
+                "x_scale": self.x_scale.tolist(), "length_scales": self.length_scales.tolist(),
+                "signal_var": self.signal_var, "log_mean": self.log_mean,
+                "log_bias": self.log_bias, "x_train": self.x_train.tolist(),
+                "alpha": self.alpha.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> LogNoise:
+        return cls(np.array(d["x_mean"]), np.array(d["x_scale"]), np.array(d["length_scales"]),
+                   float(d["signal_var"]), float(d["log_mean"]),
+                   np.array(d["x_train"], dtype=float), np.array(d["alpha"]),
+                   float(d.get("log_bias", LOG_CHI2_BIAS)))
 
 
 @dataclass
@@ -46,46 +128,63 @@ class ThrustModel:
     x_train: np.ndarray
     alpha: np.ndarray
     k_inv: np.ndarray | None
+    noise: LogNoise | None = None  # heteroscedastic noise; None: constant noise_var
+    window: int = 1  # shortfall averaging window (blocks)
+    block_s: float = 0.2
+    beta: float = 0.0  # linear mean term beta * z
 
-    def correction(self, speed_rpm: np.ndarray, current_a: np.ndarray,
-                   depth_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(GP mean of f_measured - f_BETM, std of a new measurement), N."""
-        x = np.column_stack(np.broadcast_arrays(np.atleast_1d(np.asarray(speed_rpm, float)),
-                                                np.atleast_1d(np.asarray(current_a, float)),
-                                                np.atleast_1d(np.asarray(depth_m, float))))
+    def features(self, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
+                 segment: np.ndarray | None = None) -> np.ndarray:
+        """GP inputs (n, z, h) of consecutive block means (see gp_features)."""
+        return gp_features(self.betm, speed_rpm, current_a, depth_m, segment, self.window)
+
+    def correction(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(GP mean of f_measured - f_BETM, std of a new measurement) at GP inputs x, N."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
         xs = (x - self.x_mean) / self.x_scale
         xt = (self.x_train - self.x_mean) / self.x_scale
         out_mean = np.empty(len(xs))
         out_var = np.empty(len(xs))
         for s in range(0, len(xs), 2048):
             k = self.signal_var * matern52(xs[s:s + 2048], xt, self.length_scales)
-            out_mean[s:s + 2048] = self.y_mean + self.y_std * (k @ self.alpha)
+            out_mean[s:s + 2048] = (self.y_mean + self.beta * x[s:s + 2048, 1]
+                                    + self.y_std * (k @ self.alpha))
             var = np.full(len(k), self.signal_var)
             if self.k_inv is not None:
                 var = var - np.einsum("ij,jk,ik->i", k, self.k_inv, k)
             out_var[s:s + 2048] = np.maximum(var, 0.0) + self.noise_var
-        return out_mean, self.y_std * np.sqrt(out_var)
+        var_n2 = self.y_std**2 * out_var
+        if self.noise is not None:
+            var_n2 = var_n2 + self.noise.var_n2(x)
+        return out_mean, np.sqrt(var_n2)
 
-    def predict(self, speed_rpm: np.ndarray, current_a: np.ndarray,
-                depth_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(thrust_n, lo95, hi95) for measured speed, current and depth (arrays or scalars)."""
-        n = np.atleast_1d(np.asarray(speed_rpm, float))
-        i = np.atleast_1d(np.asarray(current_a, float))
-        base = self.betm.fuse(*np.broadcast_arrays(n, i)).thrust_n
-        mean, std = self.correction(speed_rpm, current_a, depth_m)
+    def predict(self, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
+                segment: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(thrust_n, lo95, hi95) for consecutive block means of speed, current and depth."""
+        x = self.features(speed_rpm, current_a, depth_m, segment)
+        base = self.betm.fuse(x[:, 0], np.broadcast_to(
+            np.atleast_1d(np.asarray(current_a, float)), x[:, 0].shape)).thrust_n
+        mean, std = self.correction(x)
         f = base + mean
         return f, f - Z95 * std, f + Z95 * std
 
 
-def model_document(betm: Betm, gp: object, extra: dict) -> dict:
-    """The JSON document of a fitted model (`gp` an analysis.gp.ExactGp)."""
+def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
+                   block_s: float = 0.2) -> dict:
+    """The JSON document of a fitted model (`gp` an analysis.gp.ExactGp on gp_features)."""
     h = gp.hyper  # type: ignore[attr-defined]
     y_std = float(gp.y_std)  # type: ignore[attr-defined]
     alpha = np.asarray(gp.alpha)  # type: ignore[attr-defined]
+    noise = getattr(gp, "noise", None)
     return {
-        "format": FORMAT, "format_version": 1, **extra,
+        "format": FORMAT, "format_version": 2, **extra,
         "inputs": ["speed_rpm", "current_a", "depth_m"],
-        "output": "thrust_n = f_BETM(speed_rpm, current_a) + gp_mean(x)",
+        "features": {"columns": list(FEATURES), "block_s": block_s, "window_blocks": window,
+                     "c_n": betm.c_n, "i_0": betm.i_0,
+                     "shortfall": "1 - |I| / (c_n |n|^3 + i_0), centred mean over window_blocks",
+                     "z": "betm.speed_estimate(n) * shortfall"},
+        "output": "thrust_n = f_BETM(speed_rpm, current_a) + beta * z + gp_mean(x)",
+        "noise": None if noise is None else noise.to_dict(),
         "betm": {k: (list(v) if isinstance(v, tuple) else v) for k, v in betm.to_dict().items()},
         "gp": {
             "kernel": "matern", "nu": 2.5,
@@ -94,6 +193,7 @@ def model_document(betm: Betm, gp: object, extra: dict) -> dict:
             "noise_var": h.noise_var, "noise_var_n2": h.noise_var * y_std**2,
             "x_mean": gp.x_mean.tolist(), "x_scale": gp.x_scale.tolist(),  # type: ignore[attr-defined]
             "y_mean": float(gp.y_mean), "y_std": y_std,  # type: ignore[attr-defined]
+            "beta": float(getattr(gp, "beta", 0.0)),
             "x_train": gp.x_train.tolist(),  # type: ignore[attr-defined]
             "weights": gp.w.tolist(),  # type: ignore[attr-defined]
             "alpha": alpha.tolist(),
@@ -109,6 +209,9 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
     doc = json.loads((folder / MODEL_FILE).read_text(encoding="utf-8"))
     if doc.get("format") != FORMAT:
         raise ValueError(f"{folder / MODEL_FILE} is not a {FORMAT} document")
+    if int(doc.get("format_version", 1)) < 2:
+        raise ValueError(f"{folder / MODEL_FILE} is a version-1 model on raw (n, I, h) inputs: "
+                         "rerun rigtool calibrate to refit it")
     b = doc["betm"]
     betm = Betm(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in b.items()})
     g = doc["gp"]
@@ -118,4 +221,7 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
         betm=betm, x_mean=np.array(g["x_mean"]), x_scale=np.array(g["x_scale"]),
         length_scales=np.array(g["length_scales"]), signal_var=float(g["signal_var"]),
         noise_var=float(g["noise_var"]), y_mean=float(g["y_mean"]), y_std=float(g["y_std"]),
-        x_train=np.array(g["x_train"], dtype=float), alpha=np.array(g["alpha"]), k_inv=k_inv)
+        x_train=np.array(g["x_train"], dtype=float), alpha=np.array(g["alpha"]), k_inv=k_inv,
+        noise=None if doc.get("noise") is None else LogNoise.from_dict(doc["noise"]),
+        window=int(doc.get("features", {}).get("window_blocks", 1)), beta=float(g.get("beta", 0.0)),
+        block_s=float(doc.get("features", {}).get("block_s", 0.2)))

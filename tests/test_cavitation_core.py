@@ -15,9 +15,16 @@ from rigtool.analysis.events import (
     match_events,
     relative_drop,
 )
-from rigtool.analysis.gp import GpParams, fit_exact, sklearn_predict
+from rigtool.analysis.gp import GpParams, fit_exact, fit_hetero, sklearn_predict
 from rigtool.analysis.trainset import huber_weights, strata_keys, stratified_pick
-from rigtool.models import MODEL_FILE, VARIANCE_FILE, load_model, model_document
+from rigtool.models import (
+    MODEL_FILE,
+    VARIANCE_FILE,
+    centred_mean,
+    gp_features,
+    load_model,
+    model_document,
+)
 
 BETM = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,
             sigma_n=0.1, sigma_i=1.0)
@@ -126,34 +133,78 @@ def test_huber_weights_downweight_outliers():
     assert np.all((w > 0) & (w <= 1))
 
 
-def _gp_data(n: int = 150) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(3)
-    x = np.column_stack([rng.uniform(600, 1700, n), rng.uniform(0.5, 5.5, n),
-                         rng.choice([0.2, 0.3, 0.4], n)])
-    y = -5 * np.sin(x[:, 1]) * (0.6 - x[:, 2]) + rng.normal(0, 0.2, n)
+def _gp_data(n: int = 150, seed: int = 3) -> tuple[np.ndarray, ...]:
+    """Raw (n, I, h) block means of 5 "points", their GP features, y and w; y's noise is
+    10x larger where the current shortfall says ventilated."""
+    rng = np.random.default_rng(seed)
+    seg = np.repeat(np.arange(5), n // 5 + 1)[:n]
+    speed = np.array([700.0, 1200.0, 1600.0, 1200.0, 1600.0])[seg] + rng.normal(0, 2, n)
+    chunks = n // 10 + 1  # ventilated or not in runs of 10 blocks
+    drop = np.repeat(np.where(rng.random(chunks) < 0.4, rng.uniform(0.25, 0.75, chunks), 0.0),
+                     10)[:n]
+    current = (BETM.c_n * speed**3 + BETM.i_0) * (1 - 0.08 * drop) + rng.normal(0, 0.01, n)
+    depth = np.array([0.2, 0.3, 0.4, 0.2, 0.3])[seg]
+    x = gp_features(BETM, speed, current, depth, seg, 3)
+    y = -drop * BETM.speed_estimate(speed) + rng.normal(0, 0.1, n) * np.where(drop > 0, 10, 1)
     w = np.where(rng.random(n) < 0.1, 0.3, 1.0)
-    return x, y, w
+    return speed, current, depth, seg, x, y, w
 
 
-def test_gp_export_reload_matches_sklearn(tmp_path):
-    x, y, w = _gp_data()
-    gp = fit_exact(x, y, w, GpParams(hyper_n=150, n_restarts=0))
-    doc = model_document(BETM, gp, {"run_ids": ["synthetic"]})
+def test_centred_mean_and_features():
+    v = np.arange(6.0)
+    np.testing.assert_allclose(centred_mean(v, None, 3), [0.5, 1, 2, 3, 4, 4.5])
+    np.testing.assert_allclose(centred_mean(v, np.array([0, 0, 0, 1, 1, 1]), 3),
+                               [0.5, 1, 1.5, 3.5, 4, 4.5])
+    np.testing.assert_allclose(centred_mean(v, None, 1), v)
+    n = np.array([1000.0, 1500.0])
+    i = (BETM.c_n * n**3 + BETM.i_0) * np.array([1.0, 0.96])
+    x = gp_features(BETM, n, i, 0.3)
+    np.testing.assert_allclose(x[:, 1], [0.0, 0.04 * BETM.speed_estimate(1500.0)], atol=1e-12)
+
+
+@pytest.mark.parametrize("hetero", [False, True])
+def test_gp_export_reload_matches_sklearn(tmp_path, hetero):
+    _, _, _, _, x, y, w = _gp_data()
+    p = GpParams(hyper_n=150, n_restarts=0)
+    t = np.arange(y.size) * 0.2
+    gp = fit_hetero(x, y, w, t, p, fold_s=2.0) if hetero else fit_exact(x, y, w, p)
+    assert (gp.noise is not None) == hetero
+    doc = model_document(BETM, gp, {"run_ids": ["synthetic"]}, window=3, block_s=0.2)
     (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
     np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
     model = load_model(tmp_path)
-    xq = _gp_data(60)[0] * 1.01
+    assert model.window == 3
+    speed, current, depth, seg, xq, _, _ = _gp_data(60, seed=4)
     mean_sk, std_sk = sklearn_predict(gp, xq)
-    mean, std = model.correction(xq[:, 0], xq[:, 1], xq[:, 2])
+    mean, std = model.correction(xq)
     np.testing.assert_allclose(mean, mean_sk, atol=1e-6)
     np.testing.assert_allclose(std, std_sk, atol=1e-6)
-    f, lo, hi = model.predict(xq[:, 0], xq[:, 1], xq[:, 2])
-    base = BETM.fuse(xq[:, 0], xq[:, 1]).thrust_n
+    np.testing.assert_allclose(gp.predict(xq)[1], std_sk, atol=1e-6)
+    f, lo, hi = model.predict(speed, current, depth, seg)
+    base = BETM.fuse(speed, current).thrust_n
     np.testing.assert_allclose(f, base + mean_sk, atol=1e-6)
     assert np.all(lo < f) and np.all(f < hi)
-    # the documented C formula: y_mean + sum_j a_j m(r_j)
+    # the documented C formulas: y_mean + sum_j a_j m(r_j); log var = log_mean + bias + ...
     g = doc["gp"]
     d = (xq[:1] - np.array(g["x_train"])) / (np.array(g["x_scale"]) * np.array(g["length_scales"]))
     s = np.sqrt(5.0) * np.sqrt((d**2).sum(axis=1))
-    c_mean = g["y_mean"] + np.sum(np.array(g["a_n"]) * (1 + s + s * s / 3) * np.exp(-s))
+    c_mean = g["y_mean"] + g["beta"] * xq[0, 1] + np.sum(np.array(g["a_n"]) * (1 + s + s * s / 3) * np.exp(-s))
     assert c_mean == pytest.approx(mean_sk[0], abs=1e-6)
+    if hetero:
+        nz = doc["noise"]
+        d = (xq[:1] - np.array(nz["x_train"])) / (np.array(nz["x_scale"])
+                                                  * np.array(nz["length_scales"]))
+        s = np.sqrt(5.0) * np.sqrt((d**2).sum(axis=1))
+        log_var = nz["log_mean"] + nz["log_bias"] + nz["signal_var"] * np.sum(
+            np.array(nz["alpha"]) * (1 + s + s * s / 3) * np.exp(-s))
+        assert np.exp(log_var) == pytest.approx(gp.noise_n2(xq[:1])[0], rel=1e-9)
+        # larger noise where the shortfall says ventilated
+        vent = np.abs(xq[:, 1]) > 1
+        assert np.median(gp.noise_n2(xq[vent])) > 4 * np.median(gp.noise_n2(xq[~vent]))
+
+
+def test_version_1_model_is_refused(tmp_path):
+    (tmp_path / MODEL_FILE).write_text(json.dumps({"format": "rigtool-qctm-gp",
+                                                   "format_version": 1}))
+    with pytest.raises(ValueError, match="version-1"):
+        load_model(tmp_path)

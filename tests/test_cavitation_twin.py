@@ -15,7 +15,7 @@ from rigtool.analysis.cavitation import (
     find_base_run,
     is_shallow,
 )
-from rigtool.analysis.gp import GpParams
+from rigtool.analysis.gp import GpParams, sklearn_predict
 from rigtool.cavitation_artefacts import (
     TRAIN_CSV,
     TRAIN_PARQUET,
@@ -108,10 +108,12 @@ def test_artefacts_and_model_reload(twin):
     table = pq.read_table(folder / TRAIN_PARQUET)
     assert table.num_rows == len(res.training) and b"rigtool" in table.schema.metadata
     model = load_model(folder)
-    x = res.training.x[:20]
-    f, lo, hi = model.predict(x[:, 0], x[:, 1], x[:, 2])
-    mean, _ = res.gp.sklearn.predict((x - res.gp.x_mean) / res.gp.x_scale, return_std=True)
-    np.testing.assert_allclose(f, res.training.betm_n[:20] + mean, atol=1e-6)
+    assert model.noise is not None and model.window == PARAMS.window_blocks
+    x = res.training.xf[:20]
+    np.testing.assert_allclose(model.features(*res.training.x[:20].T)[:, [0, 2]], x[:, [0, 2]])
+    mean, std = sklearn_predict(res.gp, x)
+    np.testing.assert_allclose(model.correction(x)[0], mean, atol=1e-6)
+    np.testing.assert_allclose(model.correction(x)[1], std, atol=1e-6)
     summary = json.loads((folder / "cavitation.json").read_text())
     assert summary["base_run_id"] == res.base_run_id
     html = cavitation_section_html(res, "png")
@@ -124,7 +126,7 @@ def test_held_out_run_gp_beats_betm_alone(twin):
     model = load_model(tmp / "out" / res.run_id)
     ev = evaluate_on_run(store, test, model.predict, res.betm, PARAMS)
 
-    def betm_only(n, i, h):
+    def betm_only(n, i, h, segment=None):
         f = res.betm.fuse(n, i).thrust_n
         return f, f - 1, f + 1
 

@@ -36,7 +36,7 @@ from rigtool.analysis.events import (
     match_events,
     relative_drop,
 )
-from rigtool.analysis.gp import ExactGp, GpParams, fit_exact
+from rigtool.analysis.gp import ExactGp, GpParams, fit_exact, fit_hetero
 from rigtool.analysis.trainset import (
     TrainingSet,
     huber_weights,
@@ -44,12 +44,14 @@ from rigtool.analysis.trainset import (
     stratified_pick,
 )
 from rigtool.errors import UsageError
-from rigtool.models import Z95
+from rigtool.models import Z95, gp_features
 from rigtool.store import Store
 
 EVENT_KIND = "ventilation"
 TRUTH_KIND = "sim.ventilation"
-Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+# (speed, current, depth, segment) of consecutive blocks -> (thrust, lo95, hi95)
+Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                     tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -62,11 +64,17 @@ class CavitationParams:
     gamma: float = 3.0
     edge_s: float = 0.5
     fold_s: float = 5.0
+    shortfall_window_s: float = 1.0  # centred averaging window of the current shortfall
     events: EventParams = field(default_factory=EventParams)
     gp: GpParams = field(default_factory=GpParams)
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @property
+    def window_blocks(self) -> int:
+        """Shortfall averaging window in train blocks (>= 1)."""
+        return max(1, int(round(self.shortfall_window_s / self.train_block_s)))
 
 
 @dataclass
@@ -228,8 +236,9 @@ def training_blocks(run: RunData, betm: Betm, events: list[Event],
     y = b.thrust_n - f_betm
     vent = in_intervals(b.t_s, [(e.t_start_s, e.t_end_s) for e in events])
     w, scale = huber_weights(y, b.point)
+    xf = gp_features(betm, b.speed_rpm, b.current_a, b.depth_m, b.point, params.window_blocks)
     ts = TrainingSet(
-        x=np.column_stack([b.speed_rpm, b.current_a, b.depth_m]), y=y, w=w, t_s=b.t_s,
+        x=np.column_stack([b.speed_rpm, b.current_a, b.depth_m]), xf=xf, y=y, w=w, t_s=b.t_s,
         command=b.command, ventilated=vent, thrust_n=b.thrust_n, betm_n=f_betm,
         run_id=np.full(len(b), run.run_id), provenance={"run_ids": [run.run_id]})
     ts.provenance["fold"] = (np.floor(b.t_in_point_s / params.fold_s).astype(int) % 2).tolist()
@@ -309,7 +318,7 @@ def evaluate_on_run(store: Store, run_id: str, predict: Predictor, betm: Betm,
     p = params or CavitationParams()
     run = load_run(store, run_id)
     blocks = block_means(run, p.train_block_s)
-    pred, lo, hi = predict(blocks.speed_rpm, blocks.current_a, blocks.depth_m)
+    pred, lo, hi = predict(blocks.speed_rpm, blocks.current_a, blocks.depth_m, blocks.point)
     detected, det_blocks = find_events(run, betm, p)
     return _evaluate(store, run_id, blocks, det_blocks, detected, pred, lo, hi, p,
                      f"held-out run {run_id}")
@@ -350,7 +359,7 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     all_blocks, scale = training_blocks(run, betm, events, p)
     all_blocks.provenance.update({"block_s": p.train_block_s, "huber_scale_n": scale})
     training = select(all_blocks, p.budget)
-    gp = fit_exact(training.x, training.y, training.w, p.gp)
+    gp = fit_hetero(training.xf, training.y, training.w, training.t_s, p.gp, p.fold_s)
 
     evaluation, series = _time_blocked(store, run, all_blocks, det_blocks, events, gp, p)
     warnings = []
@@ -370,8 +379,9 @@ def _time_blocked(store: Store, run: RunData, all_blocks: TrainingSet, det_block
     for k in (0, 1):
         train = select(all_blocks.take(np.flatnonzero(fold != k)), p.budget)
         test = np.flatnonzero(fold == k)
-        model = fit_exact(train.x, train.y, train.w, p.gp, hyper=gp.hyper)
-        m, s = model.predict(all_blocks.x[test])
+        model = fit_exact(train.xf, train.y, train.w, p.gp, hyper=gp.hyper, noise=gp.noise,
+                          beta=gp.beta)
+        m, s = model.predict(all_blocks.xf[test])
         pred[test] = all_blocks.betm_n[test] + m
         std[test] = s
     blocks = block_means(run, p.train_block_s)
@@ -408,13 +418,17 @@ def train_model(store: Store, run_ids: list[str], base_run_id: str,
         ts, _ = training_blocks(run, betm, events, p)
         sets.append(ts)
     training = select(concat(sets), p.budget)
-    return betm, fit_exact(training.x, training.y, training.w, p.gp), training
+    gp = fit_hetero(training.xf, training.y, training.w, training.t_s, p.gp, p.fold_s)
+    return betm, gp, training
 
 
-def predictor(betm: Betm, gp: ExactGp | object) -> Predictor:
-    """(speed, current, depth) -> (thrust, lo95, hi95) from BETM plus a fitted GP correction."""
-    def predict(n: np.ndarray, i: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, ...]:
-        mean, std = gp.predict(np.column_stack([n, i, h]))  # type: ignore[attr-defined]
+def predictor(betm: Betm, gp: ExactGp | object, window: int = 1) -> Predictor:
+    """(speed, current, depth, segment) of consecutive blocks -> (thrust, lo95, hi95) from BETM
+    plus a fitted GP correction on gp_features (shortfall averaged over `window` blocks)."""
+    def predict(n: np.ndarray, i: np.ndarray, h: np.ndarray,
+                segment: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        x = gp_features(betm, n, i, h, segment, window)
+        mean, std = gp.predict(x)  # type: ignore[attr-defined]
         f = betm.fuse(n, i).thrust_n + mean
         return f, f - Z95 * std, f + Z95 * std
 

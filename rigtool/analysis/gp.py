@@ -1,4 +1,8 @@
-"""QCTM-GP: weighted Matern-5/2 GP on standardised (n_p, I, h), exact and sparse (SoR) forms.
+"""QCTM-GP: weighted Matern-5/2 GP on standardised (n, z, h), exact and sparse (SoR) forms.
+
+Inputs are `rigtool.models.gp_features`: z is the current-implied thrust loss. `fit_hetero`
+adds a heteroscedastic noise model (a second GP on log squared cross-fitted residuals, see
+`fit_noise`); the exact GP then uses alpha_i = var(x_i) / w_i and its intervals add var(x).
 
 Hyperparameters (ARD length scales, signal variance, noise variance sigma^2) are fitted by
 maximum likelihood with a WhiteKernel on a subset of at most `hyper_n` points (cubic cost);
@@ -20,7 +24,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
-from rigtool.models import Z95, matern52
+from rigtool.models import Z95, LogNoise, matern52
 
 NU = 2.5
 
@@ -29,7 +33,7 @@ NU = 2.5
 class GpParams:
     """GP fitting options (recorded with the results)."""
 
-    hyper_n: int = 800  # points used for the hyperparameter search
+    hyper_n: int = 500  # points used for each hyperparameter search (mean and noise GPs)
     n_restarts: int = 1
     seed: int = 0
     inducing: int = 300  # inducing points of the sparse (SoR) variant
@@ -88,38 +92,133 @@ class ExactGp:
     alpha: np.ndarray  # (K + diag(noise / w))^-1 yn, normalised units
     k_inv: np.ndarray | None  # (K + diag)^-1, for the posterior variance
     sklearn: GaussianProcessRegressor | None = None
+    noise: LogNoise | None = None  # heteroscedastic noise model (None: constant noise_var)
+    beta: float = 0.0  # linear mean term beta * x[:, 1] (the shortfall thrust z), N/N
 
     @property
     def noise_var_n2(self) -> float:
-        """sigma^2 of a new measurement at weight 1 (N^2)."""
+        """Constant sigma^2 of a new measurement at weight 1 (N^2; 0 with a noise model)."""
         return self.hyper.noise_var * self.y_std**2
+
+    def noise_n2(self, x: np.ndarray) -> np.ndarray:
+        """Noise variance of a new measurement at inputs x (N^2)."""
+        if self.noise is None:
+            return np.full(len(x), self.noise_var_n2)
+        return self.noise.var_n2(x)
 
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean, std of a new measurement) in N, numpy only."""
-        xs = (np.asarray(x, dtype=float) - self.x_mean) / self.x_scale
+        xs_raw = np.asarray(x, dtype=float)
+        xs = (xs_raw - self.x_mean) / self.x_scale
         xt = (self.x_train - self.x_mean) / self.x_scale
         k = self.hyper.signal_var * matern52(xs, xt, self.hyper.length_scales)
-        mean = self.y_mean + self.y_std * (k @ self.alpha)
-        var_n = self.hyper.signal_var + self.hyper.noise_var
+        mean = self.y_mean + self.beta * xs_raw[:, 1] + self.y_std * (k @ self.alpha)
+        var_n = np.full(len(xs), self.hyper.signal_var)
         if self.k_inv is not None:
             var_n = var_n - np.einsum("ij,jk,ik->i", k, self.k_inv, k)
-        return mean, self.y_std * np.sqrt(np.maximum(var_n, 0.0))
+        var = self.y_std**2 * np.maximum(var_n, 0.0) + self.noise_n2(x)
+        return mean, np.sqrt(var)
+
+
+def fit_hyper_fixed_noise(xs: np.ndarray, yn: np.ndarray, alpha: np.ndarray,
+                          p: GpParams) -> Hyper:
+    """ML length scales and signal variance with given per-row noise (normalised units)."""
+    rng = np.random.default_rng(p.seed)
+    sub = (np.arange(yn.size) if yn.size <= p.hyper_n
+           else np.sort(rng.choice(yn.size, p.hyper_n, replace=False)))
+    kernel = (ConstantKernel(1.0, (1e-3, 1e3))
+              * Matern(length_scale=np.ones(xs.shape[1]), length_scale_bounds=(1e-3, 1e3), nu=NU))
+    gpr = GaussianProcessRegressor(kernel, alpha=alpha[sub], normalize_y=False,
+                                   n_restarts_optimizer=p.n_restarts, random_state=p.seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        gpr.fit(xs[sub], yn[sub])
+    k = gpr.kernel_
+    return Hyper(np.atleast_1d(k.k2.length_scale).astype(float), float(k.k1.constant_value), 0.0)
+
+
+def fit_noise(x: np.ndarray, resid: np.ndarray, p: GpParams) -> LogNoise:
+    """Noise model: GP (Matern 5/2 + white) on log(resid^2) of <= hyper_n rows; its posterior
+    mean plus log_mean + log_bias is log var(x). For Gaussian errors log_bias would be
+    -E[log chi^2_1] = 1.27; the errors are heavier-tailed (a mixture of ventilated and not),
+    so log_bias is set such that 95 % of all rows have |resid| <= 1.96 sqrt(var(x))."""
+    st = Standardiser(x)
+    rng = np.random.default_rng(p.seed + 1)
+    sub = (np.arange(resid.size) if resid.size <= p.hyper_n
+           else np.sort(rng.choice(resid.size, p.hyper_n, replace=False)))
+    floor = max(1e-6, 1e-4 * float(np.median(resid**2)))
+    ly = np.log(resid[sub] ** 2 + floor)
+    log_mean = float(ly.mean())
+    kernel = (ConstantKernel(1.0, (1e-3, 1e3))
+              * Matern(length_scale=np.ones(x.shape[1]), length_scale_bounds=(1e-2, 1e3), nu=NU)
+              + WhiteKernel(1.0, (1e-3, 10.0)))
+    gpr = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=p.n_restarts,
+                                   random_state=p.seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        gpr.fit(st(x[sub]), ly - log_mean)
+    k = gpr.kernel_
+    noise = LogNoise(st.mean, st.scale, np.atleast_1d(k.k1.k2.length_scale).astype(float),
+                     float(k.k1.k1.constant_value), log_mean, np.asarray(x[sub], float),
+                     np.ravel(gpr.alpha_), 0.0)
+    ratio = resid**2 / noise.var_n2(x)  # var_n2 with log_bias 0
+    noise.log_bias = float(np.log(np.quantile(ratio, 0.95) / Z95**2))
+    return noise
+
+
+def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, t_s: np.ndarray,
+               params: GpParams | None = None, fold_s: float = 5.0) -> ExactGp:
+    """Exact GP with heteroscedastic noise: (1) homoscedastic hyperparameters, (2) residuals
+    of a time-blocked 2-fold cross-fit (alternate `fold_s` slices of t_s), (3) noise model on
+    their logs, (4) length scales and signal variance again with the noise fixed, (5) final
+    exact GP with alpha_i = var(x_i) / w_i. Before all this a linear mean term beta * z
+    (weighted least squares through 0; z = x[:, 1], the current-implied thrust loss) is
+    taken out of y: the GP then only corrects it."""
+    p = params or GpParams()
+    z = x[:, 1]
+    beta = float(np.sum(w * z * y) / max(float(np.sum(w * z * z)), 1e-12))
+    y = y - beta * z  # the GP models what the linear term leaves
+    h0 = fit_exact(x, y, w, p, keep_inverse=False).hyper
+    fold = np.floor(np.asarray(t_s) / fold_s).astype(int) % 2
+    resid = np.empty_like(np.asarray(y, float))
+    if np.unique(fold).size < 2:
+        resid = y - fit_exact(x, y, w, p, hyper=h0, keep_inverse=False).predict(x)[0]
+    else:
+        for k in (0, 1):
+            a = fold != k
+            g = fit_exact(x[a], y[a], w[a], p, hyper=h0, keep_inverse=False)
+            resid[~a] = y[~a] - g.predict(x[~a])[0]
+    noise = fit_noise(x, resid, p)
+    st = Standardiser(x)
+    y_std = float(np.std(y)) or 1.0
+    alpha = noise.var_n2(x) / w / y_std**2
+    h1 = fit_hyper_fixed_noise(st(x), (y - np.mean(y)) / y_std, alpha, p)
+    gp = fit_exact(x, y, w, p, hyper=h1, noise=noise)
+    gp.beta = beta
+    return gp
 
 
 def fit_exact(x: np.ndarray, y: np.ndarray, w: np.ndarray, params: GpParams | None = None,
-              hyper: Hyper | None = None, keep_inverse: bool = True) -> ExactGp:
-    """Exact weighted GP with scikit-learn (hyperparameters fitted unless given)."""
+              hyper: Hyper | None = None, keep_inverse: bool = True,
+              noise: LogNoise | None = None, beta: float = 0.0) -> ExactGp:
+    """Exact weighted GP with scikit-learn (hyperparameters fitted unless given); with a
+    noise model, row i has noise var(x_i) / w_i instead of sigma^2 / w_i; the GP models
+    y - beta * x[:, 1]."""
     p = params or GpParams()
+    y = np.asarray(y, dtype=float) - beta * np.asarray(x, dtype=float)[:, 1]
     st = Standardiser(x)
     xs = st(x)
     y_mean, y_std = float(np.mean(y)), float(np.std(y)) or 1.0
     yn = (y - y_mean) / y_std
     h = hyper or fit_hyper(xs, yn, w, p)
+    if noise is not None:
+        h = Hyper(h.length_scales, h.signal_var, 0.0)
     kernel = (ConstantKernel(h.signal_var, "fixed")
               * Matern(length_scale=h.length_scales, length_scale_bounds="fixed", nu=NU))
     # normalize_y=True divides y by its std, so alpha (a variance of y) is divided by var(y);
     # h.noise_var is already in those normalised units.
-    gpr = GaussianProcessRegressor(kernel, alpha=h.noise_var / w, normalize_y=True,
+    row_noise = h.noise_var if noise is None else noise.var_n2(x) / y_std**2
+    gpr = GaussianProcessRegressor(kernel, alpha=row_noise / w, normalize_y=True,
                                    optimizer=None)
     gpr.fit(xs, y)
     k_inv = None
@@ -129,7 +228,7 @@ def fit_exact(x: np.ndarray, y: np.ndarray, w: np.ndarray, params: GpParams | No
     return ExactGp(st.mean, st.scale, float(gpr._y_train_mean[0] if np.ndim(gpr._y_train_mean)
                                             else gpr._y_train_mean),
                    float(np.ravel(gpr._y_train_std)[0]), h, np.asarray(x, float), w,
-                   np.ravel(gpr.alpha_), k_inv, gpr)
+                   np.ravel(gpr.alpha_), k_inv, gpr, noise, beta)
 
 
 def sklearn_predict(gp: ExactGp, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -137,7 +236,8 @@ def sklearn_predict(gp: ExactGp, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     assert gp.sklearn is not None
     xs = (np.asarray(x, dtype=float) - gp.x_mean) / gp.x_scale
     mean, std = gp.sklearn.predict(xs, return_std=True)
-    return mean, np.sqrt(std**2 + gp.noise_var_n2)
+    mean = mean + gp.beta * np.asarray(x, dtype=float)[:, 1]
+    return mean, np.sqrt(std**2 + gp.noise_n2(np.asarray(x, dtype=float)))
 
 
 @dataclass
@@ -196,5 +296,6 @@ def interval(mean: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return mean - Z95 * std, mean + Z95 * std
 
 
-__all__ = ["ExactGp", "GpParams", "Hyper", "SorGp", "fit_exact", "fit_sor", "interval",
+__all__ = ["ExactGp", "GpParams", "Hyper", "SorGp", "fit_exact", "fit_hetero", "fit_noise",
+           "fit_sor", "interval",
            "matern52", "sklearn_predict"]

@@ -1,6 +1,7 @@
 """GP training set: block means -> bounded, stratified, weighted (x, y) for the QCTM-GP.
 
-x = (n_p r/min, I A, h m), y = f_measured - f_BETM (N). Strategy: raw samples are averaged
+x = (n_p r/min, I A, h m) as measured, GP inputs xf = (n, z, h) (rigtool.models.gp_features:
+z is the current-implied thrust loss, N), y = f_measured - f_BETM (N). Strategy: raw samples are averaged
 over short blocks (autocorrelated samples carry little extra information), each block gets a
 Huber weight from its residual against a running median of y in its point (robust scale from
 the MAD), then blocks are selected up to `budget`, spread evenly over the strata
@@ -26,6 +27,7 @@ class TrainingSet:
     """Selected blocks: inputs, target, weights, and context columns for export."""
 
     x: np.ndarray  # (n, 3): speed_rpm, current_a, depth_m
+    xf: np.ndarray  # (n, 3): GP inputs speed_rpm, shortfall_thrust_n, depth_m
     y: np.ndarray  # f_measured - f_BETM (N)
     w: np.ndarray  # Huber weights in (0, 1]
     t_s: np.ndarray
