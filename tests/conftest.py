@@ -11,6 +11,20 @@ PROTOCOLS = ROOT / "protocols"
 
 
 @pytest.fixture
+def live(request):
+    """A LiveTwin of the test module's LIVE_PROFILE (default can-bldc) and LIVE_SEED, stopped after."""
+    from rigtool.sim.live import LiveTwin
+    from rigtool.sim.physics import ThrusterTwin
+    from rigtool.sim.profiles import PROFILES
+
+    profile = getattr(request.module, "LIVE_PROFILE", "can-bldc")
+    twin = LiveTwin(ThrusterTwin(PROFILES[profile], seed=getattr(request.module, "LIVE_SEED", 1)))
+    twin.start()
+    yield twin
+    twin.stop()
+
+
+@pytest.fixture
 def db_path(tmp_path: Path) -> Path:
     return tmp_path / "runs.sqlite"
 

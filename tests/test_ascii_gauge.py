@@ -15,20 +15,11 @@ from rigtool.devices.ascii_gauge import AsciiGauge, AsciiGaugeConfig, LineParser
 from rigtool.devices.base import ForceSensor
 from rigtool.errors import DeviceError
 from rigtool.sim.gauge_twin import GaugeTwin
-from rigtool.sim.live import LiveTwin
-from rigtool.sim.physics import ThrusterTwin
 from rigtool.sim.profiles import PROFILES
 
 LBF_N = 4.4482216152605
 BIAS_N = PROFILES["can-bldc"].bias_n
 NOISE_N = PROFILES["can-bldc"].force_noise_n
-
-
-@pytest.fixture
-def live():
-    tw = LiveTwin(ThrusterTwin(PROFILES["can-bldc"], seed=1)).start()
-    yield tw
-    tw.stop()
 
 
 @pytest.fixture

@@ -21,8 +21,6 @@ from rigtool.devices.base import Actuator
 from rigtool.devices.dbc_can import SHIPPED_DBC, DbcCanConfig, DbcCanDriver, encode_signal, load_dbc
 from rigtool.errors import DeviceError, UsageError
 from rigtool.sim.dbc_twin import DbcServoTwin
-from rigtool.sim.live import LiveTwin
-from rigtool.sim.physics import ThrusterTwin
 from rigtool.sim.profiles import PROFILES
 
 NODE = 3
@@ -66,11 +64,7 @@ def channel() -> str:
     return f"servo-{uuid.uuid4().hex[:10]}"
 
 
-@pytest.fixture
-def live():
-    live = LiveTwin(ThrusterTwin(PROFILES["can-bldc"], seed=2)).start()
-    yield live
-    live.stop()
+LIVE_SEED = 2  # the shared `live` fixture (conftest.py) runs this profile
 
 
 @pytest.fixture

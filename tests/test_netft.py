@@ -34,7 +34,6 @@ from rigtool.protocol import load_protocol
 from rigtool.rig import RigSet
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.netft_twin import NetFTFaults, NetFTTwin
-from rigtool.sim.physics import ThrusterTwin
 from rigtool.sim.profiles import PROFILES
 from rigtool.store import Store
 
@@ -42,13 +41,6 @@ from .conftest import ROOT
 
 BIAS_N = PROFILES["can-bldc"].bias_n  # the twin's offset on fx at zero thrust
 NOISE_N = PROFILES["can-bldc"].force_noise_n
-
-
-@pytest.fixture
-def live():
-    tw = LiveTwin(ThrusterTwin(PROFILES["can-bldc"], seed=1)).start()
-    yield tw
-    tw.stop()
 
 
 @pytest.fixture

@@ -12,20 +12,10 @@ from pydantic import ValidationError
 from rigtool.devices.base import DepthStage
 from rigtool.devices.serial_stage import SerialStage, SerialStageConfig
 from rigtool.errors import DeviceError, UsageError
-from rigtool.sim.live import LiveTwin
-from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.sim.stage_twin import StageTwin
 from rigtool.sim.stm32_twin import open_pty
 
 SPEED = 250.0  # mm/s, fast enough to keep the tests short
-
-
-@pytest.fixture
-def live():
-    twin = LiveTwin(ThrusterTwin(PROFILES["can-bldc"], seed=1)).start()
-    yield twin
-    twin.stop()
 
 
 @pytest.fixture

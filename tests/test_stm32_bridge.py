@@ -40,11 +40,7 @@ def wait_for(predicate, timeout_s: float = 2.0) -> bool:
     return predicate()
 
 
-@pytest.fixture
-def live():
-    twin = LiveTwin(ThrusterTwin(PROFILES["stm32-pwm"], seed=1)).start()
-    yield twin
-    twin.stop()
+LIVE_PROFILE = "stm32-pwm"  # the shared `live` fixture (conftest.py) runs this profile
 
 
 @pytest.fixture

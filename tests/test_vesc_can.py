@@ -21,8 +21,6 @@ from pydantic import ValidationError
 from rigtool.devices.base import Actuator
 from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
 from rigtool.errors import DeviceError
-from rigtool.sim.live import LiveTwin
-from rigtool.sim.physics import ThrusterTwin
 from rigtool.sim.profiles import PROFILES
 from rigtool.sim.vesc_twin import VescTwin
 
@@ -62,13 +60,6 @@ def drain(bus: can.BusABC, seconds: float = 0.0) -> list[can.Message]:
 @pytest.fixture
 def channel() -> str:
     return f"vesc-{uuid.uuid4().hex[:10]}"
-
-
-@pytest.fixture
-def live():
-    live = LiveTwin(ThrusterTwin(PROFILES["can-bldc"], seed=1)).start()
-    yield live
-    live.stop()
 
 
 @pytest.fixture
