@@ -12,15 +12,14 @@ error frames), `fault_code` (a FaultCode value: motor stopped, commands ignored,
 
 from __future__ import annotations
 
-import contextlib
 import math
-import threading
 import time
 
 import can
 import cantools
 
 from rigtool.devices.dbc_can import SHIPPED_DBC
+from rigtool.sim.can_twin import CanBusTwin
 from rigtool.sim.live import LiveTwin
 
 COMM_TIMEOUT = 7  # FaultCode value table: CommTimeout
@@ -32,8 +31,10 @@ def _clip(x: float, lo: float, hi: float) -> float:
     return min(max(x, lo), hi)
 
 
-class DbcServoTwin:
+class DbcServoTwin(CanBusTwin):
     """Simulated servo_driver.dbc drive at `node_id` on a python-can bus, in front of a LiveTwin."""
+
+    thread_name = "servo-twin"
 
     def __init__(
         self,
@@ -46,11 +47,7 @@ class DbcServoTwin:
         watchdog_s: float = 0.5,
         bitrate: int | None = None,
     ) -> None:
-        self.live = live
-        self.profile = live.twin.profile
-        self.interface = interface
-        self.channel = channel
-        self.bitrate = bitrate
+        super().__init__(live, channel, interface, bitrate)
         self.node_id = node_id
         self.status_hz = status_hz
         self.heartbeat_hz = heartbeat_hz
@@ -58,52 +55,16 @@ class DbcServoTwin:
         self.db = cantools.database.load_file(str(SHIPPED_DBC))
         p = self.profile
         self.max_motor_current_a = p.cn * p.max_speed_rpm**3  # motor current at max speed
-        # fault switches
-        self.silent = False
-        self.garbage = False
-        self._fault_code = 0
         # observable state
         self.enabled = False
         self.timed_out = False
         self.commands: list[tuple[str, float]] = []  # (signal, value) of every applied command
         self._last_control_t: float | None = None
-        self._bus: can.BusABC | None = None
-        self._send_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
 
     @property
     def address(self) -> dict:
         """What a dbc-can rig section needs to reach this twin."""
         return {"interface": self.interface, "channel": self.channel, "node_id": self.node_id}
-
-    @property
-    def fault_code(self) -> int:
-        return self._fault_code
-
-    @fault_code.setter
-    def fault_code(self, code: int) -> None:
-        """Set a FaultCode (0 clears it); a fault stops the motor at once."""
-        self._fault_code = int(code)
-        if code:
-            self.live.set_command(self.profile.neutral)
-
-    def start(self) -> DbcServoTwin:
-        kwargs = {} if self.bitrate is None else {"bitrate": self.bitrate}
-        self._bus = can.Bus(interface=self.interface, channel=self.channel, **kwargs)
-        for target, role in ((self._rx_loop, "rx"), (self._tx_loop, "status")):
-            thread = threading.Thread(target=target, name=f"servo-twin-{role}", daemon=True)
-            self._threads.append(thread)
-            thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(timeout=1.0)
-        if self._bus is not None:
-            self._bus.shutdown()
-            self._bus = None
 
     # ----- receiving -----
 
@@ -214,10 +175,4 @@ class DbcServoTwin:
         return data if self._send_raw(self._id(name), data) else None
 
     def _send_raw(self, arbitration_id: int, data: bytes, error: bool = False) -> bool:
-        if self.silent or self._bus is None:
-            return False
-        msg = can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=error,
-                          is_error_frame=error)  # fmt: skip
-        with self._send_lock, contextlib.suppress(can.CanError):
-            self._bus.send(msg)
-        return True
+        return self._send_frame(arbitration_id, data, extended=error, error=error)

@@ -16,14 +16,13 @@ commands ignored, code reported by the poll).
 
 from __future__ import annotations
 
-import contextlib
 import math
 import struct
-import threading
 import time
 
 import can
 
+from rigtool.sim.can_twin import CanBusTwin
 from rigtool.sim.live import LiveTwin
 
 _SET_DUTY, _SET_CURRENT, _SET_RPM = 0, 1, 3
@@ -40,8 +39,10 @@ def _int16(x: float) -> int:
     return max(-32768, min(32767, round(x)))
 
 
-class VescTwin:
+class VescTwin(CanBusTwin):
     """Simulated VESC on a python-can bus (`interface`, `channel`) in front of a LiveTwin."""
+
+    thread_name = "vesc-twin"
 
     def __init__(
         self,
@@ -54,65 +55,25 @@ class VescTwin:
         timeout_s: float = 1.0,
         bitrate: int | None = None,
     ) -> None:
-        self.live = live
-        self.profile = live.twin.profile
-        self.interface = interface
-        self.channel = channel
-        self.bitrate = bitrate
+        super().__init__(live, channel, interface, bitrate)
         self.controller_id = controller_id
         self.pole_pairs = pole_pairs
         self.status_hz = status_hz
         self.timeout_s = timeout_s
         p = self.profile
         self.max_motor_current_a = p.cn * p.max_speed_rpm**3  # motor current at max speed
-        # fault switches
-        self.silent = False
-        self.garbage = False
-        self._fault_code = 0
         # observable state for tests and `rigtool sim`
         self.commands: list[tuple[int, float]] = []  # (packet id, value) of every applied SET_*
         self.timed_out = False
         self.polls = 0
         self._last_command_t: float | None = None
         self._tacho = 0.0
-        self._bus: can.BusABC | None = None
-        self._send_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
 
     @property
     def address(self) -> dict:
         """What a vesc-can rig section needs to reach this twin."""
         return {"interface": self.interface, "channel": self.channel,
                 "controller_id": self.controller_id, "pole_pairs": self.pole_pairs}
-
-    @property
-    def fault_code(self) -> int:
-        return self._fault_code
-
-    @fault_code.setter
-    def fault_code(self, code: int) -> None:
-        """Set a firmware fault code (0 clears it); a fault stops the motor at once."""
-        self._fault_code = int(code)
-        if code:
-            self.live.set_command(self.profile.neutral)
-
-    def start(self) -> VescTwin:
-        kwargs = {} if self.bitrate is None else {"bitrate": self.bitrate}
-        self._bus = can.Bus(interface=self.interface, channel=self.channel, **kwargs)
-        for target, role in ((self._rx_loop, "rx"), (self._tx_loop, "status")):
-            thread = threading.Thread(target=target, name=f"vesc-twin-{role}", daemon=True)
-            self._threads.append(thread)
-            thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(timeout=1.0)
-        if self._bus is not None:
-            self._bus.shutdown()
-            self._bus = None
 
     # ----- receiving -----
 
@@ -210,9 +171,4 @@ class VescTwin:
             self._send(0x20000000 | 0x80, bytes(8), error=True)
 
     def _send(self, arbitration_id: int, data: bytes, error: bool = False) -> None:
-        if self.silent or self._bus is None:
-            return
-        msg = can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=True,
-                          is_error_frame=error)  # fmt: skip
-        with self._send_lock, contextlib.suppress(can.CanError):
-            self._bus.send(msg)
+        self._send_frame(arbitration_id, data, extended=True, error=error)
