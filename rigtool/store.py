@@ -203,16 +203,21 @@ class Store:
         return self.conn.execute("PRAGMA user_version").fetchone()[0]
 
     def _migrate(self) -> None:
-        current = self.version
-        if current > SCHEMA_VERSION:
-            raise StoreError(
-                f"{self.path} has schema version {current}; this rigtool knows up to "
-                f"{SCHEMA_VERSION}: upgrade rigtool"
-            )
-        for version in range(current, SCHEMA_VERSION):
+        """Bring the schema up to date, one migration per transaction.
+
+        The version is re-read under the write lock, so two processes opening a new
+        database at once never apply the same migration twice.
+        """
+        while (current := self.version) != SCHEMA_VERSION:
+            if current > SCHEMA_VERSION:
+                raise StoreError(
+                    f"{self.path} has schema version {current}; this rigtool knows up to "
+                    f"{SCHEMA_VERSION}: upgrade rigtool"
+                )
             with self.transaction():
-                MIGRATIONS[version](self.conn)
-                self.conn.execute(f"PRAGMA user_version = {version + 1}")
+                if self.version == current:
+                    MIGRATIONS[current](self.conn)
+                    self.conn.execute(f"PRAGMA user_version = {current + 1}")
 
     def _mark_dead_runs_interrupted(self) -> None:
         host = socket.gethostname()

@@ -134,3 +134,25 @@ def test_sequence_numbers_are_stored(db_path, write_yaml):
     store = Store(db_path)
     seq = store.samples(store.resolve_run_id("last"), ["seq"])["seq"]
     assert np.all(np.diff(seq) > 0)  # the sensor's own counter, increasing over the run
+
+
+def test_concurrent_first_open_migrates_once(db_path):
+    import threading
+
+    errors = []
+
+    def open_store():
+        try:
+            Store(db_path).close()
+        except Exception as exc:  # noqa: BLE001 - collected for the assertion
+            errors.append(exc)
+
+    for _ in range(5):
+        db_path.unlink(missing_ok=True)
+        threads = [threading.Thread(target=open_store) for _ in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert not errors, errors
+        assert Store(db_path).version == SCHEMA_VERSION
