@@ -25,6 +25,16 @@ def live(request):
 
 
 @pytest.fixture
+def recorder(channel):
+    """A second bus on the test module's `channel` that records every frame sent on it."""
+    import can
+
+    bus = can.Bus(interface="virtual", channel=channel)
+    yield bus
+    bus.shutdown()
+
+
+@pytest.fixture
 def db_path(tmp_path: Path) -> Path:
     return tmp_path / "runs.sqlite"
 

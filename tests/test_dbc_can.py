@@ -23,31 +23,11 @@ from rigtool.errors import DeviceError, UsageError
 from rigtool.sim.dbc_twin import DbcServoTwin
 from rigtool.sim.profiles import PROFILES
 
+from .helpers import drain, wait_for
+
 NODE = 3
 ENABLE_ID, CONTROL_ID, STATUS_ID = 0x100 + NODE, 0x200 + NODE, 0x280 + NODE
 MAX_SPEED = PROFILES["can-bldc"].max_speed_rpm
-
-
-def wait_for(predicate, timeout_s: float = 3.0) -> bool:
-    """Poll `predicate` until it holds or `timeout_s` passes."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
-
-
-def drain(bus: can.BusABC, seconds: float = 0.0) -> list[can.Message]:
-    """Every frame the recorder has seen (waiting `seconds` for more)."""
-    out, deadline = [], time.monotonic() + seconds
-    while True:
-        msg = bus.recv(timeout=max(0.0, deadline - time.monotonic()))
-        if msg is None:
-            return out
-        out.append(msg)
-
-
 def control(msg: can.Message) -> tuple[int, int]:
     """SERVO_CONTROL by hand: (ControlMode byte, raw int16 little-endian command)."""
     return msg.data[0], struct.unpack_from("<h", bytes(msg.data), 1)[0]
@@ -64,7 +44,7 @@ def channel() -> str:
     return f"servo-{uuid.uuid4().hex[:10]}"
 
 
-LIVE_SEED = 2  # the shared `live` fixture (conftest.py) runs this profile
+LIVE_SEED = 2  # seed of the shared `live` fixture (conftest.py)
 
 
 @pytest.fixture
@@ -72,13 +52,6 @@ def twin(live, channel):
     twin = DbcServoTwin(live, channel=channel, node_id=NODE, watchdog_s=0.5).start()
     yield twin
     twin.stop()
-
-
-@pytest.fixture
-def recorder(channel):
-    bus = can.Bus(interface="virtual", channel=channel)
-    yield bus
-    bus.shutdown()
 
 
 @pytest.fixture

@@ -26,19 +26,15 @@ from rigtool.sim.physics import ThrusterTwin
 from rigtool.sim.profiles import PROFILES
 from rigtool.sim.stm32_twin import Dialect, Stm32BridgeTwin, open_pty
 
+from .helpers import wait_for as _wait_for
+
 ROOT = Path(__file__).resolve().parent.parent
 ESC_TIMER = {"psc": 71, "arr": 19999}  # 72 MHz / 72 = 1 us ticks, 20 ms period
 
 
 def wait_for(predicate, timeout_s: float = 2.0) -> bool:
-    """Poll `predicate` until it holds or `timeout_s` passes."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return predicate()
-
+    """Poll `predicate` every 10 ms until it holds or `timeout_s` passes."""
+    return _wait_for(predicate, timeout_s, poll_s=0.01)
 
 LIVE_PROFILE = "stm32-pwm"  # the shared `live` fixture (conftest.py) runs this profile
 

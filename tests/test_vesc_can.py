@@ -24,38 +24,18 @@ from rigtool.errors import DeviceError
 from rigtool.sim.profiles import PROFILES
 from rigtool.sim.vesc_twin import VescTwin
 
+from .helpers import drain, wait_for
+
 REFERENCE = cantools.database.load_file(str(Path(__file__).parent / "dbc" / "vesc_reference.dbc"))
 ROOT = Path(__file__).resolve().parent.parent
 CTRL = 5  # controller id used throughout
 POLES = 7
 MAX_SPEED = PROFILES["can-bldc"].max_speed_rpm
 
-
-def wait_for(predicate, timeout_s: float = 3.0) -> bool:
-    """Poll `predicate` until it holds or `timeout_s` passes."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
-
-
 def reference(msg: can.Message, allow_truncated: bool = False) -> tuple[str, dict]:
     """(message name, signals) of a VESC frame, decoded with the reference DBC."""
     message = REFERENCE.get_message_by_frame_id(msg.arbitration_id & ~0xFF, force_extended_id=True)
     return message.name, message.decode(bytes(msg.data), allow_truncated=allow_truncated)
-
-
-def drain(bus: can.BusABC, seconds: float = 0.0) -> list[can.Message]:
-    """Every frame the recorder has seen (waiting `seconds` for more)."""
-    out, deadline = [], time.monotonic() + seconds
-    while True:
-        msg = bus.recv(timeout=max(0.0, deadline - time.monotonic()))
-        if msg is None:
-            return out
-        out.append(msg)
-
 
 @pytest.fixture
 def channel() -> str:
@@ -67,13 +47,6 @@ def twin(live, channel):
     twin = VescTwin(live, channel=channel, controller_id=CTRL, pole_pairs=POLES).start()
     yield twin
     twin.stop()
-
-
-@pytest.fixture
-def recorder(channel):
-    bus = can.Bus(interface="virtual", channel=channel)
-    yield bus
-    bus.shutdown()
 
 
 @pytest.fixture
