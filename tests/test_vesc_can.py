@@ -71,14 +71,14 @@ def test_duty_command_drives_the_twin_and_feedback_follows(twin, live, open_driv
     assert isinstance(driver, Actuator)
     assert driver.info.command_unit == "percent" and driver.info.neutral == 0.0
     driver.set_command(50.0)
-    assert wait_for(lambda: abs(np.mean(live.latest().speed_rpm) - 0.5 * MAX_SPEED) < 4)
+    assert wait_for(lambda: abs(np.mean(live.latest().speed_rpm) - 0.5 * MAX_SPEED) < 10)
     driver.read_feedback()
     time.sleep(0.3)
     fb = driver.read_feedback()
     assert len(fb) >= 5  # 50 Hz status
     block = live.latest()
     assert np.all(np.diff(fb.t_s) > 0) and abs(fb.t_s[-1] - time.monotonic()) < 0.5
-    assert np.mean(fb.speed_rpm) == pytest.approx(0.5 * MAX_SPEED, abs=6)
+    assert np.mean(fb.speed_rpm) == pytest.approx(0.5 * MAX_SPEED, abs=12)
     assert np.mean(fb.current_a) == pytest.approx(np.mean(block.current_a), abs=0.4)
     assert np.mean(fb.voltage_v) == pytest.approx(np.mean(block.voltage_v), abs=0.3)
     assert driver.stats["garbage"] == 0 and driver.stats["frames"] > 0
@@ -118,7 +118,7 @@ def test_command_frames_match_the_reference_dbc(
 def test_status_frames_decode_like_the_reference_dbc(twin, recorder, open_driver):
     driver = open_driver(mode="duty")
     driver.set_command(40.0)
-    assert wait_for(lambda: abs(np.mean(twin.live.latest().speed_rpm) - 0.4 * MAX_SPEED) < 4)
+    assert wait_for(lambda: abs(np.mean(twin.live.latest().speed_rpm) - 0.4 * MAX_SPEED) < 10)
     driver.read_feedback()
     drain(recorder)
     time.sleep(0.4)
