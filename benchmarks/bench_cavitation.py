@@ -21,10 +21,12 @@ import numpy as np
 
 from rigtool.analysis.cavitation import (
     CavitationParams,
+    build_betm,
     evaluate_on_run,
     predictor,
     train_model,
 )
+from rigtool.analysis.dataset import load_run
 from rigtool.store import Store
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,6 +68,12 @@ def main() -> None:
     tests = [sweep(db, "luo2020-cavitation.yaml", s) for s in args.test]
     store = Store(db)
     p = CavitationParams(budget=args.budget)
+    _, deep_blocks, deep_samples = build_betm(load_run(store, base), p)
+    print("BETM on deep points of the base run (odd points; C_i and variances from even points):")
+    for label, errors in ((f"{p.train_block_s:g} s blocks", deep_blocks), ("samples", deep_samples)):
+        for e in errors:
+            print(f"  {label:10} {e.name:36} max {e.max_abs_n:5.2f} N  p95 {e.p95_abs_n:5.2f} N  "
+                  f"rms {e.rms_n:6.4f} N  within 1 N {e.within_1n:6.1%}")
     t0 = time.perf_counter()
     betm, gp, ts = train_model(store, train, base, p)
     print(f"trained on seeds {args.train} ({len(ts)} blocks) in {time.perf_counter() - t0:.1f} s; "

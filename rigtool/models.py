@@ -7,7 +7,7 @@ Inputs are consecutive block means (`features.block_s`, 0.2 s) of one record; `s
 label per block, default: all one segment) marks where the record is cut (e.g. a new point).
 GP inputs x = (n, z, h) with z = f_n(n) * shortfall, shortfall = 1 - |I| / (C_n |n|^3 + I_0)
 averaged over a centred window of `features.window_blocks` blocks within the segment.
-thrust = f_BETM(n, I) + y_mean + beta z + sum_j a_j m(r_j), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r),
+thrust = f_BETM(n, I) + y_mean + g(z) + sum_j a_j m(r_j), g(z) = beta z / (1 + exp(-(|z| - z0) / s)), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r),
 r_j = || (x - X_j) / (x_scale * length_scales) ||; the noise variance of a new measurement is
 exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic); see docs/cavitation.md.
 """
@@ -76,6 +76,32 @@ def gp_features(betm: Betm, speed_rpm: np.ndarray, current_a: np.ndarray, depth_
     return np.column_stack([n, betm.speed_estimate(n) * short, h])
 
 
+@dataclass(frozen=True)
+class GatedMean:
+    """Explicit mean term g(z) = beta z / (1 + exp(-(|z| - z0) / s)) of the GP (s = 0: beta z).
+
+    Outside events z is current noise that a plain linear term would turn into thrust error;
+    the gate switches the term off below about z0 (N)."""
+
+    beta: float = 0.0
+    z0: float = 0.0
+    s: float = 0.0
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        z = np.asarray(z, dtype=float)
+        if self.s <= 0.0:
+            return self.beta * z
+        return self.beta * z / (1.0 + np.exp(-(np.abs(z) - self.z0) / self.s))
+
+    def to_dict(self) -> dict:
+        return {"beta": self.beta, "gate_z0": self.z0, "gate_s": self.s}
+
+    @classmethod
+    def from_dict(cls, g: dict) -> GatedMean:
+        return cls(float(g.get("beta", 0.0)), float(g.get("gate_z0", 0.0)),
+                   float(g.get("gate_s", 0.0)))
+
+
 @dataclass
 class LogNoise:
     """Heteroscedastic noise: var(x) = exp(log_mean + log_bias + k(x)^T alpha) (N^2)."""
@@ -131,7 +157,7 @@ class ThrustModel:
     noise: LogNoise | None = None  # heteroscedastic noise; None: constant noise_var
     window: int = 1  # shortfall averaging window (blocks)
     block_s: float = 0.2
-    beta: float = 0.0  # linear mean term beta * z
+    mean_term: GatedMean = GatedMean()  # explicit mean g(z)
 
     def features(self, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
                  segment: np.ndarray | None = None) -> np.ndarray:
@@ -147,7 +173,7 @@ class ThrustModel:
         out_var = np.empty(len(xs))
         for s in range(0, len(xs), 2048):
             k = self.signal_var * matern52(xs[s:s + 2048], xt, self.length_scales)
-            out_mean[s:s + 2048] = (self.y_mean + self.beta * x[s:s + 2048, 1]
+            out_mean[s:s + 2048] = (self.y_mean + self.mean_term(x[s:s + 2048, 1])
                                     + self.y_std * (k @ self.alpha))
             var = np.full(len(k), self.signal_var)
             if self.k_inv is not None:
@@ -183,7 +209,8 @@ def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
                      "c_n": betm.c_n, "i_0": betm.i_0,
                      "shortfall": "1 - |I| / (c_n |n|^3 + i_0), centred mean over window_blocks",
                      "z": "betm.speed_estimate(n) * shortfall"},
-        "output": "thrust_n = f_BETM(speed_rpm, current_a) + beta * z + gp_mean(x)",
+        "output": "thrust_n = f_BETM(speed_rpm, current_a) + beta * z / (1 + exp(-(|z| - "
+                  "gate_z0) / gate_s)) + gp_mean(x); gate_s = 0: beta * z",
         "noise": None if noise is None else noise.to_dict(),
         "betm": {k: (list(v) if isinstance(v, tuple) else v) for k, v in betm.to_dict().items()},
         "gp": {
@@ -193,7 +220,7 @@ def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
             "noise_var": h.noise_var, "noise_var_n2": h.noise_var * y_std**2,
             "x_mean": gp.x_mean.tolist(), "x_scale": gp.x_scale.tolist(),  # type: ignore[attr-defined]
             "y_mean": float(gp.y_mean), "y_std": y_std,  # type: ignore[attr-defined]
-            "beta": float(getattr(gp, "beta", 0.0)),
+            **getattr(gp, "mean_term", GatedMean()).to_dict(),
             "x_train": gp.x_train.tolist(),  # type: ignore[attr-defined]
             "weights": gp.w.tolist(),  # type: ignore[attr-defined]
             "alpha": alpha.tolist(),
@@ -223,5 +250,6 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
         noise_var=float(g["noise_var"]), y_mean=float(g["y_mean"]), y_std=float(g["y_std"]),
         x_train=np.array(g["x_train"], dtype=float), alpha=np.array(g["alpha"]), k_inv=k_inv,
         noise=None if doc.get("noise") is None else LogNoise.from_dict(doc["noise"]),
-        window=int(doc.get("features", {}).get("window_blocks", 1)), beta=float(g.get("beta", 0.0)),
+        window=int(doc.get("features", {}).get("window_blocks", 1)),
+        mean_term=GatedMean.from_dict(g),
         block_s=float(doc.get("features", {}).get("block_s", 0.2)))

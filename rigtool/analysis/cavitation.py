@@ -3,8 +3,9 @@
 BETM coefficients come from a deep, full-range base run (`--base`, or the most recent
 completed run of the same thruster whose depths are all >= 0.6 m). All analysis works on
 short block means (see blocks.py): events on `detect_block_s`, the GP on `train_block_s`.
-The in-run evaluation is a time-blocked 2-fold split (alternate `fold_s` slices of every
-point), with the main fit's hyperparameters; held-out runs use `evaluate_on_run`.
+The in-run evaluation is a 2-fold split by point (alternate (depth, command) combinations are
+held out whole: blocks within a point, and within one ventilation event, are autocorrelated),
+with the main fit's hyperparameters; held-out runs use `evaluate_on_run`.
 """
 
 from __future__ import annotations
@@ -64,7 +65,6 @@ class CavitationParams:
     budget: int = 2000
     gamma: float = 3.0
     edge_s: float = 0.5
-    fold_s: float = 5.0
     shortfall_window_s: float = 1.0  # centred averaging window of the current shortfall
     events: EventParams = field(default_factory=EventParams)
     gp: GpParams = field(default_factory=GpParams)
@@ -248,10 +248,17 @@ def training_blocks(run: RunData, betm: Betm, events: list[Event],
         x=np.column_stack([b.speed_rpm, b.current_a, b.depth_m]), xf=xf, y=y, w=w, t_s=b.t_s,
         command=b.command, ventilated=vent, thrust_n=b.thrust_n, betm_n=f_betm,
         run_id=np.full(len(b), run.run_id), provenance={"run_ids": [run.run_id]})
-    ts.provenance["fold"] = (np.floor(b.t_in_point_s / params.fold_s).astype(int) % 2).tolist()
+    ts.provenance["fold"] = point_folds(b.depth_m, b.command).tolist()
     ts.provenance["point"] = b.point.tolist()
     ts.provenance["t_in_point_s"] = b.t_in_point_s.tolist()
     return ts, scale
+
+
+def point_folds(depth_m: np.ndarray, command: np.ndarray) -> np.ndarray:
+    """Fold 0/1 per row: alternate (depth, command) combinations in sorted order."""
+    keys = np.column_stack([np.round(np.asarray(depth_m, float), 3), np.asarray(command, float)])
+    _, rank = np.unique(keys, axis=0, return_inverse=True)
+    return np.ravel(rank) % 2
 
 
 def select(ts: TrainingSet, budget: int) -> TrainingSet:
@@ -366,7 +373,8 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     all_blocks, scale = training_blocks(run, betm, events, p)
     all_blocks.provenance.update({"block_s": p.train_block_s, "huber_scale_n": scale})
     training = select(all_blocks, p.budget)
-    gp = fit_hetero(training.xf, training.y, training.w, training.t_s, p.gp, p.fold_s)
+    gp = fit_hetero(training.xf, training.y, training.w,
+                    point_folds(training.x[:, 2], training.command), p.gp)
 
     evaluation, series = _time_blocked(store, run, all_blocks, det_blocks, events, gp, p)
     warnings = []
@@ -379,7 +387,7 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
 def _time_blocked(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: Blocks,
                   events: list[Event], gp: ExactGp, p: CavitationParams
                   ) -> tuple[Evaluation, dict[str, np.ndarray]]:
-    """2-fold time-blocked evaluation inside the run, hyperparameters fixed from the main fit."""
+    """2-fold evaluation by point inside the run, hyperparameters fixed from the main fit."""
     fold = np.asarray(all_blocks.provenance["fold"])
     n = len(all_blocks)
     pred, std = np.full(n, np.nan), np.full(n, np.nan)
@@ -387,7 +395,7 @@ def _time_blocked(store: Store, run: RunData, all_blocks: TrainingSet, det_block
         train = select(all_blocks.take(np.flatnonzero(fold != k)), p.budget)
         test = np.flatnonzero(fold == k)
         model = fit_exact(train.xf, train.y, train.w, p.gp, hyper=gp.hyper, noise=gp.noise,
-                          beta=gp.beta)
+                          mean_term=gp.mean_term)
         m, s = model.predict(all_blocks.xf[test])
         pred[test] = all_blocks.betm_n[test] + m
         std[test] = s
@@ -396,7 +404,8 @@ def _time_blocked(store: Store, run: RunData, all_blocks: TrainingSet, det_block
     blocks = blocks.take(np.flatnonzero(ok))
     lo, hi = pred - Z95 * std, pred + Z95 * std
     ev = _evaluate(store, run.run_id, blocks, det_blocks, events, pred, lo, hi, p,
-                   f"time-blocked 2-fold split of run {run.run_id} ({p.fold_s:g} s slices)")
+                   f"2-fold split of run {run.run_id} by point (alternate depth/command "
+                   "combinations held out)")
     series = {"t_s": blocks.t_s, "thrust_n": blocks.thrust_n, "betm_n": all_blocks.betm_n,
               "pred_n": pred, "lo95_n": lo, "hi95_n": hi, "depth_m": blocks.depth_m,
               "command": blocks.command, "point": blocks.point}
@@ -425,7 +434,8 @@ def train_model(store: Store, run_ids: list[str], base_run_id: str,
         ts, _ = training_blocks(run, betm, events, p)
         sets.append(ts)
     training = select(concat(sets), p.budget)
-    gp = fit_hetero(training.xf, training.y, training.w, training.t_s, p.gp, p.fold_s)
+    gp = fit_hetero(training.xf, training.y, training.w,
+                    point_folds(training.x[:, 2], training.command), p.gp)
     return betm, gp, training
 
 

@@ -20,11 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize import least_squares
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
-from rigtool.models import Z95, LogNoise, matern52
+from rigtool.models import Z95, GatedMean, LogNoise, matern52
 
 NU = 2.5
 
@@ -93,7 +94,7 @@ class ExactGp:
     k_inv: np.ndarray | None  # (K + diag)^-1, for the posterior variance
     sklearn: GaussianProcessRegressor | None = None
     noise: LogNoise | None = None  # heteroscedastic noise model (None: constant noise_var)
-    beta: float = 0.0  # linear mean term beta * x[:, 1] (the shortfall thrust z), N/N
+    mean_term: GatedMean = GatedMean()  # explicit mean g(x[:, 1]) (z, the shortfall thrust)
 
     @property
     def noise_var_n2(self) -> float:
@@ -112,7 +113,7 @@ class ExactGp:
         xs = (xs_raw - self.x_mean) / self.x_scale
         xt = (self.x_train - self.x_mean) / self.x_scale
         k = self.hyper.signal_var * matern52(xs, xt, self.hyper.length_scales)
-        mean = self.y_mean + self.beta * xs_raw[:, 1] + self.y_std * (k @ self.alpha)
+        mean = self.y_mean + self.mean_term(xs_raw[:, 1]) + self.y_std * (k @ self.alpha)
         var_n = np.full(len(xs), self.hyper.signal_var)
         if self.k_inv is not None:
             var_n = var_n - np.einsum("ij,jk,ik->i", k, self.k_inv, k)
@@ -166,20 +167,20 @@ def fit_noise(x: np.ndarray, resid: np.ndarray, p: GpParams) -> LogNoise:
     return noise
 
 
-def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, t_s: np.ndarray,
-               params: GpParams | None = None, fold_s: float = 5.0) -> ExactGp:
+def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
+               params: GpParams | None = None) -> ExactGp:
     """Exact GP with heteroscedastic noise: (1) homoscedastic hyperparameters, (2) residuals
-    of a time-blocked 2-fold cross-fit (alternate `fold_s` slices of t_s), (3) noise model on
+    of a 2-fold cross-fit (`fold`: 0/1 per row; hold out whole points, since blocks of one
+    point, or of one ventilation event, are autocorrelated and leak), (3) noise model on
     their logs, (4) length scales and signal variance again with the noise fixed, (5) final
-    exact GP with alpha_i = var(x_i) / w_i. Before all this a linear mean term beta * z
-    (weighted least squares through 0; z = x[:, 1], the current-implied thrust loss) is
-    taken out of y: the GP then only corrects it."""
+    exact GP with alpha_i = var(x_i) / w_i. Before all this the gated mean term g(z)
+    (`fit_gated_mean`; z = x[:, 1], the current-implied thrust loss) is taken out of y: the
+    GP then only corrects it."""
     p = params or GpParams()
-    z = x[:, 1]
-    beta = float(np.sum(w * z * y) / max(float(np.sum(w * z * z)), 1e-12))
-    y = y - beta * z  # the GP models what the linear term leaves
+    mean_term = fit_gated_mean(x[:, 1], y, w)
+    y = y - mean_term(x[:, 1])  # the GP models what the mean term leaves
     h0 = fit_exact(x, y, w, p, keep_inverse=False).hyper
-    fold = np.floor(np.asarray(t_s) / fold_s).astype(int) % 2
+    fold = np.asarray(fold)
     resid = np.empty_like(np.asarray(y, float))
     if np.unique(fold).size < 2:
         resid = y - fit_exact(x, y, w, p, hyper=h0, keep_inverse=False).predict(x)[0]
@@ -194,18 +195,43 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, t_s: np.ndarray,
     alpha = noise.var_n2(x) / w / y_std**2
     h1 = fit_hyper_fixed_noise(st(x), (y - np.mean(y)) / y_std, alpha, p)
     gp = fit_exact(x, y, w, p, hyper=h1, noise=noise)
-    gp.beta = beta
+    gp.mean_term = mean_term
     return gp
+
+
+def fit_gated_mean(z: np.ndarray, y: np.ndarray, w: np.ndarray) -> GatedMean:
+    """Weighted least-squares g(z) = beta z / (1 + exp(-(|z| - z0) / s)), best of a few starts.
+
+    beta starts from the plain linear fit through 0 and z0 from quantiles of |z|; if the gate
+    does not lower the weighted residual, the plain linear term is returned.
+    """
+    z, y, sw = np.asarray(z, float), np.asarray(y, float), np.sqrt(np.asarray(w, float))
+    beta = float(np.sum(w * z * y) / max(float(np.sum(w * z * z)), 1e-12))
+    best, cost = GatedMean(beta), float(np.sum((sw * (beta * z - y)) ** 2))
+    a = np.abs(z)
+    top = float(a.max()) if a.size else 0.0
+    if top <= 0.0:
+        return best
+    s_min = 1e-3 * top
+    for q in (0.5, 0.75, 0.9):
+        z0 = float(np.quantile(a, q))
+        start = [beta, z0, max(0.25 * z0, s_min)]
+        fit = least_squares(lambda c: sw * (GatedMean(*c)(z) - y), start,
+                            bounds=([-np.inf, 0.0, s_min], [np.inf, top, top]))
+        if 2.0 * fit.cost < cost:
+            best, cost = GatedMean(*map(float, fit.x)), 2.0 * fit.cost
+    return best
 
 
 def fit_exact(x: np.ndarray, y: np.ndarray, w: np.ndarray, params: GpParams | None = None,
               hyper: Hyper | None = None, keep_inverse: bool = True,
-              noise: LogNoise | None = None, beta: float = 0.0) -> ExactGp:
+              noise: LogNoise | None = None, mean_term: GatedMean | None = None) -> ExactGp:
     """Exact weighted GP with scikit-learn (hyperparameters fitted unless given); with a
     noise model, row i has noise var(x_i) / w_i instead of sigma^2 / w_i; the GP models
-    y - beta * x[:, 1]."""
+    y - mean_term(x[:, 1])."""
     p = params or GpParams()
-    y = np.asarray(y, dtype=float) - beta * np.asarray(x, dtype=float)[:, 1]
+    mean_term = mean_term or GatedMean()
+    y = np.asarray(y, dtype=float) - mean_term(np.asarray(x, dtype=float)[:, 1])
     st = Standardiser(x)
     xs = st(x)
     y_mean, y_std = float(np.mean(y)), float(np.std(y)) or 1.0
@@ -228,7 +254,7 @@ def fit_exact(x: np.ndarray, y: np.ndarray, w: np.ndarray, params: GpParams | No
     return ExactGp(st.mean, st.scale, float(gpr._y_train_mean[0] if np.ndim(gpr._y_train_mean)
                                             else gpr._y_train_mean),
                    float(np.ravel(gpr._y_train_std)[0]), h, np.asarray(x, float), w,
-                   np.ravel(gpr.alpha_), k_inv, gpr, noise, beta)
+                   np.ravel(gpr.alpha_), k_inv, gpr, noise, mean_term)
 
 
 def sklearn_predict(gp: ExactGp, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -236,7 +262,7 @@ def sklearn_predict(gp: ExactGp, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     assert gp.sklearn is not None
     xs = (np.asarray(x, dtype=float) - gp.x_mean) / gp.x_scale
     mean, std = gp.sklearn.predict(xs, return_std=True)
-    mean = mean + gp.beta * np.asarray(x, dtype=float)[:, 1]
+    mean = mean + gp.mean_term(np.asarray(x, dtype=float)[:, 1])
     return mean, np.sqrt(std**2 + gp.noise_n2(np.asarray(x, dtype=float)))
 
 
