@@ -286,11 +286,19 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from rigtool.analysis.cavitation import calibrate_cavitation, is_shallow
+    from rigtool.errors import UsageError
     from rigtool.report import write_report
 
     store = Store(resolve_db_path(args.db), create=False)
     run_id = store.resolve_run_id(args.run)
-    out.print(str(write_report(store, run_id, Path(args.out) / run_id)))
+    cav = None
+    if is_shallow(store, run_id):
+        try:
+            cav = calibrate_cavitation(store, run_id, args.base)
+        except UsageError as exc:
+            err.print(f"warning: no quasi-cavitation section: {exc}")
+    out.print(str(write_report(store, run_id, Path(args.out) / run_id, cavitation=cav)))
     return 0
 
 
@@ -387,6 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("report", help="write calibrations/<run-id>/report.html and print its path")
     p.add_argument("run", help="run id, unique prefix, or `last`")
     p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
+    p.add_argument("--base", metavar="RUN_ID", help="deep run giving the BETM coefficients of a "
+                   "shallow run's quasi-cavitation section (default: as for calibrate)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_report)
 

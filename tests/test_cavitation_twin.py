@@ -140,3 +140,16 @@ def test_held_out_run_gp_beats_betm_alone(twin):
     assert by["outside"].p95_abs_n <= 4.0
     assert by["event"].rms_n < base["event"].rms_n
     assert 0.7 <= ev.coverage95 <= 1.0
+
+
+def test_report_command_has_the_cavitation_section(twin):
+    tmp, _, _, train, _, _ = twin
+    assert main(["report", train, "--db", str(tmp / "db.sqlite"), "--out", str(tmp / "rep")]) == 0
+    assert 'id="cavitation"' in (tmp / "rep" / train / "report.html").read_text()
+
+
+def test_report_without_a_deep_base_run_warns_and_still_writes(tmp_path, capsys):
+    run = _sweep(tmp_path, CAV, "cav.yaml", 33)
+    assert main(["report", run, "--db", str(tmp_path / "db.sqlite"), "--out", str(tmp_path / "rep")]) == 0
+    assert "no quasi-cavitation section" in capsys.readouterr().err
+    assert 'id="cavitation"' not in (tmp_path / "rep" / run / "report.html").read_text()
