@@ -172,6 +172,26 @@ def _time_series_figure(res: CavitationResult) -> object:
     return fig
 
 
+def _event_rate_figure(res: CavitationResult) -> object:
+    """Events per minute and mean event duration vs depth, one line per command."""
+    from rigtool.report import figures as fg
+
+    fig = fg._figure((8.0, 2.6))
+    rate, dur = fig.add_subplot(121), fig.add_subplot(122)
+    rows = res.event_table
+    for k, cmd in enumerate(sorted({r["command"] for r in rows})):
+        mine = sorted((r for r in rows if r["command"] == cmd), key=lambda r: r["depth_m"])
+        depth = [100 * r["depth_m"] for r in mine]
+        rate.plot(depth, [r["rate_per_min"] for r in mine], "o-", color=f"C{k}", label=f"{cmd:g}")
+        dur.plot(depth, [r["mean_duration_s"] for r in mine], "o-", color=f"C{k}")
+    rate.set_xlabel("depth (cm)")
+    rate.set_ylabel("events per minute")
+    dur.set_xlabel("depth (cm)")
+    dur.set_ylabel("mean duration (s)")
+    rate.legend(title="command", fontsize=7, title_fontsize=7)
+    return fig
+
+
 def _table(head: list[str], rows: list[list[str]], cls: str) -> str:
     h = "".join(f"<th>{html.escape(c)}</th>" for c in head)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
@@ -193,9 +213,11 @@ def cavitation_section_html(res: CavitationResult, image_format: str = "svg") ->
              f"{len(res.training)} of {res.n_blocks_total} blocks of {res.params.train_block_s:g} s."
              "</p>"]
     parts.append("<h3>Estimators on deep points (held-out points of the base run)</h3>")
-    rows = [[e.name, _f(e.max_abs_n), _f(e.p95_abs_n), _f(e.rms_n), f"{e.within_1n:.1%}"]
-            for e in res.deep_errors_samples]
-    parts.append(_table(["estimator (per sample)", "max |e| N", "p95 |e| N", "rms N",
+    rows = [[e.name, base, _f(e.max_abs_n), _f(e.p95_abs_n), _f(e.rms_n), f"{e.within_1n:.1%}"]
+            for base, errors in (("samples", res.deep_errors_samples),
+                                 (f"{res.params.train_block_s:g} s blocks", res.deep_errors))
+            for e in errors]
+    parts.append(_table(["estimator", "time base", "max |e| N", "p95 |e| N", "rms N",
                          "within 1 N"], rows, "kv cav-deep"))
     parts.append("<h3>Events by depth and command</h3>")
     rows = [[_f(r["depth_m"]), _f(r["command"]), str(r["n_events"]), _f(r["rate_per_min"]),
@@ -215,7 +237,12 @@ def cavitation_section_html(res: CavitationResult, image_format: str = "svg") ->
                      f"than {res.params.events.min_duration_s:g} s reported apart "
                      f"({m.n_true_short_found} found).</p>")
     with fg.style():
+        rate_uri = fg.encode(_event_rate_figure(res), image_format)  # type: ignore[arg-type]
         uri = fg.encode(_time_series_figure(res), image_format)  # type: ignore[arg-type]
+    parts.append(f'<figure id="cavitation-rates" data-figure="cavitation-rates"><img '
+                 f'src="{rate_uri}" alt="event rate and duration vs depth"><figcaption><b>Events '
+                 "vs depth and speed.</b> Detected events per minute of acquisition and their "
+                 "mean duration, one line per command.</figcaption></figure>")
     parts.append(f'<figure id="cavitation-series" data-figure="cavitation"><img src="{uri}" '
                  'alt="thrust with ventilation events"><figcaption><b>Thrust during the run.</b> '
                  "Measured, BETM and QCTM-GP (each fold predicted by the model trained on the "

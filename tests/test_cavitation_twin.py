@@ -121,7 +121,8 @@ def test_artefacts_and_model_reload(twin):
     summary = json.loads((folder / "cavitation.json").read_text())
     assert summary["base_run_id"] == res.base_run_id
     html = cavitation_section_html(res, "png")
-    assert "Quasi-cavitation" in html and "data:image/png" in html
+    assert "Quasi-cavitation" in html and html.count("data:image/png") == 2
+    assert 'id="cavitation-rates"' in html
 
 
 def test_held_out_run_gp_beats_betm_alone(twin):
