@@ -1,6 +1,7 @@
 """Acceptance table of the QCTM-GP on held-out twin runs of luo2020-cavitation.
 
     python benchmarks/bench_cavitation.py [--train 11 12] [--test 21 22 23] [--budget 2000]
+        [--causal] [--db FILE]
 
 Records a deep baseline run and cavitation runs (seeds given) into a temporary database, trains
 BETM + GP on the --train seeds and prints errors, coverage and event matching on the --test
@@ -45,7 +46,7 @@ def table(store: Store, tests: list[str], betm, gp, p: CavitationParams) -> dict
     rows: dict[str, list] = {}
     match = [0, 0, 0, 0, 0, 0]
     for rid in tests:
-        ev = evaluate_on_run(store, rid, predictor(betm, gp, p.window_blocks), betm, p)
+        ev = evaluate_on_run(store, rid, predictor(betm, gp, p.window_blocks, p.lead_blocks), betm, p)
         for c in ev.classes:
             rows.setdefault(c.name, []).append(c)
         m = ev.matching
@@ -61,13 +62,15 @@ def main() -> None:
     ap.add_argument("--budget", type=int, default=2000)
     ap.add_argument("--sizes", type=int, nargs="*", default=[250, 500, 1000, 2000, 3000])
     ap.add_argument("--db", help="reuse this database (created if missing)")
+    ap.add_argument("--causal", action="store_true",
+                    help="shortfall window of past blocks only (what a controller can compute)")
     args = ap.parse_args()
     db = Path(args.db) if args.db else Path(tempfile.mkdtemp()) / "cav.sqlite"
     base = sweep(db, "luo2020-baseline.yaml", None)
     train = [sweep(db, "luo2020-cavitation.yaml", s) for s in args.train]
     tests = [sweep(db, "luo2020-cavitation.yaml", s) for s in args.test]
     store = Store(db)
-    p = CavitationParams(budget=args.budget)
+    p = CavitationParams(budget=args.budget, causal=args.causal)
     _, deep_blocks, deep_samples = build_betm(load_run(store, base), p)
     print("BETM on deep points of the base run (odd points; C_i and variances from even points):")
     for label, errors in ((f"{p.train_block_s:g} s blocks", deep_blocks), ("samples", deep_samples)):

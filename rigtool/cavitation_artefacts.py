@@ -71,7 +71,8 @@ def summary_document(res: CavitationResult, created: str) -> dict:
         "gp": {"length_scales": res.gp.hyper.length_scales, "signal_var": res.gp.hyper.signal_var,
                "noise_var_n2": res.gp.noise_var_n2,
                "noise_model": None if res.gp.noise is None else "log-variance GP",
-               "shortfall_window_blocks": res.params.window_blocks},
+               "shortfall_window_blocks": res.params.window_blocks,
+               "shortfall_lead_blocks": res.params.lead_blocks},
         "evaluation": {"source": ev.source, "truth": ev.truth_source,
                        "coverage95": ev.coverage95, "classes": ev.classes,
                        "matching": None if ev.matching is None else {
@@ -123,7 +124,8 @@ def write_cavitation_artefacts(res: CavitationResult, out_dir: str | Path,
     model = json.dumps(_clean(model_document(res.betm, res.gp, {
         "run_ids": res.training.provenance.get("run_ids", []), "base_run_id": res.base_run_id,
         "created_utc": created, "tool_version": rigtool.__version__},
-        window=res.params.window_blocks, block_s=res.params.train_block_s)),
+        window=res.params.window_blocks, block_s=res.params.train_block_s,
+        lead=res.params.lead_blocks)),
         allow_nan=False) + "\n"
     for name, text in ((SUMMARY_FILE, summary), (MODEL_FILE, model)):
         path = target / name

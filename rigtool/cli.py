@@ -267,12 +267,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         err.print(f"warning: {warning}")
     out.print(f"artefacts: {', '.join(str(p) for p in paths)}")
     cav = None
-    from rigtool.analysis.cavitation import calibrate_cavitation, is_shallow
+    from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation, is_shallow
 
     if is_shallow(store, run_id):
         from rigtool.cavitation_artefacts import write_cavitation_artefacts
 
-        cav = calibrate_cavitation(store, run_id, args.base, Path(args.out))
+        cav = calibrate_cavitation(store, run_id, args.base, Path(args.out),
+                                   CavitationParams(causal=args.causal))
         cav_paths = write_cavitation_artefacts(cav, Path(args.out), created_utc=created)
         out.print(f"quasi-cavitation (BETM base run {cav.base_run_id}): "
                   f"{', '.join(str(p) for p in cav_paths)}")
@@ -286,7 +287,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from rigtool.analysis.cavitation import calibrate_cavitation, is_shallow
+    from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation, is_shallow
     from rigtool.errors import UsageError
     from rigtool.report import write_report
 
@@ -295,7 +296,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     cav = None
     if is_shallow(store, run_id):
         try:
-            cav = calibrate_cavitation(store, run_id, args.base)
+            cav = calibrate_cavitation(store, run_id, args.base,
+                                       params=CavitationParams(causal=args.causal))
         except UsageError as exc:
             err.print(f"warning: no quasi-cavitation section: {exc}")
     out.print(str(write_report(store, run_id, Path(args.out) / run_id, cavitation=cav)))
@@ -389,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", action="store_true", help="also write the HTML report")
     p.add_argument("--base", metavar="RUN_ID", help="deep run giving the BETM coefficients of a "
                    "shallow (cavitation) run (default: the latest deep run of the same thruster)")
+    p.add_argument("--causal", action="store_true", help="quasi-cavitation model on past "
+                   "current only (for a controller; default: a centred 1 s window)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_calibrate)
 
@@ -397,6 +401,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
     p.add_argument("--base", metavar="RUN_ID", help="deep run giving the BETM coefficients of a "
                    "shallow run's quasi-cavitation section (default: as for calibrate)")
+    p.add_argument("--causal", action="store_true", help="as for calibrate")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_report)
 

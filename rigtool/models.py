@@ -6,7 +6,8 @@
 Inputs are consecutive block means (`features.block_s`, 0.2 s) of one record; `segment` (one
 label per block, default: all one segment) marks where the record is cut (e.g. a new point).
 GP inputs x = (n, z, h) with z = f_n(n) * shortfall, shortfall = 1 - |I| / (C_n |n|^3 + I_0)
-averaged over a centred window of `features.window_blocks` blocks within the segment.
+averaged over a window of `features.window_blocks` blocks within the segment that reaches
+`features.lead_blocks` blocks ahead (window_blocks // 2: centred; 0: causal, for a controller).
 thrust = f_BETM(n, I) + y_mean + g(z) + sum_j a_j m(r_j), g(z) = beta z / (1 + exp(-(|z| - z0) / s)), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r),
 r_j = || (x - X_j) / (x_scale * length_scales) ||; the noise variance of a new measurement is
 exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic); see docs/cavitation.md.
@@ -48,12 +49,17 @@ def segment_runs(segment: np.ndarray | None, size: int) -> list[tuple[int, int]]
     return list(zip(edges[:-1].tolist(), edges[1:].tolist(), strict=True))
 
 
-def centred_mean(v: np.ndarray, segment: np.ndarray | None, window: int) -> np.ndarray:
-    """Mean of v over a centred window of `window` samples, truncated at segment ends."""
+def window_mean(v: np.ndarray, segment: np.ndarray | None, window: int,
+                lead: int | None = None) -> np.ndarray:
+    """Mean of v over `window` samples ending `lead` samples ahead, truncated at segment ends.
+
+    lead = window // 2 (the default) centres the window; lead = 0 uses past samples only.
+    """
     v = np.asarray(v, dtype=float)
     if window <= 1:
         return v.copy()
-    half_lo, half_hi = (window - 1) // 2, window // 2
+    half_hi = window // 2 if lead is None else min(max(lead, 0), window - 1)
+    half_lo = window - 1 - half_hi
     out = np.empty_like(v)
     for a, b in segment_runs(segment, v.size):
         c = np.r_[0.0, np.cumsum(v[a:b])]
@@ -64,15 +70,16 @@ def centred_mean(v: np.ndarray, segment: np.ndarray | None, window: int) -> np.n
 
 
 def gp_features(betm: Betm, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
-                segment: np.ndarray | None = None, window: int = 1) -> np.ndarray:
-    """GP inputs (n, z, h): z = f_n(n) * centred mean of 1 - |I| / (C_n |n|^3 + I_0) (N)."""
+                segment: np.ndarray | None = None, window: int = 1,
+                lead: int | None = None) -> np.ndarray:
+    """GP inputs (n, z, h): z = f_n(n) * window mean of 1 - |I| / (C_n |n|^3 + I_0) (N)."""
     n, i, h = np.broadcast_arrays(np.atleast_1d(np.asarray(speed_rpm, float)),
                                   np.atleast_1d(np.asarray(current_a, float)),
                                   np.atleast_1d(np.asarray(depth_m, float)))
     i_hat = betm.c_n * np.abs(n) ** 3 + betm.i_0
     with np.errstate(divide="ignore", invalid="ignore"):
         short = np.where(i_hat > 0, 1.0 - np.abs(i) / i_hat, 0.0)
-    short = centred_mean(short, segment, window)
+    short = window_mean(short, segment, window, lead)
     return np.column_stack([n, betm.speed_estimate(n) * short, h])
 
 
@@ -156,13 +163,15 @@ class ThrustModel:
     k_inv: np.ndarray | None
     noise: LogNoise | None = None  # heteroscedastic noise; None: constant noise_var
     window: int = 1  # shortfall averaging window (blocks)
+    lead: int | None = None  # blocks the window reaches ahead (None: window // 2, centred)
     block_s: float = 0.2
     mean_term: GatedMean = GatedMean()  # explicit mean g(z)
 
     def features(self, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
                  segment: np.ndarray | None = None) -> np.ndarray:
         """GP inputs (n, z, h) of consecutive block means (see gp_features)."""
-        return gp_features(self.betm, speed_rpm, current_a, depth_m, segment, self.window)
+        return gp_features(self.betm, speed_rpm, current_a, depth_m, segment, self.window,
+                           self.lead)
 
     def correction(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(GP mean of f_measured - f_BETM, std of a new measurement) at GP inputs x, N."""
@@ -196,7 +205,7 @@ class ThrustModel:
 
 
 def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
-                   block_s: float = 0.2) -> dict:
+                   block_s: float = 0.2, lead: int | None = None) -> dict:
     """The JSON document of a fitted model (`gp` an analysis.gp.ExactGp on gp_features)."""
     h = gp.hyper  # type: ignore[attr-defined]
     y_std = float(gp.y_std)  # type: ignore[attr-defined]
@@ -206,8 +215,10 @@ def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
         "format": FORMAT, "format_version": 2, **extra,
         "inputs": ["speed_rpm", "current_a", "depth_m"],
         "features": {"columns": list(FEATURES), "block_s": block_s, "window_blocks": window,
+                     "lead_blocks": window // 2 if lead is None else lead,
                      "c_n": betm.c_n, "i_0": betm.i_0,
-                     "shortfall": "1 - |I| / (c_n |n|^3 + i_0), centred mean over window_blocks",
+                     "shortfall": "1 - |I| / (c_n |n|^3 + i_0), mean over window_blocks blocks, the last "
+                                  "lead_blocks of them after the current block",
                      "z": "betm.speed_estimate(n) * shortfall"},
         "output": "thrust_n = f_BETM(speed_rpm, current_a) + beta * z / (1 + exp(-(|z| - "
                   "gate_z0) / gate_s)) + gp_mean(x); gate_s = 0: beta * z",
@@ -251,5 +262,6 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
         x_train=np.array(g["x_train"], dtype=float), alpha=np.array(g["alpha"]), k_inv=k_inv,
         noise=None if doc.get("noise") is None else LogNoise.from_dict(doc["noise"]),
         window=int(doc.get("features", {}).get("window_blocks", 1)),
+        lead=doc.get("features", {}).get("lead_blocks"),
         mean_term=GatedMean.from_dict(g),
         block_s=float(doc.get("features", {}).get("block_s", 0.2)))

@@ -20,10 +20,10 @@ from rigtool.analysis.trainset import huber_weights, strata_keys, stratified_pic
 from rigtool.models import (
     MODEL_FILE,
     VARIANCE_FILE,
-    centred_mean,
     gp_features,
     load_model,
     model_document,
+    window_mean,
 )
 
 BETM = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,
@@ -150,12 +150,17 @@ def _gp_data(n: int = 150, seed: int = 3) -> tuple[np.ndarray, ...]:
     return speed, current, depth, seg, x, y, w
 
 
-def test_centred_mean_and_features():
+def test_window_mean_and_features():
     v = np.arange(6.0)
-    np.testing.assert_allclose(centred_mean(v, None, 3), [0.5, 1, 2, 3, 4, 4.5])
-    np.testing.assert_allclose(centred_mean(v, np.array([0, 0, 0, 1, 1, 1]), 3),
+    np.testing.assert_allclose(window_mean(v, None, 3), [0.5, 1, 2, 3, 4, 4.5])
+    np.testing.assert_allclose(window_mean(v, np.array([0, 0, 0, 1, 1, 1]), 3),
                                [0.5, 1, 1.5, 3.5, 4, 4.5])
-    np.testing.assert_allclose(centred_mean(v, None, 1), v)
+    np.testing.assert_allclose(window_mean(v, None, 1), v)
+    # causal: past samples only, so a step shows up no earlier than it happens
+    np.testing.assert_allclose(window_mean(v, None, 3, lead=0), [0, 0.5, 1, 2, 3, 4])
+    step = np.r_[np.zeros(5), np.ones(5)]
+    assert np.all(window_mean(step, None, 5, lead=0)[:5] == 0)
+    assert window_mean(step, None, 5)[3] > 0
     n = np.array([1000.0, 1500.0])
     i = (BETM.c_n * n**3 + BETM.i_0) * np.array([1.0, 0.96])
     x = gp_features(BETM, n, i, 0.3)
@@ -210,3 +215,17 @@ def test_version_1_model_is_refused(tmp_path):
                                                    "format_version": 1}))
     with pytest.raises(ValueError, match="version-1"):
         load_model(tmp_path)
+
+
+def test_causal_model_features_never_look_ahead(tmp_path):
+    _, _, _, _, x, y, w = _gp_data()
+    gp = fit_exact(x, y, w, GpParams(hyper_n=150, n_restarts=0))
+    n = np.full(10, 1500.0)
+    i = (BETM.c_n * n**3 + BETM.i_0) * np.r_[np.ones(5), np.full(5, 0.95)]  # shortfall from block 5
+    for lead, ahead in ((0, False), (None, True)):
+        doc = model_document(BETM, gp, {}, window=5, lead=lead)
+        if lead is None:
+            del doc["features"]["lead_blocks"]  # files written before the option read as centred
+        (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+        z = load_model(tmp_path).features(n, i, 0.3)[:, 1]
+        assert (z[3] > 0) == ahead and z[5] > 0

@@ -65,7 +65,8 @@ class CavitationParams:
     budget: int = 2000
     gamma: float = 3.0
     edge_s: float = 0.5
-    shortfall_window_s: float = 1.0  # centred averaging window of the current shortfall
+    shortfall_window_s: float = 1.0  # averaging window of the current shortfall
+    causal: bool = False  # window of past blocks only (a controller's view); else centred
     events: EventParams = field(default_factory=EventParams)
     gp: GpParams = field(default_factory=GpParams)
 
@@ -76,6 +77,11 @@ class CavitationParams:
     def window_blocks(self) -> int:
         """Shortfall averaging window in train blocks (>= 1)."""
         return max(1, int(round(self.shortfall_window_s / self.train_block_s)))
+
+    @property
+    def lead_blocks(self) -> int:
+        """Blocks the shortfall window reaches ahead: 0 when causal, else half the window."""
+        return 0 if self.causal else self.window_blocks // 2
 
 
 @dataclass
@@ -243,7 +249,8 @@ def training_blocks(run: RunData, betm: Betm, events: list[Event],
     y = b.thrust_n - f_betm
     vent = in_intervals(b.t_s, [(e.t_start_s, e.t_end_s) for e in events])
     w, scale = huber_weights(y, b.point)
-    xf = gp_features(betm, b.speed_rpm, b.current_a, b.depth_m, b.point, params.window_blocks)
+    xf = gp_features(betm, b.speed_rpm, b.current_a, b.depth_m, b.point, params.window_blocks,
+                     params.lead_blocks)
     ts = TrainingSet(
         x=np.column_stack([b.speed_rpm, b.current_a, b.depth_m]), xf=xf, y=y, w=w, t_s=b.t_s,
         command=b.command, ventilated=vent, thrust_n=b.thrust_n, betm_n=f_betm,
@@ -439,12 +446,13 @@ def train_model(store: Store, run_ids: list[str], base_run_id: str,
     return betm, gp, training
 
 
-def predictor(betm: Betm, gp: ExactGp | object, window: int = 1) -> Predictor:
+def predictor(betm: Betm, gp: ExactGp | object, window: int = 1,
+              lead: int | None = None) -> Predictor:
     """(speed, current, depth, segment) of consecutive blocks -> (thrust, lo95, hi95) from BETM
     plus a fitted GP correction on gp_features (shortfall averaged over `window` blocks)."""
     def predict(n: np.ndarray, i: np.ndarray, h: np.ndarray,
                 segment: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-        x = gp_features(betm, n, i, h, segment, window)
+        x = gp_features(betm, n, i, h, segment, window, lead)
         mean, std = gp.predict(x)  # type: ignore[attr-defined]
         f = betm.fuse(n, i).thrust_n + mean
         return f, f - Z95 * std, f + Z95 * std
