@@ -285,18 +285,21 @@ class Engine:
         out.update(self._align_feedback(block.t_s, feedback))
         out["command"] = np.full(len(block), self._command)
         out["seq"] = block.seq if block.seq is not None else np.full(len(block), np.nan)
-        self.limits.check(out)
+        # feedback limits count feedback frames as received, not the force samples they are
+        # held over: one bad 50 Hz frame would otherwise count as 20 samples at 1 kHz
+        self.limits.check({"thrust_n": out["thrust_n"], "current_a": feedback.current_a,
+                           "speed_rpm": feedback.speed_rpm})
         if step is not None and self.reporter.wants_live:
             self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
         return out
 
-    def _device_warnings(self, step: PlanStep) -> None:
+    def _device_warnings(self, step: PlanStep | None) -> None:
         """Store warnings a driver has queued (e.g. a Net F/T status word, a stream restart)."""
         for dev in (self.rig.sensor, self.rig.actuator):
             pop = getattr(dev, "pop_warnings", None)
             for message in pop() if pop else ():
                 self.reporter.note(f"warning: {message}")
-                self._event("warning", {"message": message}, step.idx)
+                self._event("warning", {"message": message}, None if step is None else step.idx)
 
     def _align_feedback(self, t: np.ndarray, fb: FeedbackBlock) -> dict[str, np.ndarray]:
         """Feedback at each force sample's time: the latest feedback value received (zero-order hold)."""
@@ -368,7 +371,11 @@ class Engine:
         n = max(1, round(self.protocol.timing.tare_s * rate))
         block = self.rig.sensor.read(n, rate)
         self.samples_read += len(block)
-        self.rig.actuator.read_feedback()
+        feedback = self.rig.actuator.read_feedback()
+        if feedback.fault:
+            raise SafetyTrip(f"driver fault: {feedback.fault}")
+        # feedback limits hold at neutral too; thrust is not checked: the bias is not removed yet
+        self.limits.check({"current_a": feedback.current_a, "speed_rpm": feedback.speed_rpm})
         offset = block.ft.mean(axis=0)
         self.rig.sensor.set_bias(offset)
         self._bias_total = self._bias_total + offset

@@ -24,7 +24,11 @@ def _run_lengths(mask: np.ndarray, carry: int) -> tuple[int, int]:
 
 
 class LimitMonitor:
-    """Trips (raises SafetyTrip) when a quantity exceeds its limit for `debounce` samples in a row."""
+    """Trips (raises SafetyTrip) when a quantity exceeds its limit for `debounce` samples in a row.
+
+    Each quantity is counted in its own samples: force samples for thrust, feedback frames
+    for current and speed.
+    """
 
     def __init__(self, limits: Limits) -> None:
         self.debounce = limits.debounce_samples

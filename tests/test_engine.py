@@ -342,3 +342,47 @@ def test_failed_neutral_is_reported_not_hidden(write_yaml, db_path):
     store, outcome = _run(setup, rigset, db_path)
     assert outcome.status == "aborted" and outcome.neutral_ok is False
     assert store.events(outcome.run_id, "neutral_failed")
+
+
+class FrameFeedback:
+    """Wraps the twin's actuator: feedback as 50 Hz frames (every 10th of 500 Hz samples), with
+    current frames `spike` (indices counted over the run) replaced by 50 A."""
+
+    def __init__(self, inner, spike: set[int]):
+        self.inner, self.info, self.spike, self.frames = inner, inner.info, spike, 0
+
+    def set_command(self, value):
+        self.inner.set_command(value)
+
+    def neutral(self):
+        self.inner.neutral()
+
+    def read_feedback(self):
+        from dataclasses import replace
+
+        fb = self.inner.read_feedback()
+        keep = np.arange(0, len(fb), 10)
+        current = fb.current_a[keep].copy()
+        for k in range(len(keep)):
+            if self.frames + k in self.spike:
+                current[k] = 50.0
+        self.frames += len(keep)
+        return replace(fb, t_s=fb.t_s[keep], speed_rpm=fb.speed_rpm[keep], current_a=current,
+                       voltage_v=fb.voltage_v[keep])
+
+    def close(self):
+        self.inner.close()
+
+
+@pytest.mark.parametrize("spike, trips", [({100}, False), ({100, 101}, False),
+                                          ({100, 101, 102}, True),
+                                          ({40, 41, 42}, True)])  # during the first tare
+def test_feedback_limits_count_frames_not_held_samples(write_yaml, db_path, spike, trips):
+    text = SMALL_PROTOCOL.replace("  max_thrust_n: 90", "  max_thrust_n: 90\n  max_current_a: 12\n"
+                                  "  debounce_samples: 3")
+    setup = resolve(write_yaml(text), sim=True)
+    rigset = open_checked(setup)
+    rigset.actuator = FrameFeedback(rigset.actuator, spike)
+    store, outcome = _run(setup, rigset, db_path)
+    assert (outcome.status == "aborted") == trips
+    assert bool(store.events(outcome.run_id, "limit_trip")) == trips
