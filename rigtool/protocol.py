@@ -6,6 +6,7 @@ silently change an experiment. Units are explicit in the file and converted to S
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Literal
 
@@ -108,7 +109,14 @@ class Settle(_Strict):
         return self
 
     def max_seconds(self) -> float:
-        return self.seconds if self.seconds is not None else self.until_steady.timeout_s  # type: ignore[union-attr]
+        """Longest settle: the engine reads min_s, then windows until two agree or the time
+        since the start reaches timeout_s (it always compares at least two windows)."""
+        if self.seconds is not None:
+            return self.seconds
+        c = self.until_steady
+        assert c is not None
+        loops = max(1, math.ceil((c.timeout_s - c.min_s) / c.window_s - 1e-9) - 1)
+        return c.min_s + c.window_s * (loops + 1)
 
 
 class Acquire(_Strict):

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
 from rigtool.cli import main
 from rigtool.plan import estimate_duration_s, expand
-from rigtool.protocol import load_protocol
+from rigtool.protocol import Settle, load_protocol
 
 from .conftest import PROTOCOLS, SMALL_PROTOCOL
 
@@ -63,3 +65,10 @@ def test_dry_run_prints_plan_and_stores_nothing(capsys, db_path):
     assert status == 0
     assert "42 points" in text and "estimated duration" in text and "samples to store: 42,000" in text
     assert not db_path.exists()
+
+
+@pytest.mark.parametrize("min_s, window_s, timeout_s, longest", [
+    (0.0, 0.5, 10.0, 10.0), (9.5, 0.5, 10.0, 10.5), (0.0, 0.3, 1.0, 1.2), (2.0, 1.0, 1.0, 4.0)])
+def test_until_steady_max_settle_matches_the_engine_loop(min_s, window_s, timeout_s, longest):
+    s = Settle(until_steady={"min_s": min_s, "window_s": window_s, "timeout_s": timeout_s})
+    assert s.max_seconds() == pytest.approx(longest)
