@@ -33,16 +33,21 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from rigtool.sweep import open_checked, resolve, resume_sweep, run_sweep, terminal_confirm
 
     if args.resume:
-        if args.protocol or args.rig or args.sim or args.dry_run or args.seed is not None:
-            raise UsageError("--resume RUN_ID takes the protocol, rig and seed stored with the run; "
-                             "give no protocol, --rig, --sim, --seed or --dry-run")
-        store = Store(resolve_db_path(args.db), create=False)
+        if args.protocol or args.sim or args.dry_run or args.seed is not None:
+            raise UsageError("--resume RUN_ID takes the protocol and seed stored with the run; "
+                             "give no protocol, --sim, --seed or --dry-run (--rig RIG.yaml may "
+                             "replace the stored rig when a port or address changed)")
+        from rigtool.rig import load_rig
+
+        rig = load_rig(args.rig)[0] if args.rig else None
+        store = Store(resolve_db_path(args.db, rig.db if rig else None), create=False)
         try:
             if args.force:
                 run_id = store.resolve_run_id(args.resume)
                 if store.run(run_id)["status"] == "running":
                     store.finish_run(run_id, "interrupted", "marked interrupted by --force")
-            outcome, n_plan = resume_sweep(store, args.resume, default_reporter(), terminal_confirm())
+            outcome, n_plan = resume_sweep(store, args.resume, default_reporter(),
+                                           terminal_confirm(), rig)
             return _report_outcome(outcome, n_plan, store)
         finally:
             store.close()

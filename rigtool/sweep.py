@@ -80,15 +80,32 @@ def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
 RESUMABLE = ("interrupted", "aborted", "failed")
 
 
-def resolve_resume(store: Store, run_ref: str) -> tuple[str, SweepSetup, int, float]:
-    """Rebuild the setup of a stored run; return (run id, setup, first unfinished step, run time used)."""
+def _rig_kind(rig: Rig) -> tuple:
+    """What must not change between a run and its resume: twin profile, drivers, thrust axis, mount."""
+    return (rig.simulator.profile if rig.simulator else None,
+            getattr(rig.actuator, "driver", None), getattr(rig.sensor, "driver", None),
+            getattr(rig.depth_stage, "driver", None), rig.thrust, rig.mount)
+
+
+def resolve_resume(store: Store, run_ref: str,
+                   rig: Rig | None = None) -> tuple[str, SweepSetup, int, float]:
+    """Rebuild the setup of a stored run; return (run id, setup, first unfinished step, run time used).
+
+    `rig` replaces the stored rig (a port that moved after a power cut); it must have the same
+    drivers, thrust axis and mount.
+    """
     run_id = store.resolve_run_id(run_ref)
     run = store.run(run_id)
     if run["status"] not in RESUMABLE:
         raise UsageError(f"run {run_id} is {run['status']}; only {', '.join(RESUMABLE)} runs resume")
     protocol = Protocol.model_validate(run["protocol"])
     rig_data = {k: v for k, v in run["rig"].items() if k not in ("resolved", "host")}
-    rig = Rig.model_validate(rig_data)
+    stored = Rig.model_validate(rig_data)
+    if rig is not None and _rig_kind(rig) != _rig_kind(stored):
+        raise UsageError(f"run {run_id} was recorded on rig {stored.name!r}; the rig given to "
+                         "--resume must have the same drivers, thrust axis and mount (only "
+                         "ports, addresses and the like may change)")
+    rig = rig or stored
     plan = expand(protocol)
     if [s.as_dict() for s in plan] != run["plan"]:
         raise UsageError(f"run {run_id}: its stored plan no longer expands the same way; cannot resume")
@@ -109,9 +126,10 @@ def terminal_confirm() -> Callable[[str], bool] | None:
 
 
 def resume_sweep(store: Store, run_ref: str, reporter=None,
-                 confirm: Callable[[str], bool] | None = None) -> tuple[Outcome, int]:
+                 confirm: Callable[[str], bool] | None = None,
+                 rig: Rig | None = None) -> tuple[Outcome, int]:
     """Continue a stopped run from its first unfinished point, in the same run id."""
-    run_id, setup, start_idx, t_used = resolve_resume(store, run_ref)
+    run_id, setup, start_idx, t_used = resolve_resume(store, run_ref, rig)
     previous = store.run(run_id)["status"]
     if start_idx >= len(setup.plan):
         store.finish_run(run_id, "completed", None)
@@ -119,8 +137,10 @@ def resume_sweep(store: Store, run_ref: str, reporter=None,
     rigset = open_checked(setup, start_idx)
     try:
         store.reopen_run(run_id)
-        store.add_event(run_id, "resumed", {"from_idx": start_idx, "previous_status": previous},
-                        t_s=t_used)
+        detail = {"from_idx": start_idx, "previous_status": previous}
+        if rig is not None:
+            detail["rig"] = setup.rig.model_dump(mode="json")
+        store.add_event(run_id, "resumed", detail, t_s=t_used)
         engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter, confirm)
         return engine.run(start_idx, t_offset_s=t_used + 1.0), len(setup.plan)
     finally:

@@ -140,3 +140,33 @@ def test_force_takes_over_a_run_left_running(write_yaml, tmp_path, capsys):
     assert "only interrupted" in capsys.readouterr().err
     assert main(["sweep", "--resume", "last", "--force", "--db", str(db)]) == 0
     assert len(Store(db).steps(run_id)) == N_POINTS
+
+
+def _cut_last_point(db: Path) -> str:
+    """Make the newest run look interrupted one point before its end."""
+    store = Store(db)
+    run_id = store.resolve_run_id("last")
+    last = store.steps(run_id)[-1]["id"]
+    store.conn.execute("DELETE FROM samples WHERE step_id = ?", (last,))
+    store.conn.execute("DELETE FROM steps WHERE id = ?", (last,))
+    store.conn.execute("UPDATE runs SET status = 'interrupted' WHERE id = ?", (run_id,))
+    store.close()
+    return run_id
+
+
+def test_resume_with_a_new_rig_file_and_its_db(write_yaml, tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("RIGTOOL_DB", raising=False)
+    db = tmp_path / "lab.sqlite"
+    rig = "rigtool_rig: 1\nname: {name}\ndb: " + str(db) + "\nsimulator: {{profile: {profile}}}\n"
+    first, moved, other = (tmp_path / f"{n}.yaml" for n in ("first", "moved", "other"))
+    first.write_text(rig.format(name="pool", profile="can-bldc"))
+    moved.write_text(rig.format(name="pool-after-power-cut", profile="can-bldc"))
+    other.write_text(rig.format(name="bench", profile="stm32-pwm"))
+    assert main(["sweep", str(write_yaml(SMALL_PROTOCOL)), "--rig", str(first)]) == 0
+    run_id = _cut_last_point(db)
+    assert main(["sweep", "--resume", "last", "--rig", str(other)]) == 2
+    assert "same drivers, thrust axis and mount" in capsys.readouterr().err
+    assert main(["sweep", "--resume", "last", "--rig", str(moved)]) == 0  # db from the rig file
+    store = Store(db)
+    assert store.run(run_id)["status"] == "completed" and len(store.steps(run_id)) == 4
+    assert store.events(run_id, "resumed")[0]["detail"]["rig"]["name"] == "pool-after-power-cut"
