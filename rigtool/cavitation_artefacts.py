@@ -26,8 +26,8 @@ TRAIN_COLUMNS = (
     ("speed_rpm", "r/min", "GP input n_p: block-mean propeller speed"),
     ("current_a", "A", "block-mean driver current (enters the GP through shortfall_thrust_n)"),
     ("depth_m", "m", "GP input h: depth of the propeller centre"),
-    ("shortfall_thrust_n", "N", "GP input z: f_n(n) * (1 - |I| / (C_n |n|^3 + I_0)), centred "
-     "mean over the shortfall window"),
+    ("shortfall_thrust_n", "N", "GP input z: f_n(n) * (1 - |I| / (C_n |n|^3 + I_0)), mean over "
+     "the shortfall window (centred, or past blocks only with --causal)"),
     ("y_n", "N", "GP target: measured thrust minus BETM estimate"),
     ("weight", "1", "Huber weight (outliers < 1) ; noise of row i is var(x_i) / weight"),
     ("thrust_n", "N", "block-mean measured thrust"),

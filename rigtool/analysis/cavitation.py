@@ -255,17 +255,26 @@ def training_blocks(run: RunData, betm: Betm, events: list[Event],
         x=np.column_stack([b.speed_rpm, b.current_a, b.depth_m]), xf=xf, y=y, w=w, t_s=b.t_s,
         command=b.command, ventilated=vent, thrust_n=b.thrust_n, betm_n=f_betm,
         run_id=np.full(len(b), run.run_id), provenance={"run_ids": [run.run_id]})
-    ts.provenance["fold"] = point_folds(b.depth_m, b.command).tolist()
+    ts.provenance["fold"] = point_folds(b.depth_m, b.command, b.t_in_point_s).tolist()
     ts.provenance["point"] = b.point.tolist()
     ts.provenance["t_in_point_s"] = b.t_in_point_s.tolist()
     return ts, scale
 
 
-def point_folds(depth_m: np.ndarray, command: np.ndarray) -> np.ndarray:
-    """Fold 0/1 per row: alternate (depth, command) combinations in sorted order."""
-    keys = np.column_stack([np.round(np.asarray(depth_m, float), 3), np.asarray(command, float)])
-    _, rank = np.unique(keys, axis=0, return_inverse=True)
-    return np.ravel(rank) % 2
+def point_folds(depth_m: np.ndarray, command: np.ndarray,
+                t_in_point_s: np.ndarray | None = None) -> np.ndarray:
+    """Fold 0/1 per row: a checkerboard over (depth, command) combinations.
+
+    With a single combination and `t_in_point_s` given, each point is split into its first
+    and second half instead (the only split left; neighbouring blocks leak across it).
+    """
+    _, d = np.unique(np.round(np.asarray(depth_m, float), 3), return_inverse=True)
+    _, c = np.unique(np.asarray(command, float), return_inverse=True)
+    fold = (np.ravel(d) + np.ravel(c)) % 2
+    if t_in_point_s is not None and np.unique(fold).size < 2:
+        t = np.asarray(t_in_point_s, float)
+        fold = (t > 0.5 * t.max()).astype(int) if t.size else fold
+    return fold
 
 
 def select(ts: TrainingSet, budget: int) -> TrainingSet:
@@ -362,8 +371,10 @@ def _evaluate(store: Store, run_id: str, blocks: Blocks, det_blocks: Blocks,
 
 def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
                          out_dir: object = None,
-                         params: CavitationParams | None = None) -> CavitationResult:
-    """Full quasi-cavitation analysis of `run_id`; stores its "ventilation" events.
+                         params: CavitationParams | None = None,
+                         store_events: bool = True) -> CavitationResult:
+    """Full quasi-cavitation analysis of `run_id`; stores its "ventilation" events unless
+    `store_events` is False (the report reads, `calibrate` writes).
 
     `out_dir` is accepted for the CLI's convenience and not used: write the files with
     `cavitation_artefacts.write_cavitation_artefacts`.
@@ -374,7 +385,8 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     run = load_run(store, run_id)
     events, det_blocks = find_events(run, betm, p)
     records = event_records(run, events)
-    _store_events(store, run_id, records)
+    if store_events:
+        _store_events(store, run_id, records)
     table = event_table(run, det_blocks, records)
 
     all_blocks, scale = training_blocks(run, betm, events, p)
@@ -383,7 +395,7 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     gp = fit_hetero(training.xf, training.y, training.w,
                     point_folds(training.x[:, 2], training.command), p.gp)
 
-    evaluation, series = _time_blocked(store, run, all_blocks, det_blocks, events, gp, p)
+    evaluation, series = _two_fold(store, run, all_blocks, det_blocks, events, gp, p)
     warnings = []
     if len(training) < 50:
         warnings.append(f"only {len(training)} training blocks: the GP is poorly constrained")
@@ -391,14 +403,15 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
                             training, len(all_blocks), gp, evaluation, series, warnings)
 
 
-def _time_blocked(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: Blocks,
-                  events: list[Event], gp: ExactGp, p: CavitationParams
-                  ) -> tuple[Evaluation, dict[str, np.ndarray]]:
-    """2-fold evaluation by point inside the run, hyperparameters fixed from the main fit."""
+def _two_fold(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: Blocks,
+              events: list[Event], gp: ExactGp, p: CavitationParams
+              ) -> tuple[Evaluation, dict[str, np.ndarray]]:
+    """2-fold evaluation inside the run (folds from `point_folds`), hyperparameters and mean
+    term fixed from the main fit."""
     fold = np.asarray(all_blocks.provenance["fold"])
     n = len(all_blocks)
     pred, std = np.full(n, np.nan), np.full(n, np.nan)
-    for k in (0, 1):
+    for k in np.unique(fold) if np.unique(fold).size > 1 else ():
         train = select(all_blocks.take(np.flatnonzero(fold != k)), p.budget)
         test = np.flatnonzero(fold == k)
         model = fit_exact(train.xf, train.y, train.w, p.gp, hyper=gp.hyper, noise=gp.noise,
@@ -410,9 +423,11 @@ def _time_blocked(store: Store, run: RunData, all_blocks: TrainingSet, det_block
     ok = np.isfinite(blocks.thrust_n) & np.isfinite(blocks.speed_rpm) & np.isfinite(blocks.current_a)
     blocks = blocks.take(np.flatnonzero(ok))
     lo, hi = pred - Z95 * std, pred + Z95 * std
+    combos = np.unique(np.column_stack([all_blocks.x[:, 2], all_blocks.command]), axis=0)
+    how = ("by point (alternate depth/command combinations held out)" if len(combos) > 1
+           else "into the first and second half of its one point")
     ev = _evaluate(store, run.run_id, blocks, det_blocks, events, pred, lo, hi, p,
-                   f"2-fold split of run {run.run_id} by point (alternate depth/command "
-                   "combinations held out)")
+                   f"2-fold split of run {run.run_id} {how}")
     series = {"t_s": blocks.t_s, "thrust_n": blocks.thrust_n, "betm_n": all_blocks.betm_n,
               "pred_n": pred, "lo95_n": lo, "hi95_n": hi, "depth_m": blocks.depth_m,
               "command": blocks.command, "point": blocks.point}

@@ -28,6 +28,7 @@ from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from rigtool.models import Z95, GatedMean, LogNoise, matern52
 
 NU = 2.5
+MIN_GATE_GAIN = 0.01  # the gate must cut the weighted squared residual by this fraction
 
 
 @dataclass(frozen=True)
@@ -181,6 +182,8 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
     y = y - mean_term(x[:, 1])  # the GP models what the mean term leaves
     h0 = fit_exact(x, y, w, p, keep_inverse=False).hyper
     fold = np.asarray(fold)
+    if fold.shape != (len(y),) or not set(np.unique(fold).tolist()) <= {0, 1}:
+        raise ValueError("fit_hetero: fold must give 0 or 1 for every row")
     resid = np.empty_like(np.asarray(y, float))
     if np.unique(fold).size < 2:
         resid = y - fit_exact(x, y, w, p, hyper=h0, keep_inverse=False).predict(x)[0]
@@ -203,11 +206,14 @@ def fit_gated_mean(z: np.ndarray, y: np.ndarray, w: np.ndarray) -> GatedMean:
     """Weighted least-squares g(z) = beta z / (1 + exp(-(|z| - z0) / s)), best of a few starts.
 
     beta starts from the plain linear fit through 0 and z0 from quantiles of |z|; if the gate
-    does not lower the weighted residual, the plain linear term is returned.
+    does not lower the weighted squared residual by 1 %, the plain linear term is returned.
     """
     z, y, sw = np.asarray(z, float), np.asarray(y, float), np.sqrt(np.asarray(w, float))
+    if not (np.isfinite(z).all() and np.isfinite(y).all() and np.isfinite(sw).all()):
+        raise ValueError("fit_gated_mean: z, y and w must be finite")
     beta = float(np.sum(w * z * y) / max(float(np.sum(w * z * z)), 1e-12))
     best, cost = GatedMean(beta), float(np.sum((sw * (beta * z - y)) ** 2))
+    linear_cost = cost
     a = np.abs(z)
     top = float(a.max()) if a.size else 0.0
     if top <= 0.0:
@@ -220,7 +226,7 @@ def fit_gated_mean(z: np.ndarray, y: np.ndarray, w: np.ndarray) -> GatedMean:
                             bounds=([-np.inf, 0.0, s_min], [np.inf, top, top]))
         if 2.0 * fit.cost < cost:
             best, cost = GatedMean(*map(float, fit.x)), 2.0 * fit.cost
-    return best
+    return best if cost < (1.0 - MIN_GATE_GAIN) * linear_cost else GatedMean(beta)
 
 
 def fit_exact(x: np.ndarray, y: np.ndarray, w: np.ndarray, params: GpParams | None = None,
