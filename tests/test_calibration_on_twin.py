@@ -47,6 +47,10 @@ def test_baseline_recovers_cp_and_cn(baseline):
     _within(sec.fits["C_p_fwd"], CAN.cp_forward, 0.01)
     _within(sec.fits["C_p_rev"], CAN.cp_reverse, 0.01)
     assert abs(sec.fits["C_n"].value - CAN.cn) <= 0.03 * CAN.cn
+    for key, cp in (("fwd", CAN.cp_forward), ("rev", CAN.cp_reverse)):
+        c_i = cp / CAN.cn ** (2 / 3)  # f = C_i I^(2/3) with the idle current taken off
+        _within(sec.fits[f"C_i_{key}"], c_i, 0.01)
+        _within(sec.fits[f"C_i_{key}_direct"], c_i, 0.01)
 
 
 @pytest.mark.parametrize("cp, cn", [(2.6e-5, 0.9e-9), (1.4e-5, 1.8e-9)])

@@ -147,24 +147,6 @@ def betm_from_section(sec: DepthSection, **kw: float) -> Betm:
                 sigma_n=v("sigma_n_sample"), sigma_i=v("sigma_i_sample"), **kw)
 
 
-def fit_current_coefficients(betm: Betm, f: np.ndarray, speed_rpm: np.ndarray,
-                             current_a: np.ndarray) -> Betm:
-    """`betm` with C_i per direction refitted by least squares on zero-corrected thrust f.
-
-    The calibration's direct C_i comes with its own fitted zero; BETM subtracts the C_p fit's
-    zero, so C_i is refitted against the same corrected thrust to keep f_i unbiased there.
-    """
-    unit = betm.current_estimate(current_a, speed_rpm) / np.where(
-        np.asarray(speed_rpm) >= 0, betm.ci_fwd, betm.ci_rev)
-    out = {}
-    for key, side in (("ci_fwd", speed_rpm > 0), ("ci_rev", speed_rpm < 0)):
-        m = side & np.isfinite(unit) & np.isfinite(f)
-        den = float(np.sum(unit[m] ** 2))
-        if m.sum() >= 3 and den > 0:
-            out[key] = float(np.sum(f[m] * unit[m]) / den)
-    return Betm(**{**betm.to_dict(), **out})
-
-
 def level_variances(betm: Betm, f: np.ndarray, speed_rpm: np.ndarray, current_a: np.ndarray,
                     n_levels: int = 8, min_count: int = 20) -> Betm:
     """`betm` with level-dependent estimator stds from deep residuals (f zero-corrected).

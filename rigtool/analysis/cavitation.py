@@ -23,7 +23,6 @@ from rigtool.analysis.betm import (
     betm_from_section,
     compare_estimators,
     deep_section,
-    fit_current_coefficients,
     level_variances,
 )
 from rigtool.analysis.blocks import Blocks, block_means
@@ -161,8 +160,8 @@ def build_betm(base: RunData, params: CavitationParams) -> tuple[Betm, list[Esti
                                                                   list[EstimatorErrors]]:
     """BETM from the base run; deep-point errors of the three estimators on held-out points.
 
-    C_i and the level variances are estimated on even points and errors measured on odd
-    points; the returned Betm uses C_i and variances from all points at `train_block_s`.
+    Level variances are estimated on even points and errors measured on odd points; the
+    returned Betm uses the variances of all points at `train_block_s`.
     """
     cal = calibrate(base)
     sec = deep_section(cal)
@@ -174,17 +173,11 @@ def build_betm(base: RunData, params: CavitationParams) -> tuple[Betm, list[Esti
         f = b.thrust_n - (sec.zero.at(b.t_s) if sec.zero else 0.0)
         ok = (np.abs(b.speed_rpm) > 50) & np.isfinite(f)
         even, odd = ok & (b.point % 2 == 0), ok & (b.point % 2 == 1)
-        half = _fitted(betm0, f[even], b.speed_rpm[even], b.current_a[even])
+        half = level_variances(betm0, f[even], b.speed_rpm[even], b.current_a[even])
         errors.append(compare_estimators(half, f[odd], b.speed_rpm[odd], b.current_a[odd]))
         if block_s == params.train_block_s:
-            final = _fitted(betm0, f[ok], b.speed_rpm[ok], b.current_a[ok])
+            final = level_variances(betm0, f[ok], b.speed_rpm[ok], b.current_a[ok])
     return final, errors[0], errors[1]
-
-
-def _fitted(betm: Betm, f: np.ndarray, speed_rpm: np.ndarray, current_a: np.ndarray) -> Betm:
-    """`betm` with C_i refitted and level variances estimated on the same deep blocks."""
-    betm = fit_current_coefficients(betm, f, speed_rpm, current_a)
-    return level_variances(betm, f, speed_rpm, current_a)
 
 
 def find_events(run: RunData, betm: Betm, params: CavitationParams) -> tuple[list[Event], Blocks]:

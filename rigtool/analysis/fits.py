@@ -146,6 +146,7 @@ class DirectionalFit:
     used: np.ndarray
     y: np.ndarray
     t_ref_s: float
+    fixed_zero: ZeroLine | None = None  # zero given to the fit (then no offset/drift columns)
 
     def coefficient(self, key: str, name: str, unit: str, note: str) -> Coefficient:
         i = self.columns.index(key)
@@ -158,6 +159,8 @@ class DirectionalFit:
 
     @property
     def zero(self) -> ZeroLine:
+        if self.fixed_zero is not None:
+            return self.fixed_zero
         beta = dict(zip(self.columns, self.fit.beta, strict=True))
         return ZeroLine(float(beta["offset"]), float(beta.get("drift", 0.0)) / SECONDS_PER_HOUR,
                         self.t_ref_s, "model fit")
@@ -181,12 +184,13 @@ class DirectionalFit:
 
 def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.ndarray | None,
                     t_s: np.ndarray, masks: dict[str, np.ndarray],
-                    min_points: int = 3) -> DirectionalFit | None:
+                    min_points: int = 3, zero: ZeroLine | None = None) -> DirectionalFit | None:
     """Fit y = sum_k c_k x [mask_k] + a + b (t - t_ref) by WLS (effective variance for dx_se).
 
     Directions with fewer than `min_points` points are left out; the drift term only enters
     when the points span time and leave enough degrees of freedom. Errors are treated as
-    serially correlated in time (see module docstring).
+    serially correlated in time (see module docstring). With `zero` given, y - zero(t) is
+    fitted without the offset and drift terms.
     """
     keys = [k for k, m in masks.items() if m.sum() >= min_points]
     if not keys:
@@ -195,18 +199,22 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
     t = t_s[used]
     t_ref = float(np.mean(t))
     cols = [np.where(masks[k][used], x[used], 0.0) for k in keys]
-    names = [*keys, "offset"]
-    cols.append(np.ones(int(used.sum())))
-    if np.ptp(t) > 0 and used.sum() >= len(cols) + 4:
-        cols.append((t - t_ref) / SECONDS_PER_HOUR)
-        names.append("drift")
-    design = np.column_stack(cols)
+    names = list(keys)
     yy, se = y[used], se_y[used]
+    if zero is not None:
+        yy = yy - zero.at(t)
+    else:
+        names.append("offset")
+        cols.append(np.ones(int(used.sum())))
+        if np.ptp(t) > 0 and used.sum() >= len(cols) + 4:
+            cols.append((t - t_ref) / SECONDS_PER_HOUR)
+            names.append("drift")
+    design = np.column_stack(cols)
     fit = wls(design, yy, se, t)
     if dx_se is not None:
         slope = sum(np.where(masks[k][used], fit.beta[i], 0.0) for i, k in enumerate(keys))
         fit = wls(design, yy, np.sqrt(se**2 + (slope * np.nan_to_num(dx_se[used])) ** 2), t)
-    return DirectionalFit(fit, names, masks, used, yy, t_ref)
+    return DirectionalFit(fit, names, masks, used, yy, t_ref, zero)
 
 
 def fit_thrust_speed(n_rpm: np.ndarray, f_n: np.ndarray, se_f: np.ndarray,
@@ -304,8 +312,10 @@ def derive_thrust_current(cp: Coefficient, cn: Coefficient, name: str) -> Coeffi
 
 def fit_thrust_current(i_a: np.ndarray, i_0: float, f_n: np.ndarray, se_f: np.ndarray,
                        se_i: np.ndarray | None, t_s: np.ndarray,
-                       masks: dict[str, np.ndarray]) -> DirectionalFit | None:
-    """f = +-C_i (I - I_0)^(2/3) fitted directly, C_i per direction, with the zero terms.
+                       masks: dict[str, np.ndarray],
+                       zero: ZeroLine | None = None) -> DirectionalFit | None:
+    """f = +-C_i (I - I_0)^(2/3) fitted directly, C_i per direction, with the zero terms
+    (or against a given `zero`: the C_p fit's, which the low-current points cannot bias).
 
     The sign is + for the "fwd" mask and - for "rev" (the current gives no direction).
     """
@@ -315,7 +325,7 @@ def fit_thrust_current(i_a: np.ndarray, i_0: float, f_n: np.ndarray, se_f: np.nd
     if se_i is not None:
         with np.errstate(divide="ignore"):
             dx = np.where(d > 0, 2 / 3 * d ** (-1 / 3) * se_i, 0.0)
-    return fit_directional(sign * d ** (2 / 3), f_n, se_f, dx, t_s, masks)
+    return fit_directional(sign * d ** (2 / 3), f_n, se_f, dx, t_s, masks, zero=zero)
 
 
 def with_systematic(c: Coefficient, rel: float) -> Coefficient:

@@ -118,7 +118,7 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
         "RMS of sample thrust minus zero minus C_p |n| n over the steady windows; no interval "
         "(samples are autocorrelated)", interval=False)
     if points.current.measured:
-        out.update(_current_models(points, samples, n, masks, result.used, cp, p))
+        out.update(_current_models(points, samples, n, masks, result.used, cp, p, result.zero))
     return result
 
 
@@ -136,7 +136,8 @@ def _signed_model(coef: dict[str, Coefficient], x: np.ndarray,
 
 def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
                     masks: dict[str, np.ndarray], used: np.ndarray,
-                    cp: dict[str, Coefficient], p: FitParams) -> dict[str, Coefficient]:
+                    cp: dict[str, Coefficient], p: FitParams,
+                    zero_line: ZeroLine | None = None) -> dict[str, Coefficient]:
     cur, se_i = points.current.mean, points.current.se
     cur_s = samples.current_a
     m = used & np.isfinite(cur)
@@ -159,7 +160,7 @@ def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
         out[f"C_i_{key}"] = derive_thrust_current(cp[key], c_n, f"C_i_{key}")
     cur_masks = {k: v & m for k, v in masks.items()}
     direct = fit_thrust_current(cur, i_0.value, points.thrust.mean, points.thrust.se, se_i,
-                                points.t_mid_s, cur_masks)
+                                points.t_mid_s, cur_masks, zero_line)
     if direct is None:
         return out
     ci = {}
