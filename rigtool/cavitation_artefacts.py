@@ -69,6 +69,7 @@ def summary_document(res: CavitationResult, created: str) -> dict:
         "training": {"n_selected": len(res.training), "n_blocks": res.n_blocks_total,
                      **res.training.provenance},
         "gp": {"length_scales": res.gp.hyper.length_scales, "signal_var": res.gp.hyper.signal_var,
+               "signal_scale_cv": res.gp.signal_scale,
                "noise_var_n2": res.gp.noise_var_n2,
                "noise_model": None if res.gp.noise is None else "log-variance GP",
                "shortfall_window_blocks": res.params.window_blocks,

@@ -29,6 +29,7 @@ from rigtool.models import Z95, GatedMean, LogNoise, matern52
 
 NU = 2.5
 MIN_GATE_GAIN = 0.01  # the gate must cut the weighted squared residual by this fraction
+SIGNAL_SCALES = (1.0, 0.3, 0.1, 0.03, 0.01)  # candidate factors on the ML signal variance
 
 
 @dataclass(frozen=True)
@@ -96,6 +97,7 @@ class ExactGp:
     sklearn: GaussianProcessRegressor | None = None
     noise: LogNoise | None = None  # heteroscedastic noise model (None: constant noise_var)
     mean_term: GatedMean = GatedMean()  # explicit mean g(x[:, 1]) (z, the shortfall thrust)
+    signal_scale: float = 1.0  # factor cross-validation put on the ML signal variance
 
     @property
     def noise_var_n2(self) -> float:
@@ -173,7 +175,9 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
     """Exact GP with heteroscedastic noise: (1) homoscedastic hyperparameters, (2) residuals
     of a 2-fold cross-fit (`fold`: 0/1 per row; hold out whole points, since blocks of one
     point, or of one ventilation event, are autocorrelated and leak), (3) noise model on
-    their logs, (4) length scales and signal variance again with the noise fixed, (5) final
+    their logs, (4) length scales and signal variance again with the noise fixed, (5) the
+    signal variance scaled down by cross-validation over the same folds (`cv_signal_scale`:
+    maximum likelihood reads the autocorrelated rows of one event as signal), (6) final
     exact GP with alpha_i = var(x_i) / w_i. Before all this the gated mean term g(z)
     (`fit_gated_mean`; z = x[:, 1], the current-implied thrust loss) is taken out of y: the
     GP then only corrects it."""
@@ -197,9 +201,30 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
     y_std = float(np.std(y)) or 1.0
     alpha = noise.var_n2(x) / w / y_std**2
     h1 = fit_hyper_fixed_noise(st(x), (y - np.mean(y)) / y_std, alpha, p)
+    scale = cv_signal_scale(x, y, w, fold, h1, noise, p)
+    h1 = Hyper(h1.length_scales, scale * h1.signal_var, h1.noise_var)
     gp = fit_exact(x, y, w, p, hyper=h1, noise=noise)
     gp.mean_term = mean_term
+    gp.signal_scale = scale
     return gp
+
+
+def cv_signal_scale(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
+                    hyper: Hyper, noise: LogNoise, p: GpParams) -> float:
+    """The factor in SIGNAL_SCALES on the signal variance with the least weighted squared
+    error on held-out folds (1.0 when there is only one fold)."""
+    if np.unique(fold).size < 2:
+        return 1.0
+    errors = []
+    for c in SIGNAL_SCALES:
+        h = Hyper(hyper.length_scales, c * hyper.signal_var, hyper.noise_var)
+        err = 0.0
+        for k in (0, 1):
+            a = fold != k
+            g = fit_exact(x[a], y[a], w[a], p, hyper=h, noise=noise, keep_inverse=False)
+            err += float(np.sum(w[~a] * (y[~a] - g.predict(x[~a])[0]) ** 2))
+        errors.append(err)
+    return SIGNAL_SCALES[int(np.argmin(errors))]
 
 
 def fit_gated_mean(z: np.ndarray, y: np.ndarray, w: np.ndarray) -> GatedMean:
