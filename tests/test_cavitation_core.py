@@ -271,3 +271,20 @@ def test_newer_model_format_is_refused(tmp_path):
     (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
     with pytest.raises(ValueError, match="update rigtool"):
         load_model(tmp_path)
+
+
+def test_cv_signal_scale_trusts_a_gp_less_on_noise_and_fully_on_signal():
+    from rigtool.analysis.gp import Hyper, cv_signal_scale, fit_noise
+
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-1, 1, (300, 3))
+    fold = (x[:, 0] > 0).astype(int)
+    hyper = Hyper(np.full(3, 0.3), 5.0, 0.0)  # short and strong: fits whatever it sees
+    p = GpParams(hyper_n=100, n_restarts=0)
+    noise_y = rng.normal(0, 1.0, 300)
+    noise = fit_noise(x, noise_y, p)
+    assert cv_signal_scale(x, noise_y, np.ones(300), fold, hyper, noise, p) < 1.0
+    smooth = np.sin(3 * x[:, 1]) * 5 + rng.normal(0, 0.1, 300)
+    noise = fit_noise(x, smooth - np.sin(3 * x[:, 1]) * 5, p)
+    assert cv_signal_scale(x, smooth, np.ones(300), fold, Hyper(np.full(3, 1.0), 5.0, 0.0),
+                           noise, p) == 1.0

@@ -182,12 +182,12 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
     (`fit_gated_mean`; z = x[:, 1], the current-implied thrust loss) is taken out of y: the
     GP then only corrects it."""
     p = params or GpParams()
-    mean_term = fit_gated_mean(x[:, 1], y, w)
-    y = y - mean_term(x[:, 1])  # the GP models what the mean term leaves
-    h0 = fit_exact(x, y, w, p, keep_inverse=False).hyper
     fold = np.asarray(fold)
     if fold.shape != (len(y),) or not set(np.unique(fold).tolist()) <= {0, 1}:
         raise ValueError("fit_hetero: fold must give 0 or 1 for every row")
+    mean_term = fit_gated_mean(x[:, 1], y, w)
+    y = y - mean_term(x[:, 1])  # the GP models what the mean term leaves
+    h0 = fit_exact(x, y, w, p, keep_inverse=False).hyper
     resid = np.empty_like(np.asarray(y, float))
     if np.unique(fold).size < 2:
         resid = y - fit_exact(x, y, w, p, hyper=h0, keep_inverse=False).predict(x)[0]
