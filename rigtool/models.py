@@ -8,7 +8,8 @@ label per block, default: all one segment) marks where the record is cut (e.g. a
 GP inputs x = (n, z, h) with z = f_n(n) * shortfall, shortfall = 1 - |I| / (C_n |n|^3 + I_0)
 averaged over a window of `features.window_blocks` blocks within the segment that reaches
 `features.lead_blocks` blocks ahead (window_blocks // 2: centred; 0: causal, for a controller).
-thrust = f_BETM(n, I) + y_mean + g(z) + sum_j a_j m(r_j), g(z) = beta z / (1 + exp(-(|z| - z0) / s)), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r),
+thrust = f_BETM(n, I) + y_mean + g(z) + sum_j a_j m(r_j) with the gated mean term
+g(z) = beta z / (1 + exp(-(|z| - z0) / s)), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r) and
 r_j = || (x - X_j) / (x_scale * length_scales) ||; the noise variance of a new measurement is
 exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic); see docs/cavitation.md.
 """
