@@ -12,6 +12,7 @@ import os
 import secrets
 import socket
 import sqlite3
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -188,7 +189,7 @@ class Store:
             if create:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
             self.conn = sqlite3.connect(str(self.path), timeout=timeout_s, isolation_level=None)
-            self.conn.execute("PRAGMA journal_mode=WAL")
+            self._set_wal(timeout_s)
             self.conn.execute("PRAGMA synchronous=NORMAL")
             self.conn.execute("PRAGMA foreign_keys=ON")
             self.db = sqlite_utils.Database(self.conn)
@@ -196,6 +197,19 @@ class Store:
             self._mark_dead_runs_interrupted()
         except (sqlite3.DatabaseError, OSError) as exc:
             raise StoreError(f"cannot open run database {self.path}: {exc}") from exc
+
+    def _set_wal(self, timeout_s: float) -> None:
+        """Switch to WAL, retrying while another process switches the same new file: SQLite
+        reports that lock at once instead of waiting on the busy timeout."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                self.conn.execute("PRAGMA journal_mode=WAL")
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.005)
 
     # -- schema ---------------------------------------------------------------------------
     @property
