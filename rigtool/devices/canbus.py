@@ -49,6 +49,9 @@ def open_bus(interface: str, channel: str, bitrate: int | None = None) -> can.Bu
 class CanLink:
     """A python-can bus with a receive thread and an optional keep-alive thread.
 
+    The keep-alive re-sends the last command frame (`command`), so a drive with a command
+    timeout keeps its setpoint, and stops when the host dies.
+
     `on_frame(msg, t)` runs on the receive thread for every frame that is not an error
     frame and returns the name of the counter to bump ("frames", "garbage", "ignored").
     """
@@ -68,15 +71,28 @@ class CanLink:
         self._bus = open_bus(interface, channel, bitrate)
         self._on_frame = on_frame
         self._send_lock = threading.Lock()
+        self._frame_lock = threading.Lock()
+        self._frame: can.Message | None = None  # what the keep-alive re-sends
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._closed = False
 
-    def start(self, keepalive_s: float, keepalive: Callable[[], None]) -> None:
-        """Start receiving, and call `keepalive` every `keepalive_s` (0: never)."""
+    def start(self, keepalive_s: float, frame: can.Message,
+              extra: Callable[[], None] | None = None) -> None:
+        """Start receiving; every `keepalive_s` (0: never) re-send the command frame (first
+        `frame`, then the last one given to `command`) and call `extra` (e.g. a fault poll)."""
+        with self._frame_lock:
+            self._frame = frame
         self._spawn(self._rx_loop, "rx")
         if keepalive_s > 0:
-            self._spawn(lambda: self._keepalive_loop(keepalive_s, keepalive), "keepalive")
+            self._spawn(lambda: self._keepalive_loop(keepalive_s, extra), "keepalive")
+
+    def command(self, msg: can.Message, *, retry: bool = False) -> None:
+        """Send a command frame and make it the one the keep-alive repeats (`retry`: for
+        neutral, see send_retrying)."""
+        with self._frame_lock:
+            self._frame = msg
+        (self.send_retrying if retry else self.send)(msg)
 
     def send(self, msg: can.Message) -> None:
         """Transmit one frame; a failure is counted and raised as DeviceError naming the bus."""
@@ -146,10 +162,15 @@ class CanLink:
                 counter = "garbage"
             self.stats[counter] += 1
 
-    def _keepalive_loop(self, period_s: float, keepalive: Callable[[], None]) -> None:
+    def _keepalive_loop(self, period_s: float, extra: Callable[[], None] | None) -> None:
         while not self._stop.wait(period_s):
             try:
-                keepalive()
+                with self._frame_lock:
+                    frame = self._frame
+                if frame is not None:
+                    self.send(frame)
+                if extra is not None:
+                    extra()
             except DeviceError as exc:
                 log.warning("%s", exc)
 

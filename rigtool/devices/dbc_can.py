@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from pathlib import Path
 from typing import Literal
@@ -188,13 +187,11 @@ class DbcCanDriver:
         self._feedback = FeedbackBuffer(self._fields)
         self._fault: str | None = None
         self._last_rx: float | None = None
-        self._frame_lock = threading.Lock()
-        self._frame = self._command_frame(c.neutral)
         self._closed = False
         self._link = CanLink(c.interface, c.channel, c.bitrate, self._on_frame, self.name)
         self.stats = self._link.stats
         self._opened_t = time.monotonic()
-        self._link.start(c.keepalive_s, self._keepalive)
+        self._link.start(c.keepalive_s, self._command_frame(c.neutral))
         try:
             self.neutral()
             if self._enable_msg is not None:
@@ -212,19 +209,13 @@ class DbcCanDriver:
             raise DeviceError(f"{self.name} on {self._link.where}: driver is closed")
         if not math.isfinite(value):
             raise ValueError(f"command must be finite, got {value!r}")
-        msg = self._command_frame(value)
-        with self._frame_lock:
-            self._frame = msg
-        self._link.send(msg)
+        self._link.command(self._command_frame(value))
 
     def neutral(self) -> None:
         """Send the neutral command; idempotent, quiet after close."""
         if self._closed:
             return
-        msg = self._command_frame(self.config.neutral)
-        with self._frame_lock:
-            self._frame = msg
-        self._link.send_retrying(msg)
+        self._link.command(self._command_frame(self.config.neutral), retry=True)
 
     def read_feedback(self) -> FeedbackBlock:
         """Feedback samples since the last call; DeviceError on a reported fault or on silence."""
@@ -311,11 +302,6 @@ class DbcCanDriver:
 
     def _send_signal(self, message, signal: str, value: float) -> None:
         self._link.send(self._frame_for(message, encode_signal(message, signal, value)))
-
-    def _keepalive(self) -> None:
-        with self._frame_lock:
-            msg = self._frame
-        self._link.send(msg)
 
     def _on_frame(self, msg: can.Message, t: float) -> str:
         """Decode one received frame; return the stats counter it belongs to."""

@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import math
 import struct
-import threading
 import time
 from typing import Literal
 
@@ -148,13 +147,12 @@ class VescCanDriver:
         self._packet = {"duty": SET_DUTY, "current": SET_CURRENT, "rpm": SET_RPM}[c.mode]
         self._feedback = FeedbackBuffer()
         self._fault = 0
-        self._frame_lock = threading.Lock()
-        self._frame = self._message(SET_CURRENT, 0.0)  # what the keep-alive re-sends
         self._closed = False
         self._link = CanLink(c.interface, c.channel, c.bitrate, self._on_frame, self.name)
         self.stats = self._link.stats
         self._opened_t = time.monotonic()
-        self._link.start(c.keepalive_s, self._keepalive)
+        self._link.start(c.keepalive_s, self._message(SET_CURRENT, 0.0),
+                         self._poll_fault if c.poll_fault else None)
         try:
             self._wait_for_status()
             self.neutral()
@@ -170,19 +168,13 @@ class VescCanDriver:
             raise DeviceError(f"{self.name} on {self._link.where}: driver is closed")
         if not math.isfinite(value):
             raise ValueError(f"command must be finite, got {value!r}")
-        msg = self._message(self._packet, self._to_protocol(value))
-        with self._frame_lock:
-            self._frame = msg
-        self._link.send(msg)
+        self._link.command(self._message(self._packet, self._to_protocol(value)))
 
     def neutral(self) -> None:
         """Release the motor (SET_CURRENT 0, whatever the mode); idempotent, quiet after close."""
         if self._closed:
             return
-        msg = self._message(SET_CURRENT, 0.0)
-        with self._frame_lock:
-            self._frame = msg
-        self._link.send_retrying(msg)
+        self._link.command(self._message(SET_CURRENT, 0.0), retry=True)
 
     def read_feedback(self) -> FeedbackBlock:
         """Status samples since the last call; DeviceError on a fault or on silence."""
@@ -237,15 +229,12 @@ class VescCanDriver:
             data=encode_command(packet, value), is_extended_id=True,
         )  # fmt: skip
 
-    def _keepalive(self) -> None:
-        with self._frame_lock:
-            msg = self._frame
-        self._link.send(msg)
-        if self.config.poll_fault:
-            self._link.send(can.Message(
-                arbitration_id=can_id(PROCESS_SHORT_BUFFER, self.config.controller_id),
-                data=fault_poll(self.config.host_id), is_extended_id=True,
-            ))  # fmt: skip
+    def _poll_fault(self) -> None:
+        """Ask the controller for its fault code (sent with every keep-alive)."""
+        self._link.send(can.Message(
+            arbitration_id=can_id(PROCESS_SHORT_BUFFER, self.config.controller_id),
+            data=fault_poll(self.config.host_id), is_extended_id=True,
+        ))  # fmt: skip
 
     def _on_frame(self, msg: can.Message, t: float) -> str:
         """Decode one received frame; return the stats counter it belongs to."""
