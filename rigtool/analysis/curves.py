@@ -13,17 +13,21 @@ jumps, and an inverse lookup table over its usable part.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from sklearn.isotonic import isotonic_regression
 
-from rigtool.analysis.fits import ZeroLine
+from rigtool.analysis.fits import LinearFit, ZeroLine, wls
 
 CURVE_UNITS = ("pwm_counts", "pulse_us", "percent")
 ZERO_PASSES = 4
-ZERO_MIN_SPAN = 0.1  # dead points must span this fraction of the run to fit a drift slope
 MIN_ZERO_POINTS = 5  # dead commands needed to judge the zero's scatter
+JUMP_SIDE = 3  # points each side of a gap that define the local lines of the break-away test
+JUMP_LEVERAGE = 2.0  # variance inflation of a line extrapolated half a step past its points
+OUTLIER_K = 5.0
+DRIFT_K = 3.0  # a zero drift is kept when it exceeds this many standard errors  # zero-line points further than this many robust SDs from the line are dropped
 
 
 @dataclass(frozen=True)
@@ -38,9 +42,9 @@ class CurveParams:
     sat_frac: float = 0.05
     sat_slope_frac: float = 0.25
     min_sat_points: int = 3
-    jump_ratio: float = 5.0
-    jump_frac: float = 0.1
-    jump_k_se: float = 5.0
+    jump_ratio: float = 2.0
+    jump_frac: float = 0.02
+    jump_k_se: float = 8.0
 
 
 @dataclass
@@ -185,14 +189,16 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
     floor = max(p.floor_n, p.k_tare * zero_scatter_n if zero_scatter_n else 0.0)
     line = zero or _zero_from_dead_points(command, t_s, thrust_mean, thrust_se, floor, p)
     z = line.at(t_s) if line else np.zeros(command.size)
-    cmd, k, m, se, lo, hi, spd, cur = aggregate(command, thrust_mean - z, thrust_se,
-                                                thrust_min - z, thrust_max - z, speed_mean,
-                                                current_mean)
-    dead = find_dead(m, se, floor, p)
+    var_z = line.var_at(t_s) if line else np.zeros(command.size)
+    cmd, k, m, se, lo, hi, spd, cur, var_zero = aggregate(
+        command, thrust_mean - z, thrust_se, thrust_min - z, thrust_max - z, speed_mean,
+        current_mean, var_z)
+    se_dead = np.sqrt(se**2 + var_zero)  # a point is dead if zero within the zero's own error
+    dead = find_dead(m, se_dead, floor, p)
     if dead.sum() >= MIN_ZERO_POINTS:
         # The dead points' own scatter about zero shows how well the zero is known.
         floor = max(floor, p.k_zero * 1.4826 * float(np.median(np.abs(m[dead]))))
-        dead = find_dead(m, se, floor, p)
+        dead = find_dead(m, se_dead, floor, p)
     state = np.where(dead, "dead", "live").astype("<U9")
     branch_of = np.full(cmd.size, -1)
     fit = np.zeros(cmd.size)
@@ -217,33 +223,76 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
 
 def _zero_from_dead_points(command: np.ndarray, t_s: np.ndarray, mean: np.ndarray,
                            se: np.ndarray, floor: float, p: CurveParams) -> ZeroLine | None:
-    """Sensor zero (offset + linear drift in time) read from the dead zones, iterated.
+    """Sensor zero (offset + linear drift in time) read from every dead zone, iterated.
 
-    Each dead zone gives one zero reading: the median of its points at their mean time (the
-    median keeps the zone's edges from leaning the line). Two zones far enough apart in
-    time give a drift line, one gives a constant. Once the zero is removed, points that only
-    looked live because of drift join the dead zones, and the zero is read again.
+    Each pass finds the dead commands relative to the current zero line, allowing for the
+    line's own uncertainty at each point's time, then fits the line through all their points
+    (weighted, serially correlated errors, gross outliers such as a zone's live edge dropped).
+    A zone far in time from the others is judged with the drift the others show, so a second
+    zone that sits above the first zone's level is found, and then steadies the drift.
     """
     ok = np.isfinite(mean) & np.isfinite(t_s)
     line = None
-    dead_ranges: list[tuple[float, float]] = []
+    previous = None
     for _ in range(ZERO_PASSES):
         z = line.at(t_s) if line else np.zeros(command.size)
-        cmd, _k, m, s, *_ = aggregate(command[ok], (mean - z)[ok], se[ok], mean[ok], mean[ok])
-        now = ranges(cmd, find_dead(m, s, floor, p))
-        if not now or now == dead_ranges:
+        var = line.var_at(t_s) if line else np.zeros(command.size)
+        cmd, _k, m, s, _lo, _hi, var_zero = aggregate(command[ok], (mean - z)[ok], se[ok],
+                                                      mean[ok], mean[ok], var[ok])
+        s = np.sqrt(s**2 + var_zero)
+        dead = find_dead(m, s, floor, p)
+        if dead.sum() >= MIN_ZERO_POINTS:
+            scatter = p.k_zero * 1.4826 * float(np.median(np.abs(m[dead])))
+            dead = find_dead(m, s, max(floor, scatter), p)
+        pts = ok & np.isin(command, _zone_cores(cmd, dead))
+        if not pts.any() or (previous is not None and np.array_equal(pts, previous)):
             break
-        dead_ranges = now
-        zones = [ok & (command >= lo) & (command <= hi) for lo, hi in now]
-        times = np.array([t_s[zone].mean() for zone in zones])
-        levels = np.array([np.median(mean[zone]) for zone in zones])
-        t_ref = float(np.mean(t_s[np.logical_or.reduce(zones)]))
-        if np.ptp(times) >= ZERO_MIN_SPAN * np.ptp(t_s[ok]) > 0:
-            slope, offset = np.polyfit(times - t_ref, levels, 1)
-            line = ZeroLine(float(offset), float(slope), t_ref, "dead zones")
-        else:
-            line = ZeroLine(float(np.median(levels)), 0.0, t_ref, "dead zones")
+        previous = pts
+        line = _fit_zero_line(t_s[pts], mean[pts], se[pts])
     return line
+
+
+def _zone_cores(cmd: np.ndarray, dead: np.ndarray) -> np.ndarray:
+    """Dead commands away from their zone's edges, where live thrust can leak into the zone.
+
+    A zone of four or more commands keeps its inner half; shorter zones are kept whole.
+    """
+    keep = []
+    for start, stop in _runs(dead):
+        size = stop - start
+        cut = size // 4 if size >= 4 else 0
+        keep.append(cmd[start + cut:stop - cut])
+    return np.concatenate(keep) if keep else np.zeros(0)
+
+
+def _fit_zero_line(t: np.ndarray, y: np.ndarray, se: np.ndarray) -> ZeroLine:
+    """Offset, plus a drift when it is significant (zone cores only, so a drift read from one
+    zone swept in one direction is not the thrust leaking in at its edges)."""
+    t_ref = float(np.mean(t))
+    fit = _robust_wls(np.ones((t.size, 1)), y, se, t)
+    if t.size >= 4 and np.ptp(t) > 0:
+        sloped = _robust_wls(np.column_stack([np.ones(t.size), t - t_ref]), y, se, t)
+        if abs(sloped.beta[1]) > DRIFT_K * math.sqrt(max(sloped.cov[1, 1], 0.0)):
+            c = sloped.cov
+            return ZeroLine(float(sloped.beta[0]), float(sloped.beta[1]), t_ref, "dead zones",
+                            ((float(c[0, 0]), float(c[0, 1])), (float(c[1, 0]), float(c[1, 1]))))
+    return ZeroLine(float(fit.beta[0]), 0.0, t_ref, "dead zones",
+                    ((float(fit.cov[0, 0]), 0.0), (0.0, 0.0)))
+
+
+def _robust_wls(design: np.ndarray, y: np.ndarray, se: np.ndarray, t: np.ndarray) -> LinearFit:
+    """wls with points further than OUTLIER_K robust SDs from the line dropped (refitted once)."""
+    keep = np.ones(y.size, dtype=bool)
+    fit = wls(design, y, se, t)
+    for _ in range(2):
+        resid = y - design @ fit.beta
+        scale = 1.4826 * float(np.median(np.abs(resid[keep]))) or float(np.std(resid[keep]))
+        now = np.abs(resid) <= max(OUTLIER_K * scale, 1e-12)
+        if now.sum() < design.shape[1] + 1 or np.array_equal(now, keep):
+            break
+        keep = now
+        fit = wls(design[keep], y[keep], se[keep], t[keep])
+    return fit
 
 
 def _live_segments(mean: np.ndarray, dead: np.ndarray) -> list[tuple[int, int]]:
@@ -312,24 +361,50 @@ def _saturated(cmd: np.ndarray, g: np.ndarray, se: np.ndarray,
 
 
 def _break_aways(cmd: np.ndarray, m: np.ndarray, se: np.ndarray, p: CurveParams) -> list[float]:
-    """Commands where thrust jumps from the previous point by far more than the local slope."""
-    if cmd.size < 3:
-        return []
-    d = np.diff(m)
-    dc = np.diff(cmd)
-    slope = np.abs(d) / dc
-    span = float(np.max(m) - np.min(m))
-    se0 = np.nan_to_num(se)
+    """Commands where thrust steps between two points by more than the neighbours explain.
+
+    Lines through up to `JUMP_SIDE` points on each side of a gap are extrapolated to its
+    middle; their difference is the jump. It counts when it exceeds `jump_k_se` times its
+    noise (the neighbours' scatter about their lines, or their standard errors, whichever is
+    larger) and `jump_ratio` times what the steeper side's slope covers in one step: a kink
+    (saturation knee) differs at mid-gap by at most half a step's slope, a jump by far more.
+    """
     out = []
-    for i in range(d.size):
-        neighbours = np.r_[slope[max(i - 2, 0):i], slope[i + 1:i + 3]]
-        if neighbours.size == 0:
+    se0 = np.nan_to_num(se)
+    floor = p.jump_frac * float(np.max(np.abs(m))) if m.size else 0.0
+    for i in range(cmd.size - 1):
+        left = slice(max(i + 1 - JUMP_SIDE, 0), i + 1)
+        right = slice(i + 1, min(i + 1 + JUMP_SIDE, cmd.size))
+        if (left.stop - left.start) + (right.stop - right.start) < 3:
             continue
-        local = float(np.median(neighbours)) * dc[i]
-        noise = p.jump_k_se * float(np.hypot(se0[i], se0[i + 1]))
-        if abs(d[i]) > max(p.jump_ratio * local, noise, p.jump_frac * span):
+        mid = (cmd[i] + cmd[i + 1]) / 2
+        lf, rf = _side_line(cmd[left], m[left], se0[left]), _side_line(cmd[right], m[right],
+                                                                       se0[right])
+        slopes = [f[1] for f in (lf, rf) if f is not None]
+        if not slopes:
+            continue
+        lf = lf or (m[i], slopes[0], se0[i] ** 2, cmd[i])
+        rf = rf or (m[i + 1], slopes[0], se0[i + 1] ** 2, cmd[i + 1])
+        jump = (rf[0] + rf[1] * (mid - rf[3])) - (lf[0] + lf[1] * (mid - lf[3]))
+        noise = float(np.sqrt(lf[2] + rf[2]))
+        step_cover = max(abs(s) for s in slopes) * (cmd[i + 1] - cmd[i])
+        if abs(jump) > max(p.jump_k_se * noise, p.jump_ratio * step_cover, floor):
             out.append(float(cmd[i + 1] if abs(m[i + 1]) >= abs(m[i]) else cmd[i]))
     return out
+
+
+def _side_line(x: np.ndarray, y: np.ndarray, se: np.ndarray
+               ) -> tuple[float, float, float, float] | None:
+    """(level at x_ref, slope, variance of the level, x_ref) of a line through 2-3 points."""
+    if x.size < 2:
+        return None
+    x_ref = float(np.mean(x))
+    slope, level = np.polyfit(x - x_ref, y, 1)
+    resid = y - (level + slope * (x - x_ref))
+    dof = x.size - 2
+    scatter = float(np.sum(resid**2) / dof) if dof > 0 else 0.0
+    var_point = max(scatter, float(np.mean(se**2)))
+    return float(level), float(slope), var_point / x.size * JUMP_LEVERAGE, x_ref
 
 
 def _inverse(cmd: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -120,15 +120,28 @@ def _coef(name: str, fit: LinearFit, i: int, unit: str, y: np.ndarray, rms_unit:
 
 @dataclass(frozen=True)
 class ZeroLine:
-    """Estimated thrust zero: offset_n at t_ref_s plus a linear drift (N/s), and its source."""
+    """Estimated thrust zero: offset_n at t_ref_s plus a linear drift (N/s), and its source.
+
+    `cov` is the 2x2 covariance of (offset_n, drift_n_per_s) when the line was fitted, so a
+    test against the zero can allow for how well the zero is known at each time.
+    """
 
     offset_n: float
     drift_n_per_s: float
     t_ref_s: float
     source: str
+    cov: tuple[tuple[float, float], tuple[float, float]] | None = None
 
     def at(self, t_s: np.ndarray) -> np.ndarray:
         return self.offset_n + self.drift_n_per_s * (np.asarray(t_s, dtype=float) - self.t_ref_s)
+
+    def var_at(self, t_s: np.ndarray) -> np.ndarray:
+        """Variance (N^2) of the zero at `t_s`; 0 where the line carries no covariance."""
+        dt = np.asarray(t_s, dtype=float) - self.t_ref_s
+        if self.cov is None:
+            return np.zeros(dt.shape)
+        (a, b), (_, d) = self.cov
+        return np.maximum(a + 2 * b * dt + d * dt**2, 0.0)
 
 
 @dataclass
@@ -162,8 +175,15 @@ class DirectionalFit:
         if self.fixed_zero is not None:
             return self.fixed_zero
         beta = dict(zip(self.columns, self.fit.beta, strict=True))
+        i = self.columns.index("offset")
+        cov = ((float(self.fit.cov[i, i]), 0.0), (0.0, 0.0))
+        if "drift" in self.columns:
+            j = self.columns.index("drift")
+            c = self.fit.cov[np.ix_([i, j], [i, j])] / np.array([[1, SECONDS_PER_HOUR]] * 2)
+            c = c / np.array([[1], [SECONDS_PER_HOUR]])
+            cov = ((float(c[0, 0]), float(c[0, 1])), (float(c[1, 0]), float(c[1, 1])))
         return ZeroLine(float(beta["offset"]), float(beta.get("drift", 0.0)) / SECONDS_PER_HOUR,
-                        self.t_ref_s, "model fit")
+                        self.t_ref_s, "model fit", cov)
 
     def zero_coefficients(self) -> list[Coefficient]:
         """f_0 (N, at t_ref) and zero_drift (N/h) as coefficients."""
