@@ -18,8 +18,6 @@ import numpy as np
 from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.errors import UsageError
 
-DEEP_DEPTH_M = 0.6  # shallower than this, ventilation is possible (domain.md section 4)
-
 
 @dataclass(frozen=True)
 class Betm:

@@ -9,8 +9,8 @@ import numpy as np
 
 import rigtool
 from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
-from rigtool.analysis.dataset import RunData, load_run
-from rigtool.analysis.fits import Coefficient, ZeroLine
+from rigtool.analysis.dataset import RunData, Tares, load_run
+from rigtool.analysis.fits import SECONDS_PER_HOUR, Coefficient, ZeroLine
 from rigtool.analysis.models import FitParams, ModelFits, WindowSamples, fit_models
 from rigtool.analysis.quality import (
     Hysteresis,
@@ -25,6 +25,7 @@ from rigtool.store import Store
 
 SummaryRow = tuple[str, float, float, float, str, str]
 NAN = math.nan
+DEEP_DEPTH_M = 0.6  # shallower than this, ventilation is possible (domain.md section 4)
 # One coefficient per fit is checked for quality (the others share its R2 and n).
 CHECKED_FITS = ("C_p_fwd", "C_p_rev", "C_n", "k_free", "C_i_fwd_direct", "C_i_rev_direct")
 
@@ -39,6 +40,7 @@ class CalibrationParams:
     min_r2: float = 0.98
     min_points: int = 5
     drift_warn_n_per_h: float = 0.1
+    deep_depth_m: float = DEEP_DEPTH_M  # shallower points may ventilate: no zero fitted there
 
 
 @dataclass
@@ -155,33 +157,66 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
     samples = WindowSamples(sample_local[pick], run.samples.thrust_n[pick],
                             run.samples.speed_rpm[pick], run.samples.current_a[pick])
 
-    def fit() -> ModelFits:
-        return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
-                          density_kg_m3=run.water_density_kg_m3, params=p.fit)
-
-    models = fit()
     ok = points.status == "ok"
-    curve = None
-    if run.command_unit in CURVE_UNITS:
+    shallow = bool(np.isfinite(points.depth_m[0]) and points.depth_m[0] < p.deep_depth_m)
+    fixed_zero = None
+
+    def make_curve(zero: ZeroLine | None) -> CommandCurve | None:
+        if run.command_unit not in CURVE_UNITS:
+            return None
         t = points.thrust
-        curve = command_curve(
+        return command_curve(
             points.command[ok], points.t_mid_s[ok], t.mean[ok], t.se[ok], t.min[ok], t.max[ok],
             points.speed.mean[ok], points.current.mean[ok], command_unit=run.command_unit,
-            neutral_command=run.neutral_command, zero=models.zero,
+            neutral_command=run.neutral_command, zero=zero,
             zero_scatter_n=drift.zero_scatter_n if drift else None, params=p.curve)
+
+    if shallow:
+        # Points near the surface may be ventilating: the zero comes from dead points or tares.
+        curve = make_curve(None)
+        fixed_zero = (curve.zero if curve is not None and curve.zero is not None
+                      else tare_zero(run.tares, drift, points.t_mid_s))
+        if curve is not None and curve.zero is None:
+            curve = make_curve(fixed_zero)
+
+    def fit() -> ModelFits:
+        return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
+                          density_kg_m3=run.water_density_kg_m3, params=p.fit, zero=fixed_zero)
+
+    models = fit()
+    if not shallow:
+        curve = make_curve(models.zero)
+    if curve is not None:
         points.dead = curve.is_dead(points.command)
         if (points.dead & models.used).any():
             models = fit()
     points.used_in_fits = models.used
-    zero = models.zero or (curve.zero if curve else None)
+    zero = fixed_zero or models.zero or (curve.zero if curve else None)
     if zero is not None:
         points.thrust_zero_n = np.nan_to_num(zero.at(points.t_mid_s))
     f = points.thrust_corrected_n
     hyst = hysteresis(points.command[ok], points.direction[ok], f[ok], points.thrust.se[ok])
     rep = repeatability(points.command[ok], points.direction[ok], points.repeat[ok], f[ok])
     depth = float(points.depth_m[0]) if np.isfinite(points.depth_m[0]) else None
-    return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep,
-                        _section_warnings(points, models.coefficients, curve, zero, p))
+    warnings = _section_warnings(points, models.coefficients, curve, zero, p)
+    if shallow and models.coefficients:
+        warnings.append(f"shallower than {p.deep_depth_m:g} m: the propeller may ventilate, so "
+                        "these coefficients include any thrust loss; the thruster's own "
+                        "coefficients come from a deep run")
+    return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep, warnings)
+
+
+def tare_zero(tares: Tares, drift: TareDrift | None, t_s: np.ndarray) -> ZeroLine:
+    """The zero the tares give: 0 at the last tare before the points, drifting at the rate
+    the tare biases show (0 with fewer than two tares). Used where points may ventilate."""
+    first = float(np.nanmin(t_s)) if np.isfinite(t_s).any() else 0.0
+    before = tares.t_s[tares.t_s <= first]
+    if not tares.t_s.size:
+        return ZeroLine(0.0, 0.0, first, "assumed (no tare, no dead points)")
+    t0 = float(before.max()) if before.size else float(tares.t_s.min())
+    slope = drift.slope.value / SECONDS_PER_HOUR if drift is not None else 0.0
+    var = drift.zero_scatter_n**2 if drift is not None else 0.0
+    return ZeroLine(0.0, slope, t0, "tares", ((var, 0.0), (0.0, 0.0)))
 
 
 def _run_warnings(run: RunData, table: PointTable, drift: TareDrift | None,

@@ -17,7 +17,6 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from rigtool.analysis.betm import (
-    DEEP_DEPTH_M,
     Betm,
     EstimatorErrors,
     betm_from_section,
@@ -26,7 +25,7 @@ from rigtool.analysis.betm import (
     level_variances,
 )
 from rigtool.analysis.blocks import Blocks, block_means
-from rigtool.analysis.calibrate import calibrate
+from rigtool.analysis.calibrate import DEEP_DEPTH_M, calibrate
 from rigtool.analysis.dataset import RunData, load_run
 from rigtool.analysis.events import (
     Event,

@@ -239,10 +239,12 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
 
 def fit_thrust_speed(n_rpm: np.ndarray, f_n: np.ndarray, se_f: np.ndarray,
                      se_n: np.ndarray | None, t_s: np.ndarray,
-                     masks: dict[str, np.ndarray]) -> DirectionalFit | None:
-    """f = C_p |n| n with C_p per direction (`masks`: "fwd"/"rev" point masks) + zero terms."""
+                     masks: dict[str, np.ndarray],
+                     zero: ZeroLine | None = None) -> DirectionalFit | None:
+    """f = C_p |n| n with C_p per direction (`masks`: "fwd"/"rev" point masks) + zero terms
+    (or against a given `zero`)."""
     dx = None if se_n is None else 2 * np.abs(n_rpm) * se_n
-    return fit_directional(np.abs(n_rpm) * n_rpm, f_n, se_f, dx, t_s, masks)
+    return fit_directional(np.abs(n_rpm) * n_rpm, f_n, se_f, dx, t_s, masks, zero=zero)
 
 
 def thrust_coefficient(cp: Coefficient, diameter_m: float, density_kg_m3: float,

@@ -69,8 +69,13 @@ def candidate_points(points: PointTable, params: FitParams) -> np.ndarray:
 
 
 def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float | None,
-               density_kg_m3: float | None, params: FitParams | None = None) -> ModelFits:
-    """All speed/current model coefficients of one depth."""
+               density_kg_m3: float | None, params: FitParams | None = None,
+               zero: ZeroLine | None = None) -> ModelFits:
+    """All speed/current model coefficients of one depth.
+
+    The thrust zero is fitted jointly with C_p unless `zero` is given (points that may be
+    ventilating must not set the zero).
+    """
     p = params or FitParams()
     use = candidate_points(points, p)
     result = ModelFits(used=np.zeros(len(points), dtype=bool))
@@ -89,7 +94,7 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
         n_s = np.abs(n_s) * np.sign(f)[samples.point]
     n_min = max(p.min_speed_rpm, p.min_speed_frac * float(np.max(np.abs(n[use]))))
     masks = {"fwd": use & (n > n_min), "rev": use & (n < -n_min)}
-    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks)
+    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero)
     if thrust_fit is None:
         return result
     out = result.coefficients

@@ -151,10 +151,11 @@ def _cp_model(fits: dict[str, Coefficient], n: np.ndarray) -> np.ndarray:
 
 
 def thrust_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
-    """Thrust vs propeller speed with the C_p |n| n fits, and a residuals panel below."""
+    """Thrust vs propeller speed with the C_p |n| n fits, and a residuals panel below; thrust
+    is taken relative to the estimated sensor zero (offset and drift), as the fit saw it."""
     fig = _figure(TALL, hspace=0.08)
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1.3])
-    n, f = signed_speed(points), points.thrust.mean
+    n, f = signed_speed(points), points.thrust_corrected_n
     used = points.used_in_fits
     other = ~used & np.isfinite(n) & np.isfinite(f)
     top.plot(n[other], f[other], "o", mfc="none", color=GREY, label="not in fit")
@@ -169,7 +170,7 @@ def thrust_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
             top.plot(grid, c.value * np.abs(grid) * grid, "-", color=color, lw=1.2,
                      label=f"fit C_p_{key} = {c.value:.4g} N/(r/min)²")
     top.axhline(0, color="k", lw=0.6)
-    top.set_ylabel("thrust (N)")
+    top.set_ylabel("thrust − zero (N)")
     top.set_title("Thrust vs propeller speed, f = C_p |n| n")
     _legend(top, loc="upper left")
     resid = f - _cp_model(fits, n)

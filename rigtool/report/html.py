@@ -346,10 +346,12 @@ def _speed_figures(sec: DepthSection, cal: Calibration, suffix: str, at: str,
         return [FigureItem(*ts, why)]
     out = []
     if "C_p_fwd" in fits or "C_p_rev" in fits:
+        zero = f" (from the {sec.zero.source})" if sec.zero is not None else ""
         out.append(FigureItem(*ts, "Thrust (N) vs propeller speed (r/min), points with 95 % "
                               "error bars and the forward/reverse C_p |n| n model; below, the "
-                              "residuals thrust − C_p |n| n (N), without the fitted zero offset "
-                              "f_0, so a tare offset shows as a shift.", fg.encode(fg.thrust_speed(p, fits), fmt)))
+                              "residuals thrust − zero − C_p |n| n (N). Thrust is shown after "
+                              f"removing the estimated sensor zero and its drift{zero}, as the "
+                              "fit saw it.", fg.encode(fg.thrust_speed(p, fits), fmt)))
     else:
         out.append(FigureItem(*ts, "No thrust-vs-speed fit: too few points with significant "
                               "propeller speed."))
