@@ -8,6 +8,7 @@ import os
 import signal
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.table import Column, Table
@@ -17,6 +18,10 @@ from rigtool.errors import RigtoolError, UsageError
 from rigtool.plan import estimate_duration_s
 from rigtool.progress import UNIT_LABEL, default_reporter
 from rigtool.store import DB_ENV, Store, resolve_db_path
+
+if TYPE_CHECKING:
+    from rigtool.analysis.calibrate import Calibration
+    from rigtool.analysis.cavitation import CavitationResult, CavitationStage
 
 # Pipes and logs get wide tables instead of rich's 80-column default.
 out = Console(highlight=False, soft_wrap=True, width=None if sys.stdout.isatty() else 160)
@@ -130,6 +135,8 @@ def cmd_show(args: argparse.Namespace) -> int:
     out.print(f"  created {run['created_utc']}, finished {run['finished_utc'] or '-'}, "
               f"host {run['host']}, rigtool {run['tool_version']}, seed {run['seed']}")
     out.print(f"  rig: {run['rig'].get('name')}  protocol: {run['protocol_path']}")
+    if run["actuator"]:
+        out.print("  actuator: " + _actuator_text(run["actuator"]))
     meta = {k: v for k, v in run["metadata"].items() if v not in (None, {}, "")}
     if meta:
         out.print("  metadata: " + ", ".join(f"{k}={v}" for k, v in meta.items()))
@@ -148,6 +155,14 @@ def cmd_show(args: argparse.Namespace) -> int:
     if counts:
         out.print("  events: " + ", ".join(f"{k} x{v}" for k, v in sorted(counts.items())))
     return 0
+
+
+def _actuator_text(actuator: dict) -> str:
+    """Neutral, range and feedback of a stored actuator record, for `show`."""
+    unit = UNIT_LABEL.get(actuator["command_unit"], actuator["command_unit"])
+    feedback = ", ".join(actuator.get("feedback") or ()) or "none"
+    return (f"neutral {actuator['neutral']:g} {unit}, range {actuator['command_min']:g} .. "
+            f"{actuator['command_max']:g} {unit}, feedback {feedback}")
 
 
 def _span(rows: list[dict], key: str) -> str:
@@ -252,11 +267,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from rigtool.analysis.calibrate import calibrate_run
+    from rigtool.analysis.cavitation import cavitation_stage
     from rigtool.artefacts import calibration_document, write_artefacts
     from rigtool.store import utc_now
 
     store = Store(resolve_db_path(args.db), create=False)
     run_id = store.resolve_run_id(args.run)
+    stage = cavitation_stage(store, run_id, args.base)  # a bad --base stops before any file
     cal = calibrate_run(store, run_id)
     created = utc_now()
     paths = write_artefacts(cal, Path(args.out), created_utc=created)
@@ -268,45 +285,59 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         interval = f"{_num(lo)} .. {_num(hi)}" if lo == lo or hi == hi else ""
         table.add_row(name, _num(value), interval, unit, note)
     out.print(table)
-    for warning in cal.warnings:
-        err.print(f"warning: {warning}")
     out.print(f"artefacts: {', '.join(str(p) for p in paths)}")
-    cav = None
-    from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation, is_shallow
-
-    if is_shallow(store, run_id):
+    cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=True)
+    if cav is not None:
         from rigtool.cavitation_artefacts import write_cavitation_artefacts
 
-        cav = calibrate_cavitation(store, run_id, args.base, Path(args.out),
-                                   CavitationParams(causal=args.causal))
         cav_paths = write_cavitation_artefacts(cav, Path(args.out), created_utc=created)
         out.print(f"quasi-cavitation (BETM base run {cav.base_run_id}): "
                   f"{', '.join(str(p) for p in cav_paths)}")
+    _print_warnings(store, run_id, cal, notes)
     if args.report:
         from rigtool.report import write_report
 
-        out.print(f"report: {write_report(store, run_id, folder, cal, cavitation=cav)}")
+        path = write_report(store, run_id, folder, cal, cavitation=cav, extra_warnings=notes)
+        out.print(f"report: {path}")
     return 0
+
+
+def _cavitation(store: Store, run_id: str, stage: CavitationStage, causal: bool, *,
+                store_events: bool) -> tuple[CavitationResult | None, list[str]]:
+    """The quasi-cavitation result the stage decision asks for (or None), and its warnings."""
+    from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation
+
+    if stage.base_run_id is None:
+        return None, stage.warnings
+    cav = calibrate_cavitation(store, run_id, stage.base_run_id,
+                               params=CavitationParams(causal=causal), store_events=store_events)
+    return cav, [f"quasi-cavitation: {w}" for w in cav.warnings]
+
+
+def _print_warnings(store: Store, run_id: str, cal: Calibration | None, notes: list[str]) -> None:
+    """Print the run's warnings: the same list the report shows."""
+    from rigtool.run_warnings import stored_run_warnings
+
+    for warning in stored_run_warnings(store, run_id, cal, notes):
+        err.print(f"warning: {warning}", markup=False)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation, is_shallow
-    from rigtool.errors import UsageError
+    from rigtool.analysis.calibrate import calibrate_run
+    from rigtool.analysis.cavitation import cavitation_stage
     from rigtool.report import write_report
 
     store = Store(resolve_db_path(args.db), create=False)
     run_id = store.resolve_run_id(args.run)
-    cav = None
-    if is_shallow(store, run_id):
-        try:
-            cav = calibrate_cavitation(store, run_id, args.base,
-                                       params=CavitationParams(causal=args.causal),
-                                       store_events=False)
-        except UsageError as exc:
-            err.print(f"warning: no quasi-cavitation section: {exc}")
-    out.print(str(write_report(store, run_id, Path(args.out) / run_id, cavitation=cav)))
+    stage = cavitation_stage(store, run_id, args.base)
+    cal = calibrate_run(store, run_id) if store.steps(run_id) else None
+    cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=False)
+    _print_warnings(store, run_id, cal, notes)
+    path = write_report(store, run_id, Path(args.out) / run_id, cal, cavitation=cav,
+                        extra_warnings=notes)
+    out.print(str(path))
     return 0
 
 
@@ -396,7 +427,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
     p.add_argument("--report", action="store_true", help="also write the HTML report")
     p.add_argument("--base", metavar="RUN_ID", help="deep run giving the BETM coefficients of a "
-                   "shallow (cavitation) run (default: the latest deep run of the same thruster)")
+                   "shallow run with speed and current feedback (quasi-cavitation stage; "
+                   "default: the latest such deep run of the same thruster)")
     p.add_argument("--causal", action="store_true", help="quasi-cavitation model on past "
                    "current only (for a controller; default: a centred 1 s window)")
     p.add_argument("--db", help=db_help)

@@ -122,6 +122,11 @@ MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [
     lambda conn: _execute_script(conn, SCHEMA_V1),
     # v2: the sensor's own sample sequence number, to reconcile lost samples
     lambda conn: conn.execute("ALTER TABLE samples ADD COLUMN seq INTEGER"),
+    # v3: the actuator that ran the run (unit, neutral, range), so analysis need not guess
+    lambda conn: conn.execute("ALTER TABLE runs ADD COLUMN actuator_json TEXT"),
+    # v4: when the run was last started or resumed, which `last` resolves by
+    lambda conn: _execute_script(conn, "ALTER TABLE runs ADD COLUMN started_utc TEXT; "
+                                       "UPDATE runs SET started_utc = created_utc"),
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -133,9 +138,9 @@ def create_schema(conn: sqlite3.Connection) -> None:
     conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
 
-def utc_now() -> str:
-    """ISO-8601 UTC timestamp with seconds."""
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+def utc_now(timespec: str = "seconds") -> str:
+    """ISO-8601 UTC timestamp, to the second unless `timespec` asks for finer."""
+    return datetime.now(timezone.utc).isoformat(timespec=timespec)
 
 
 def new_run_id() -> str:
@@ -262,7 +267,9 @@ class Store:
         seed: int | None,
         command_unit: str,
         tool_version: str,
+        actuator: dict | None = None,
     ) -> str:
+        """Insert a new running run; `actuator` is its command space (unit, neutral, range)."""
         run_id = new_run_id()
         row = {
             "id": run_id,
@@ -282,6 +289,8 @@ class Store:
             "n_planned": len(plan),
             "command_unit": command_unit,
             "stop_reason": None,
+            "actuator_json": None if actuator is None else json.dumps(actuator),
+            "started_utc": utc_now("microseconds"),
         }
         with self.transaction():
             self.db["runs"].insert(row)
@@ -340,13 +349,15 @@ class Store:
     def reopen_run(self, run_id: str) -> None:
         """Mark an interrupted/aborted/failed run as running again, owned by this process.
 
-        A single conditional UPDATE, so two resumes of one run cannot both win.
+        A single conditional UPDATE, so two resumes of one run cannot both win. The run
+        becomes `last` (see `resolve_run_id`).
         """
         with self.transaction():
             cur = self.conn.execute(
                 "UPDATE runs SET status = 'running', finished_utc = NULL, stop_reason = NULL, "
-                "host = ?, pid = ? WHERE id = ? AND status IN ('interrupted', 'aborted', 'failed')",
-                (socket.gethostname(), os.getpid(), run_id),
+                "host = ?, pid = ?, started_utc = ? "
+                "WHERE id = ? AND status IN ('interrupted', 'aborted', 'failed')",
+                (socket.gethostname(), os.getpid(), utc_now("microseconds"), run_id),
             )
         if cur.rowcount != 1:
             raise UsageError(f"run {run_id} is no longer resumable (another process resumed it?)")
@@ -360,9 +371,11 @@ class Store:
 
     # -- reading --------------------------------------------------------------------------
     def resolve_run_id(self, ref: str) -> str:
-        """Accept a full id, `last`, or an unambiguous id prefix."""
+        """Accept a full id, an unambiguous id prefix, or `last`: the run most recently
+        started or resumed."""
         if ref == "last":
-            row = self.conn.execute("SELECT id FROM runs ORDER BY id DESC LIMIT 1").fetchone()
+            row = self.conn.execute(
+                "SELECT id FROM runs ORDER BY started_utc DESC, id DESC LIMIT 1").fetchone()
             if row is None:
                 raise UsageError(f"no runs in {self.path} yet: run `rigtool sweep` first")
             return row[0]
@@ -380,6 +393,8 @@ class Store:
         out = dict(row)
         for key in ("protocol_json", "rig_json", "plan_json", "metadata_json"):
             out[key.removesuffix("_json")] = json.loads(out.pop(key))
+        actuator = out.pop("actuator_json")
+        out["actuator"] = None if actuator is None else json.loads(actuator)
         return out
 
     def runs(self, limit: int = 50) -> list[dict]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import socket
 import sys
 from collections.abc import Callable
@@ -132,6 +133,7 @@ def resume_sweep(store: Store, run_ref: str, reporter=None,
     run_id, setup, start_idx, t_used = resolve_resume(store, run_ref, rig)
     previous = store.run(run_id)["status"]
     if start_idx >= len(setup.plan):
+        store.reopen_run(run_id)  # claimed like any resume, and it becomes `last`
         store.finish_run(run_id, "completed", None)
         return Outcome(run_id, "completed", None, 0), len(setup.plan)
     rigset = open_checked(setup, start_idx)
@@ -164,6 +166,7 @@ def run_sweep(setup: SweepSetup, store: Store, reporter=None,
             seed=sim.seed if sim else None,
             command_unit=rigset.actuator.info.command_unit,
             tool_version=__version__,
+            actuator=dataclasses.asdict(rigset.actuator.info),
         )
         engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter, confirm)
         return engine.run()

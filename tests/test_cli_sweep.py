@@ -19,6 +19,7 @@ def test_quick_demo_sweep_runs_and_show(capsys, db_path):
     assert main(["show", "last", "--db", str(db_path)]) == 0
     text = capsys.readouterr().out
     assert "status completed" in text and "samples: 42,000" in text and "per-depth summary" in text
+    assert "actuator: neutral 0 %, range -100 .. 100 %" in text
 
 
 def test_seed_is_stored_and_reproducible(db_path):

@@ -142,10 +142,10 @@ def test_force_takes_over_a_run_left_running(write_yaml, tmp_path, capsys):
     assert len(Store(db).steps(run_id)) == N_POINTS
 
 
-def _cut_last_point(db: Path) -> str:
-    """Make the newest run look interrupted one point before its end."""
+def _cut_last_point(db: Path, ref: str = "last") -> str:
+    """Make a run (default: the newest) look interrupted one point before its end."""
     store = Store(db)
-    run_id = store.resolve_run_id("last")
+    run_id = store.resolve_run_id(ref)
     last = store.steps(run_id)[-1]["id"]
     store.conn.execute("DELETE FROM samples WHERE step_id = ?", (last,))
     store.conn.execute("DELETE FROM steps WHERE id = ?", (last,))
@@ -170,3 +170,18 @@ def test_resume_with_a_new_rig_file_and_its_db(write_yaml, tmp_path, capsys, mon
     store = Store(db)
     assert store.run(run_id)["status"] == "completed" and len(store.steps(run_id)) == 4
     assert store.events(run_id, "resumed")[0]["detail"]["rig"]["name"] == "pool-after-power-cut"
+
+
+def test_last_is_the_resumed_run(write_yaml, tmp_path, capsys):
+    db = tmp_path / "two.sqlite"
+    protocol = str(write_yaml(SMALL_PROTOCOL))
+    for _ in range(2):
+        assert main(["sweep", protocol, "--sim", "--db", str(db)]) == 0
+    older, newer = sorted(r["id"] for r in Store(db).runs())
+    assert Store(db).resolve_run_id("last") == newer
+    _cut_last_point(db, older)
+    assert main(["sweep", "--resume", older, "--db", str(db)]) == 0
+    assert Store(db).resolve_run_id("last") == older
+    capsys.readouterr()
+    assert main(["show", "last", "--db", str(db)]) == 0
+    assert f"run {older}" in capsys.readouterr().out

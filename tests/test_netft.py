@@ -38,6 +38,7 @@ from rigtool.sim.profiles import PROFILES
 from rigtool.store import Store
 
 from .conftest import ROOT
+from .helpers import wait_for
 
 BIAS_N = PROFILES["can-bldc"].bias_n  # the twin's offset on fx at zero thrust
 NOISE_N = PROFILES["can-bldc"].force_noise_n
@@ -139,7 +140,8 @@ def test_reads_newtons_from_box_with_non_si_calibration(live, box):
         _, thrust_n, _ = live.twin.steady_state(50)
         fx = sensor.read(500, 1000).ft[:, 0]
         assert abs(fx.mean() - (thrust_n + BIAS_N)) < 0.4
-    assert twin.stats.stops == 1 and not twin.streaming
+    # The stop datagram is handled on the twin's own thread: give it time under load.
+    assert wait_for(lambda: twin.stats.stops == 1 and not twin.streaming)
 
 
 @pytest.mark.slow

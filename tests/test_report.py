@@ -12,7 +12,8 @@ import pytest
 from rigtool.analysis.calibrate import calibrate_run
 from rigtool.progress import SilentReporter
 from rigtool.report import write_report
-from rigtool.report.html import fmt_num, fmt_unit, group_by_depth
+from rigtool.report.html import fmt_num, fmt_unit
+from rigtool.run_warnings import group_by_depth
 from rigtool.store import Store
 from rigtool.sweep import resolve, run_sweep
 

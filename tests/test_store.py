@@ -84,12 +84,32 @@ def test_resolve_last_prefix_and_errors(db_path):
         store.resolve_run_id("last")
     first = _run(store)
     second = _run(store)
-    assert store.resolve_run_id("last") == max(first, second)
+    assert store.resolve_run_id("last") == second  # even when both ids share a millisecond
     assert store.resolve_run_id(first) == first
     with pytest.raises(UsageError, match="no run"):
         store.resolve_run_id("19990101")
     with pytest.raises(UsageError, match="ambiguous"):
         store.resolve_run_id(first[:4])
+
+
+def test_last_is_the_run_most_recently_started_or_resumed(db_path):
+    store = Store(db_path)
+    older = _run(store)
+    store.finish_run(older, "aborted", "test")
+    newer = _run(store)
+    assert store.resolve_run_id("last") == newer
+    store.reopen_run(older)
+    assert store.resolve_run_id("last") == older
+
+
+def test_actuator_is_stored_with_the_run(db_path):
+    store = Store(db_path)
+    actuator = {"command_unit": "pulse_us", "neutral": 1490.0, "command_min": 1100.0,
+                "command_max": 1900.0, "feedback": []}
+    run_id = store.create_run(name="r", protocol={}, protocol_path=None, rig={}, plan=[],
+                              metadata={}, seed=None, command_unit="pulse_us", tool_version="t",
+                              actuator=actuator)
+    assert store.run(run_id)["actuator"] == actuator and store.run(_run(store))["actuator"] is None
 
 
 def test_run_of_dead_process_reads_as_interrupted(db_path):
@@ -120,9 +140,13 @@ def test_migration_from_v1_keeps_data_and_adds_seq(db_path):
     conn.commit()
     conn.close()
     store = Store(db_path)
-    assert store.version == SCHEMA_VERSION >= 2
+    assert store.version == SCHEMA_VERSION >= 4
     back = store.samples("r1", ["t_s", "thrust_n", "seq"])
     assert back["thrust_n"][0] == 2.5 and np.isnan(back["seq"][0])
+    run = store.run("r1")
+    assert run["actuator"] is None and run["started_utc"] == run["created_utc"] == "2026-01-01"
+    new = _run(store)  # a run started after the migration is `last`
+    assert store.resolve_run_id("last") == new
 
 
 def test_sequence_numbers_are_stored(db_path, write_yaml):

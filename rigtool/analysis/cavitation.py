@@ -49,6 +49,7 @@ from rigtool.store import Store
 
 EVENT_KIND = "ventilation"
 TRUTH_KIND = "sim.ventilation"
+FEEDBACK_NEEDED = (("speed_rpm_mean", "speed"), ("current_a_mean", "current"))  # step column, name
 # (speed, current, depth, segment) of consecutive blocks -> (thrust, lo95, hi95)
 Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                      tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -128,31 +129,119 @@ class CavitationResult:
 
 def is_shallow(store: Store, run_id: str) -> bool:
     """True when any point of the run is shallower than the deep limit (0.6 m)."""
-    return any(s["depth_m"] is not None and s["depth_m"] < DEEP_DEPTH_M
-               for s in store.steps(run_id))
+    return _any_shallow(store.steps(run_id))
 
 
-def find_base_run(store: Store, run_id: str) -> str:
-    """Most recent completed run of the same thruster, all points deep, >= 10 commands."""
-    me = store.run(run_id)
-    tid = (me.get("metadata") or {}).get("thruster_id") or \
-        ((me.get("protocol") or {}).get("metadata") or {}).get("thruster_id")
+def _any_shallow(steps: list[dict]) -> bool:
+    return any(s["depth_m"] is not None and s["depth_m"] < DEEP_DEPTH_M for s in steps)
+
+
+def _missing_feedback(steps: list[dict]) -> str | None:
+    """The feedback (speed, current) no point has a finite sample of, as text; None if both do.
+
+    A point's mean is NULL when none of its samples is finite.
+    """
+    missing = [label for key, label in FEEDBACK_NEEDED if all(s[key] is None for s in steps)]
+    return " and ".join(missing) or None
+
+
+def cavitation_applicable(store: Store, run_id: str) -> str | None:
+    """Why the quasi-cavitation stage does not apply to a run, or None when it does.
+
+    It needs shallow points and speed and current feedback (the BETM reads both); any other
+    run is an ordinary calibration at its depth.
+    """
+    steps = store.steps(run_id)
+    if not _any_shallow(steps):
+        return f"run {run_id} has no point shallower than {DEEP_DEPTH_M:g} m"
+    missing = _missing_feedback(steps)
+    return f"run {run_id} has no {missing} feedback" if missing else None
+
+
+def base_run_problem(store: Store, run_id: str) -> str | None:
+    """What keeps a run from being a BETM base run (all points deep, speed and current
+    feedback), or None when it can be one."""
+    return _base_problem(run_id, store.steps(run_id))
+
+
+def _base_problem(run_id: str, steps: list[dict]) -> str | None:
+    if not steps:
+        return f"run {run_id} has no recorded points"
+    if any(s["depth_m"] is None or s["depth_m"] < DEEP_DEPTH_M for s in steps):
+        return f"run {run_id} is not deep (a base run has every point at {DEEP_DEPTH_M:g} m or deeper)"
+    missing = _missing_feedback(steps)
+    return f"run {run_id} has no {missing} feedback" if missing else None
+
+
+def _thruster_id(run: dict) -> str | None:
+    """The thruster id of a stored run: its metadata, else its protocol's."""
+    return (run.get("metadata") or {}).get("thruster_id") or \
+        ((run.get("protocol") or {}).get("metadata") or {}).get("thruster_id")
+
+
+def _latest_base_run(store: Store, run_id: str) -> str | None:
+    """Most recent completed base run of the same thruster with >= 10 commands, or None."""
+    tid = _thruster_id(store.run(run_id))
     for row in store.runs(limit=10_000):
         if row["id"] == run_id or row["status"] != "completed":
             continue
         steps = store.steps(row["id"])
-        depths = [s["depth_m"] for s in steps]
-        if not steps or any(d is None or d < DEEP_DEPTH_M for d in depths):
+        if _base_problem(row["id"], steps) or len({s["command"] for s in steps}) < 10:
             continue
-        if len({s["command"] for s in steps}) < 10:
-            continue
-        other = store.run(row["id"])
-        otid = (other.get("metadata") or {}).get("thruster_id") or \
-            ((other.get("protocol") or {}).get("metadata") or {}).get("thruster_id")
-        if tid is None or otid == tid:
+        if tid is None or _thruster_id(store.run(row["id"])) == tid:
             return row["id"]
-    raise UsageError(f"no deep base run found for {run_id}: record a deep full-range run "
-                     "(e.g. protocols/luo2020-baseline.yaml) or pass --base RUN_ID")
+    return None
+
+
+def _no_base_run(run_id: str) -> str:
+    return (f"no deep base run found for {run_id}: record a deep full-range run with speed "
+            "and current feedback (e.g. protocols/luo2020-baseline.yaml) or pass --base RUN_ID")
+
+
+def find_base_run(store: Store, run_id: str) -> str:
+    """Most recent completed run of the same thruster, all points deep, with speed and current
+    feedback and >= 10 commands."""
+    base = _latest_base_run(store, run_id)
+    if base is None:
+        raise UsageError(_no_base_run(run_id))
+    return base
+
+
+@dataclass(frozen=True)
+class CavitationStage:
+    """Whether a run gets the quasi-cavitation stage: its base run, or why not."""
+
+    base_run_id: str | None
+    reason: str | None = None  # why there is no stage
+    warn: bool = False  # the run qualifies but has no base run: worth a warning
+
+    @property
+    def warnings(self) -> list[str]:
+        """The warning `calibrate` and `report` both give for a qualifying run left without it."""
+        return [f"no quasi-cavitation section: {self.reason}"] if self.warn else []
+
+
+def cavitation_stage(store: Store, run_id: str, base_ref: str | None) -> CavitationStage:
+    """Decide the quasi-cavitation stage of a run (the one decision calibrate and report share).
+
+    A `base_ref` (--base) is checked: UsageError when the run does not qualify or the base
+    run is not a deep run with speed and current feedback.
+    """
+    reason = cavitation_applicable(store, run_id)
+    if reason is not None:
+        if base_ref:
+            raise UsageError(f"--base {base_ref}: no quasi-cavitation analysis applies: {reason}")
+        return CavitationStage(None, reason)
+    if base_ref:
+        base_id = store.resolve_run_id(base_ref)
+        problem = base_run_problem(store, base_id)
+        if problem:
+            raise UsageError(f"--base {base_ref}: not usable as a base run: {problem}")
+        return CavitationStage(base_id)
+    base_id = _latest_base_run(store, run_id)
+    if base_id is None:
+        return CavitationStage(None, _no_base_run(run_id), warn=True)
+    return CavitationStage(base_id)
 
 
 def build_betm(base: RunData, params: CavitationParams) -> tuple[Betm, list[EstimatorErrors],
@@ -368,11 +457,16 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     """Full quasi-cavitation analysis of `run_id`; stores its "ventilation" events unless
     `store_events` is False (the report reads, `calibrate` writes).
 
+    UsageError when the analysis does not apply or no base run is usable (`cavitation_stage`).
+
     `out_dir` is accepted for the CLI's convenience and not used: write the files with
     `cavitation_artefacts.write_cavitation_artefacts`.
     """
     p = params or CavitationParams()
-    base_id = base_run_id or find_base_run(store, run_id)
+    stage = cavitation_stage(store, run_id, base_run_id)
+    if stage.base_run_id is None:
+        raise UsageError(stage.reason)
+    base_id = stage.base_run_id
     betm, deep_blocks, deep_samples = build_betm(load_run(store, base_id), p)
     run = load_run(store, run_id)
     events, det_blocks = find_events(run, betm, p)

@@ -96,13 +96,12 @@ def load_run(store: Store, run_id: str) -> RunData:
     command = protocol.get("command") or {}
     meta = {**(protocol.get("metadata") or {}), **(run.get("metadata") or {})}
     unit = run.get("command_unit") or command.get("unit") or "percent"
-    neutral = command.get("neutral", NEUTRAL_BY_UNIT.get(unit, 0.0))
     return RunData(
         run_id=run_id,
         name=run.get("name", ""),
         status=run.get("status", ""),
         command_unit=unit,
-        neutral_command=float(neutral),
+        neutral_command=_neutral(run, unit),
         thruster_id=_opt_str(meta.get("thruster_id")),
         propeller_diameter_m=_opt_float(meta.get("propeller_diameter_m")),
         water_density_kg_m3=_opt_float(meta.get("water_density_kg_m3")),
@@ -111,6 +110,16 @@ def load_run(store: Store, run_id: str) -> RunData:
         tares=tares,
         events=[e for e in events if e["kind"] != "tare"],
     )
+
+
+def _neutral(run: dict, unit: str) -> float:
+    """Neutral command of the actuator the run recorded; older and imported runs fall back to
+    the protocol's `command.neutral`, then to the usual neutral of the unit."""
+    recorded = (run.get("actuator") or {}).get("neutral")
+    if recorded is not None:
+        return float(recorded)
+    command = (run.get("protocol") or {}).get("command") or {}
+    return float(command.get("neutral", NEUTRAL_BY_UNIT.get(unit, 0.0)))
 
 
 def _opt_float(value: object) -> float | None:

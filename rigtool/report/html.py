@@ -6,6 +6,7 @@ import math
 import os
 import re
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,11 +19,10 @@ from rigtool.analysis.calibrate import Calibration, DepthSection, calibrate_run
 from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.steady import PointTable
 from rigtool.report import figures as fg
+from rigtool.run_warnings import run_warnings
 from rigtool.store import Store, utc_now
 
-WARN_KINDS = ("limit_trip", "warning", "interrupt")
 VENTILATION_KIND = "sim.ventilation"
-MAX_EVENT_LINES = 12
 UNIT_LABEL = {"percent": "%", "pwm_counts": "PWM counts", "pulse_us": "µs", "rpm": "r/min",
               "amps": "A"}
 REPORT_FILE = "report.html"
@@ -55,10 +55,10 @@ class SectionView:
 
 def write_report(store: Store, run_id: str, out_dir: Path,
                  calibration: Calibration | None = None, *, image_format: str = "svg",
-                 cavitation: object | None = None) -> Path:
+                 cavitation: object | None = None, extra_warnings: Sequence[str] = ()) -> Path:
     """Write `out_dir`/report.html for `run_id` (calibrating it unless given) and return the path."""
     text = render_report(store, run_id, calibration, image_format=image_format,
-                         cavitation=cavitation)
+                         cavitation=cavitation, extra_warnings=extra_warnings)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / REPORT_FILE
@@ -69,8 +69,10 @@ def write_report(store: Store, run_id: str, out_dir: Path,
 
 
 def render_report(store: Store, run_id: str, calibration: Calibration | None = None, *,
-                  image_format: str = "svg", cavitation: object | None = None) -> str:
-    """The report of `run_id` as one HTML string."""
+                  image_format: str = "svg", cavitation: object | None = None,
+                  extra_warnings: Sequence[str] = ()) -> str:
+    """The report of `run_id` as one HTML string; `extra_warnings` (e.g. the quasi-cavitation
+    stage's) join the run's own in the warnings list."""
     if image_format not in IMAGE_FORMATS:
         raise ValueError(f"image_format must be one of {IMAGE_FORMATS}, not {image_format!r}")
     run = store.run(run_id)
@@ -101,8 +103,8 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
         cav_html = Markup(cavitation_section_html(cavitation, image_format))  # type: ignore[arg-type]
     return _template().render(cavitation=cav_html,
         run=run, meta=_meta_rows(run, steps, cal), protocol=_flatten(run.get("protocol") or {}),
-        warnings=_warnings(run, events, cal), events=_event_counts(events), cal=cal,
-        sections=sections, drift=drift, unit=unit, generated=utc_now(),
+        warnings=run_warnings(run, events, cal, extra_warnings), events=_event_counts(events),
+        cal=cal, sections=sections, drift=drift, unit=unit, generated=utc_now(),
         version=rigtool.__version__)
 
 
@@ -135,7 +137,6 @@ def fmt_interval(c: Coefficient) -> Markup:
     if not (math.isfinite(c.lo) and math.isfinite(c.hi)):
         return Markup("–")
     return Markup("{} …<br>{}").format(fmt_num(c.lo), fmt_num(c.hi))
-
 
 def fmt_r2(value: float) -> str:
     """R² with four decimals (so 0.99996 does not print as 1), a dash when undefined."""
@@ -211,42 +212,6 @@ def _flatten(obj: object, prefix: str = "") -> list[tuple[str, str]]:
     if isinstance(obj, list):
         return [(prefix, ", ".join(str(v) for v in obj))]
     return [(prefix, str(obj))]
-
-
-def _event_text(event: dict) -> str:
-    detail = event.get("detail") or {}
-    text = detail.get("message") or ", ".join(f"{k}={v}" for k, v in detail.items()) or "-"
-    where = f" (point {event['step_idx']})" if event.get("step_idx") is not None else ""
-    when = f" at t = {event['t_s']:.1f} s" if event.get("t_s") is not None else ""
-    return f"{event['kind']}{where}{when}: {text}"
-
-
-def _warnings(run: dict, events: list[dict], cal: Calibration | None) -> list[str]:
-    out = []
-    if run["status"] != "completed":
-        reason = run.get("stop_reason") or "no reason recorded"
-        out.append(f"Run {run['status']}: {reason}. The report covers the recorded points only.")
-    noted = [e for e in events if e["kind"] in WARN_KINDS]
-    out += [_event_text(e) for e in noted[:MAX_EVENT_LINES]]
-    if len(noted) > MAX_EVENT_LINES:
-        out.append(f"... and {len(noted) - MAX_EVENT_LINES} more warning event(s)")
-    if cal is None:
-        out.append("No recorded points: nothing to calibrate.")
-    else:
-        out += group_by_depth(cal.warnings, [s.label for s in cal.sections])
-    return out
-
-
-def group_by_depth(warnings: list[str], labels: list[str]) -> list[str]:
-    """Merge "<depth>: text" warnings repeated at several depths into "<d1>, <d2>: text"."""
-    prefixes = tuple(f"{label}: " for label in labels)
-    merged: dict[str, list[str]] = {}
-    for w in warnings:
-        head = next((p for p in prefixes if w.startswith(p)), None)
-        key = w[len(head):] if head else w
-        merged.setdefault(key, []).append(head[:-2] if head else "")
-    return [", ".join(d for d in depths if d) + ": " + text if any(depths) else text
-            for text, depths in merged.items()]
 
 
 def _event_counts(events: list[dict]) -> list[tuple[str, int]]:
