@@ -111,8 +111,10 @@ def _spread(values: np.ndarray) -> dict:
 
 
 def _coef_doc(c: Coefficient) -> dict:
-    return {"value": c.value, "lo": c.lo, "hi": c.hi, "unit": c.unit, "n": c.n, "r2": c.r2,
-            "rms": c.rms, "rms_unit": c.rms_unit, "note": c.note}
+    stat_lo, stat_hi = c.statistical
+    return {"value": c.value, "lo": c.lo, "hi": c.hi, "stat_lo": stat_lo, "stat_hi": stat_hi,
+            "systematic": c.systematic, "unit": c.unit, "n": c.n, "r2": c.r2, "rms": c.rms,
+            "rms_unit": c.rms_unit, "note": c.note}
 
 
 def _section_doc(sec: DepthSection) -> dict:

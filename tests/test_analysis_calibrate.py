@@ -213,8 +213,13 @@ def test_artefacts_formats(can_cal, tmp_path):
     depth = doc["depths"][0]
     assert depth["depth_m"] == 0.5
     cp = depth["coefficients"]["C_p_fwd"]
-    assert set(cp) == {"value", "lo", "hi", "unit", "n", "r2", "rms", "rms_unit", "note"}
-    assert cp["lo"] < cp["value"] < cp["hi"] and cp["unit"] == "N/(r/min)^2"
+    assert set(cp) == {"value", "lo", "hi", "stat_lo", "stat_hi", "systematic", "unit", "n",
+                       "r2", "rms", "rms_unit", "note"}
+    assert cp["lo"] < cp["stat_lo"] < cp["value"] < cp["stat_hi"] < cp["hi"]
+    assert cp["systematic"] == pytest.approx(1e-3 * cp["value"]) and cp["unit"] == "N/(r/min)^2"
+    # The full interval is the statistical one with the allowance added in quadrature.
+    assert cp["hi"] - cp["value"] == pytest.approx(
+        math.hypot(cp["stat_hi"] - cp["value"], cp["systematic"]))
     assert depth["command_curve"]["dead_zones"] == [[0.0, 0.0]]
     assert doc["tare_drift"]["slope"]["unit"] == "N/h"
     assert depth["zero"]["source"] == "dead zones"  # 0.5 m may ventilate

@@ -115,7 +115,7 @@ def test_current_cubic_fit_and_free_exponent():
     n = np.concatenate([_speeds(), _speeds(-1.0)])
     se = np.full(n.size, 0.02)
     cur = CN * np.abs(n) ** 3 + I0 + rng.normal(0, 0.02, n.size)
-    c_n, i_0 = fit_current_speed(n, cur, se, None)
+    c_n, i_0, _ = fit_current_speed(n, cur, se, None)
     assert abs(c_n.value / CN - 1) < 0.03 and c_n.lo < CN < c_n.hi
     assert i_0.value == pytest.approx(I0, abs=0.02) and i_0.lo < I0 < i_0.hi
     assert i_0.hi > i_0.lo
@@ -138,7 +138,7 @@ def test_thrust_from_current_derived_and_direct_agree():
     cur = CN * np.abs(n) ** 3 + I0
     se_f, se_i = np.full(n.size, 0.05), np.full(n.size, 0.01)
     cp = _cp(n[40:], f[40:], se_f[40:])
-    c_n, i_0 = fit_current_speed(n, cur, se_i, None)
+    c_n, i_0, _ = fit_current_speed(n, cur, se_i, None)
     derived = derive_thrust_current(cp, c_n, "C_i_fwd")
     assert derived.value == pytest.approx(CP / CN ** (2 / 3), rel=1e-6)
     assert derived.unit == "N/A^(2/3)" and derived.lo <= derived.value <= derived.hi
@@ -179,3 +179,43 @@ def test_residual_spread():
     assert s.value == pytest.approx(0.5, rel=0.1) and s.lo < 0.5 < s.hi and s.unit == "N"
     s = residual_spread(r, "sigma_n_sample", "", interval=False)
     assert math.isnan(s.lo) and math.isnan(s.hi)
+
+
+def test_derived_interval_uses_the_correlation():
+    from rigtool.analysis.fits import Coefficient
+
+    cp = Coefficient("C_p", 2.0, 1.9, 2.1, "N/(r/min)^2")  # 5 %
+    cn = Coefficient("C_n", 8.0, 6.8, 9.2, "A/(r/min)^3")  # 15 % -> 10 % after the power 2/3
+    independent = derive_thrust_current(cp, cn, "C_i")
+    shared = derive_thrust_current(cp, cn, "C_i", rho=0.9)
+    assert (independent.hi - independent.lo) / 2 == pytest.approx(0.5 * math.hypot(0.05, 0.1))
+    assert (shared.hi - shared.lo) / 2 == pytest.approx(
+        0.5 * math.sqrt(0.05**2 + 0.1**2 - 2 * 0.9 * 0.05 * 0.1))
+
+
+def test_derived_c_i_interval_covers_truth_when_speed_errors_are_shared():
+    """Speed read with a per-point error moves C_p and C_n together: the derived C_i interval,
+    with their estimated correlation, covers the truth at about its stated rate and is
+    narrower than the one that treats them as independent."""
+    from rigtool.analysis.fits import coefficient_correlation
+
+    rng = np.random.default_rng(321)
+    n_true = np.linspace(300.0, 1800.0, 60)
+    truth = CP / CN ** (2 / 3)
+    hits, ratio = 0, []
+    for _ in range(300):
+        n = n_true + rng.normal(0, 4.0, n_true.size)  # the measured mean speed of each point
+        f = CP * n_true**2 + rng.normal(0, 0.02, n_true.size)
+        cur = CN * n_true**3 + I0 + rng.normal(0, 0.002, n_true.size)
+        t = np.arange(n_true.size, dtype=float)
+        thrust = fit_thrust_speed(n, f, np.full(n.size, 0.02), None, t, {"fwd": n > 0})
+        c_n, _, cn_fit = fit_current_speed(n, cur, np.full(n.size, 0.002), None)
+        cp = thrust.coefficient("fwd", "C_p_fwd", "", "")
+        rows = np.arange(n.size)
+        rho = coefficient_correlation(thrust.fit, 0, rows, cn_fit, 0, rows)
+        ci = derive_thrust_current(cp, c_n, "C_i", rho)
+        plain = derive_thrust_current(cp, c_n, "C_i")
+        hits += ci.lo <= truth <= ci.hi
+        ratio.append((ci.hi - ci.lo) / (plain.hi - plain.lo))
+    assert 0.90 <= hits / 300 <= 0.99
+    assert np.median(ratio) < 0.95

@@ -25,11 +25,17 @@ from scipy import optimize, signal, stats
 RPM_PER_RPS = 60.0
 SECONDS_PER_HOUR = 3600.0
 MAX_R1 = 0.98
+DIRECT_MIN_K = 10.0  # direct C_i fit: I - I_0 must exceed this many of its standard errors
 
 
 @dataclass(frozen=True)
 class Coefficient:
-    """A fitted or derived value with its 95 % interval, unit and fit quality."""
+    """A fitted or derived value with its 95 % interval, unit and fit quality.
+
+    lo/hi is the full interval; `systematic` (same unit as the value) is the allowance for
+    what the scatter cannot show, already added in quadrature to lo/hi. The statistical
+    interval alone is `stat_lo`/`stat_hi`.
+    """
 
     name: str
     value: float
@@ -41,6 +47,15 @@ class Coefficient:
     rms: float = math.nan
     rms_unit: str = ""
     note: str = ""
+    systematic: float = 0.0
+    stat_lo: float | None = None
+    stat_hi: float | None = None
+
+    @property
+    def statistical(self) -> tuple[float, float]:
+        """(lo, hi) of the statistical 95 % interval, without the systematic allowance."""
+        return (self.lo if self.stat_lo is None else self.stat_lo,
+                self.hi if self.stat_hi is None else self.stat_hi)
 
 
 @dataclass
@@ -52,6 +67,7 @@ class LinearFit:
     dof: int
     chi2_red: float
     resid: np.ndarray
+    influence: np.ndarray  # beta = influence @ y: one row per coefficient, one column per point
 
     def half_width(self, i: int) -> float:
         t = stats.t.ppf(0.975, max(self.dof, 1))
@@ -68,6 +84,7 @@ def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
     # Columns are scaled to unit norm first: |n|^3 and a constant differ by ten decades.
     beta_s, *_ = np.linalg.lstsq(a / scale, y * w, rcond=None)
     beta = beta_s / scale
+    influence = np.linalg.pinv(a / scale) * w[None, :] / scale[:, None]
     resid = y - design @ beta
     dof = len(y) - design.shape[1]
     chi2_red = float(np.sum((resid * w) ** 2) / dof) if dof > 0 else math.nan
@@ -85,7 +102,36 @@ def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
     cov = bread / np.outer(scale, scale)
     if dof > 0 and chi2_red > 1.0:
         cov = cov * chi2_red
-    return LinearFit(beta, cov, dof, chi2_red, resid)
+    return LinearFit(beta, cov, dof, chi2_red, resid, influence)
+
+
+def coefficient_correlation(fit_a: LinearFit, i: int, rows_a: np.ndarray, fit_b: LinearFit,
+                            j: int, rows_b: np.ndarray) -> float:
+    """Correlation of coefficient i of fit_a with coefficient j of fit_b, from the errors of
+    the points both fits use (`rows_*`: the point index of each fit row, in time order).
+
+    A cross sandwich of the two fits' residuals with a Bartlett lag window (Newey-West): a
+    point's speed error moves the residuals of thrust-vs-speed and current-vs-speed together,
+    and a slow speed error moves neighbouring points too, so C_p and C_n share it.
+    """
+    size = int(max(rows_a.max(initial=-1), rows_b.max(initial=-1))) + 1
+    ua, ub = np.zeros(size), np.zeros(size)
+    ua[rows_a] = fit_a.influence[i] * fit_a.resid
+    ub[rows_b] = fit_b.influence[j] * fit_b.resid
+    if np.intersect1d(rows_a, rows_b).size < 3:
+        return 0.0
+    lags = int(np.ceil(size ** (1 / 3)))
+
+    def long_run(x: np.ndarray, y: np.ndarray) -> float:
+        total = float(x @ y)
+        for k in range(1, min(lags, size - 1) + 1):
+            total += (1 - k / (lags + 1)) * float(x[:-k] @ y[k:] + y[:-k] @ x[k:])
+        return total
+
+    va, vb = long_run(ua, ua), long_run(ub, ub)
+    if va <= 0 or vb <= 0:
+        return 0.0
+    return float(np.clip(long_run(ua, ub) / math.sqrt(va * vb), -1.0, 1.0))
 
 
 def _ar1_correlate(a: np.ndarray, r1: float) -> np.ndarray:
@@ -257,9 +303,10 @@ def thrust_coefficient(cp: Coefficient, diameter_m: float, density_kg_m3: float,
 
 
 def fit_current_speed(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
-                      se_n: np.ndarray | None,
-                      order: np.ndarray | None = None) -> tuple[Coefficient, Coefficient]:
-    """C_n (A/(r/min)^3) and idle current I_0 (A) in I = C_n |n|^3 + I_0 (linear in |n|^3)."""
+                      se_n: np.ndarray | None, order: np.ndarray | None = None
+                      ) -> tuple[Coefficient, Coefficient, LinearFit]:
+    """C_n (A/(r/min)^3) and idle current I_0 (A) in I = C_n |n|^3 + I_0 (linear in |n|^3),
+    and the fit they come from."""
     u = np.abs(n_rpm)
     design = np.column_stack([u**3, np.ones_like(u)])
     fit = wls(design, i_a, se_i, order)
@@ -268,7 +315,7 @@ def fit_current_speed(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
         fit = wls(design, i_a, sigma, order)
     note = "I = C_n |n|^3 + I_0"
     return (_coef("C_n", fit, 0, "A/(r/min)^3", i_a, "A", note),
-            _coef("I_0", fit, 1, "A", i_a, "A", note))
+            _coef("I_0", fit, 1, "A", i_a, "A", note), fit)
 
 
 def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
@@ -316,38 +363,57 @@ def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
     )
 
 
-def derive_thrust_current(cp: Coefficient, cn: Coefficient, name: str) -> Coefficient:
-    """C_i = C_p / C_n^(2/3) (N/A^(2/3)) with the interval by first-order error propagation.
+def derive_thrust_current(cp: Coefficient, cn: Coefficient, name: str,
+                          rho: float = 0.0) -> Coefficient:
+    """C_i = C_p / C_n^(2/3) (N/A^(2/3)), statistical interval by first-order propagation of
+    the statistical intervals of C_p and C_n with their correlation `rho`.
 
-    From f = C_p n^2 and I - I_0 = C_n |n|^3: f = C_i (I - I_0)^(2/3).
+    From f = C_p n^2 and I - I_0 = C_n |n|^3: f = C_i (I - I_0)^(2/3). A common speed error
+    moves C_p and C_n the same way (rho > 0), and cancels in the ratio.
     """
     if cn.value <= 0 or cp.value <= 0:
         return Coefficient(name, math.nan, math.nan, math.nan, "N/A^(2/3)", min(cp.n, cn.n),
                            note="not derivable: C_p or C_n not positive")
     value = cp.value / cn.value ** (2 / 3)
-    rel_p = (cp.hi - cp.lo) / 2 / cp.value
-    rel_n = (cn.hi - cn.lo) / 2 / cn.value
-    hw = value * math.sqrt(rel_p**2 + (2 / 3 * rel_n) ** 2)
+    (p_lo, p_hi), (n_lo, n_hi) = cp.statistical, cn.statistical
+    rel_p = (p_hi - p_lo) / 2 / cp.value
+    rel_n = 2 / 3 * (n_hi - n_lo) / 2 / cn.value
+    hw = value * math.sqrt(max(rel_p**2 + rel_n**2 - 2 * rho * rel_p * rel_n, 0.0))
     return Coefficient(name, value, value - hw, value + hw, "N/A^(2/3)", min(cp.n, cn.n),
                        note="derived: C_p / C_n^(2/3); f = C_i (I - I_0)^(2/3)")
 
 
 def fit_thrust_current(i_a: np.ndarray, i_0: float, f_n: np.ndarray, se_f: np.ndarray,
                        se_i: np.ndarray | None, t_s: np.ndarray,
-                       masks: dict[str, np.ndarray],
-                       zero: ZeroLine | None = None) -> DirectionalFit | None:
+                       masks: dict[str, np.ndarray], zero: ZeroLine | None = None,
+                       se_i0: float = 0.0) -> DirectionalFit | None:
     """f = +-C_i (I - I_0)^(2/3) fitted directly, C_i per direction, with the zero terms
     (or against a given `zero`: the C_p fit's, which the low-current points cannot bias).
 
-    The sign is + for the "fwd" mask and - for "rev" (the current gives no direction).
+    The sign is + for the "fwd" mask and - for "rev" (the current gives no direction). Only
+    points whose I - I_0 exceeds DIRECT_MIN_K times its error (point SE and I_0's) enter:
+    nearer I_0 the power 2/3 turns current noise into thrust error no linearisation holds.
+    The error of I_0 itself is shared by all points: propagate it separately.
     """
-    d = np.maximum(i_a - i_0, 0.0)
+    d = i_a - i_0
+    se_point = np.nan_to_num(se_i) if se_i is not None else np.zeros(d.size)
+    clear = d > DIRECT_MIN_K * np.sqrt(se_point**2 + se_i0**2)
+    masks = {k: v & clear for k, v in masks.items()}
+    d = np.where(clear, d, 0.0)
     sign = np.where(masks.get("rev", np.zeros(d.size, bool)), -1.0, 1.0)
     dx = None
     if se_i is not None:
-        with np.errstate(divide="ignore"):
-            dx = np.where(d > 0, 2 / 3 * d ** (-1 / 3) * se_i, 0.0)
+        dx = np.where(clear, 2 / 3 * np.where(clear, d, 1.0) ** (-1 / 3) * se_point, 0.0)
     return fit_directional(sign * d ** (2 / 3), f_n, se_f, dx, t_s, masks, zero=zero)
+
+
+def widen(c: Coefficient, se: float, z: float = 1.96) -> Coefficient:
+    """`c` with a further independent error of standard error `se` in its interval."""
+    if se <= 0 or not math.isfinite(se):
+        return c
+    extra = z * se
+    return dataclasses.replace(c, lo=c.value - math.hypot(c.value - c.lo, extra),
+                               hi=c.value + math.hypot(c.hi - c.value, extra))
 
 
 def with_systematic(c: Coefficient, rel: float) -> Coefficient:
@@ -361,7 +427,8 @@ def with_systematic(c: Coefficient, rel: float) -> Coefficient:
     extra = rel * abs(c.value)
     return dataclasses.replace(
         c, lo=c.value - math.hypot(c.value - c.lo, extra),
-        hi=c.value + math.hypot(c.hi - c.value, extra))
+        hi=c.value + math.hypot(c.hi - c.value, extra), systematic=extra, stat_lo=c.lo,
+        stat_hi=c.hi)
 
 
 def residual_spread(resid: np.ndarray, name: str, note: str, *, interval: bool) -> Coefficient:

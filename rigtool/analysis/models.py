@@ -11,6 +11,8 @@ sensor-fusion model. Model coefficient intervals carry `rel_systematic` (sensor 
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -18,7 +20,9 @@ import numpy as np
 
 from rigtool.analysis.fits import (
     Coefficient,
+    DirectionalFit,
     ZeroLine,
+    coefficient_correlation,
     derive_thrust_current,
     fit_current_exponent,
     fit_current_speed,
@@ -26,6 +30,7 @@ from rigtool.analysis.fits import (
     fit_thrust_speed,
     residual_spread,
     thrust_coefficient,
+    widen,
     with_systematic,
 )
 from rigtool.analysis.steady import PointTable
@@ -123,7 +128,7 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
         "RMS of sample thrust minus zero minus C_p |n| n over the steady windows; no interval "
         "(samples are autocorrelated)", interval=False)
     if points.current.measured:
-        out.update(_current_models(points, samples, n, masks, result.used, cp, p, result.zero))
+        out.update(_current_models(points, samples, n, masks, thrust_fit, cp, p))
     return result
 
 
@@ -140,9 +145,9 @@ def _signed_model(coef: dict[str, Coefficient], x: np.ndarray,
 
 
 def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
-                    masks: dict[str, np.ndarray], used: np.ndarray,
-                    cp: dict[str, Coefficient], p: FitParams,
-                    zero_line: ZeroLine | None = None) -> dict[str, Coefficient]:
+                    masks: dict[str, np.ndarray], thrust_fit: DirectionalFit,
+                    cp: dict[str, Coefficient], p: FitParams) -> dict[str, Coefficient]:
+    used, zero_line = thrust_fit.used, thrust_fit.zero
     cur, se_i = points.current.mean, points.current.se
     cur_s = samples.current_a
     m = used & np.isfinite(cur)
@@ -152,7 +157,8 @@ def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
         # The driver reports signed current: the model is in its magnitude.
         cur, cur_s = np.abs(cur), np.abs(cur_s)
     out: dict[str, Coefficient] = {}
-    c_n, i_0 = fit_current_speed(n[m], cur[m], se_i[m], points.speed.se[m], points.t_mid_s[m])
+    c_n, i_0, cn_fit = fit_current_speed(n[m], cur[m], se_i[m], points.speed.se[m],
+                                         points.t_mid_s[m])
     c_n = with_systematic(c_n, p.rel_systematic)
     out["C_n"], out["I_0"] = c_n, i_0
     if m.sum() >= 4:
@@ -162,18 +168,28 @@ def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
         except (RuntimeError, ValueError):
             pass
     for key in cp:
-        out[f"C_i_{key}"] = derive_thrust_current(cp[key], c_n, f"C_i_{key}")
+        rho = coefficient_correlation(thrust_fit.fit, thrust_fit.columns.index(key),
+                                      np.flatnonzero(used), cn_fit, 0, np.flatnonzero(m))
+        out[f"C_i_{key}"] = with_systematic(
+            derive_thrust_current(cp[key], c_n, f"C_i_{key}", rho), p.rel_systematic)
     cur_masks = {k: v & m for k, v in masks.items()}
-    direct = fit_thrust_current(cur, i_0.value, points.thrust.mean, points.thrust.se, se_i,
-                                points.t_mid_s, cur_masks, zero_line)
+    se_i0 = (i_0.hi - i_0.lo) / 2 / 1.96 if np.isfinite(i_0.hi - i_0.lo) else 0.0
+
+    def direct_fit(i0: float, zero: ZeroLine) -> DirectionalFit | None:
+        return fit_thrust_current(cur, i0, points.thrust.mean, points.thrust.se, se_i,
+                                  points.t_mid_s, cur_masks, zero, se_i0)
+
+    direct = direct_fit(i_0.value, zero_line)
     if direct is None:
         return out
+    shared = _shared_error_spread(direct, direct_fit, i_0.value, se_i0, zero_line)
     ci = {}
     for key in ("fwd", "rev"):
         if key in direct.columns:
-            ci[key] = with_systematic(direct.coefficient(
+            c = widen(direct.coefficient(
                 key, f"C_i_{key}_direct", "N/A^(2/3)",
-                "fitted directly: f = C_i (I - I_0)^(2/3)"), p.rel_systematic)
+                "fitted directly: f = C_i (I - I_0)^(2/3)"), shared.get(key, 0.0))
+            ci[key] = with_systematic(c, p.rel_systematic)
             out[ci[key].name] = ci[key]
     zero = direct.zero.at(points.t_mid_s)
 
@@ -193,3 +209,27 @@ def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
         "RMS of sample thrust minus zero minus C_i_direct (I - I_0)^(2/3) over the steady "
         "windows; no interval (samples are autocorrelated)", interval=False)
     return out
+
+
+def _shared_error_spread(direct: DirectionalFit,
+                         refit: Callable[[float, ZeroLine], DirectionalFit | None],
+                         i_0: float, se_i0: float, zero: ZeroLine) -> dict[str, float]:
+    """Standard error each direct C_i gets from errors every point shares: the idle current
+    I_0 and the thrust zero's offset and drift (refits at +-1 SE of each; the point scatter
+    cannot show them)."""
+    cov = zero.cov or ((0.0, 0.0), (0.0, 0.0))
+    sd_offset, sd_drift = math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0))
+    var = dict.fromkeys(direct.columns, 0.0)
+    for d_i0, d_offset, d_drift in ((se_i0, 0.0, 0.0), (0.0, sd_offset, 0.0),
+                                    (0.0, 0.0, sd_drift)):
+        if d_i0 == d_offset == d_drift == 0.0:
+            continue
+        up = refit(i_0 + d_i0, dataclasses.replace(
+            zero, offset_n=zero.offset_n + d_offset, drift_n_per_s=zero.drift_n_per_s + d_drift))
+        down = refit(i_0 - d_i0, dataclasses.replace(
+            zero, offset_n=zero.offset_n - d_offset, drift_n_per_s=zero.drift_n_per_s - d_drift))
+        if up is None or down is None or not up.columns == down.columns == direct.columns:
+            continue
+        for k, a, b in zip(direct.columns, up.fit.beta, down.fit.beta, strict=True):
+            var[k] += ((a - b) / 2) ** 2
+    return {k: math.sqrt(v) for k, v in var.items()}

@@ -115,6 +115,7 @@ def _template() -> jinja2.Template:
     env.filters["num"] = fmt_num
     env.filters["unit"] = fmt_unit
     env.filters["interval"] = fmt_interval
+    env.filters["stat_interval"] = fmt_stat_interval
     env.filters["r2"] = fmt_r2
     return env.get_template("report.html")
 
@@ -137,6 +138,15 @@ def fmt_interval(c: Coefficient) -> Markup:
     if not (math.isfinite(c.lo) and math.isfinite(c.hi)):
         return Markup("–")
     return Markup("{} …<br>{}").format(fmt_num(c.lo), fmt_num(c.hi))
+
+
+def fmt_stat_interval(c: Coefficient) -> Markup:
+    """The statistical interval alone, when a systematic allowance widened the full one."""
+    if not c.systematic:
+        return Markup("same")
+    lo, hi = c.statistical
+    return Markup("{} …<br>{}").format(fmt_num(lo), fmt_num(hi))
+
 
 def fmt_r2(value: float) -> str:
     """R² with four decimals (so 0.99996 does not print as 1), a dash when undefined."""
