@@ -199,6 +199,9 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
     rep = repeatability(points.command[ok], points.direction[ok], points.repeat[ok], f[ok])
     depth = float(points.depth_m[0]) if np.isfinite(points.depth_m[0]) else None
     warnings = _section_warnings(points, models.coefficients, curve, zero, p)
+    if zero is not None and zero.source.startswith("assumed"):
+        warnings.append("no tare and no dead points at this depth: the sensor zero is assumed "
+                        "to be 0 (points here may ventilate, so none is fitted through them)")
     if shallow and models.coefficients:
         warnings.append(f"shallower than {p.deep_depth_m:g} m: the propeller may ventilate, so "
                         "these coefficients include any thrust loss; the thruster's own "

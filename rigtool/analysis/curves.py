@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from sklearn.isotonic import isotonic_regression
@@ -360,14 +361,28 @@ def _saturated(cmd: np.ndarray, g: np.ndarray, se: np.ndarray,
     return (0, run) if end == 0 else (n - run, n)
 
 
+class _SideLine(NamedTuple):
+    """A local line through the points on one side of a gap: level at x_ref, slope, and the
+    variance of its value extrapolated to the gap's middle."""
+
+    level: float
+    slope: float
+    var: float
+    x_ref: float
+
+    def at(self, x: float) -> float:
+        return self.level + self.slope * (x - self.x_ref)
+
+
 def _break_aways(cmd: np.ndarray, m: np.ndarray, se: np.ndarray, p: CurveParams) -> list[float]:
     """Commands where thrust steps between two points by more than the neighbours explain.
 
     Lines through up to `JUMP_SIDE` points on each side of a gap are extrapolated to its
     middle; their difference is the jump. It counts when it exceeds `jump_k_se` times its
     noise (the neighbours' scatter about their lines, or their standard errors, whichever is
-    larger) and `jump_ratio` times what the steeper side's slope covers in one step: a kink
-    (saturation knee) differs at mid-gap by at most half a step's slope, a jump by far more.
+    larger), `jump_ratio` times what the steeper side's slope covers in one step (a kink such
+    as a saturation knee differs at mid-gap by at most half a step's slope, a jump by far
+    more), and `jump_frac` of the branch's largest |thrust|.
     """
     out = []
     se0 = np.nan_to_num(se)
@@ -375,27 +390,24 @@ def _break_aways(cmd: np.ndarray, m: np.ndarray, se: np.ndarray, p: CurveParams)
     for i in range(cmd.size - 1):
         left = slice(max(i + 1 - JUMP_SIDE, 0), i + 1)
         right = slice(i + 1, min(i + 1 + JUMP_SIDE, cmd.size))
-        if (left.stop - left.start) + (right.stop - right.start) < 3:
+        lf = _side_line(cmd[left], m[left], se0[left])
+        rf = _side_line(cmd[right], m[right], se0[right])
+        if lf is None and rf is None:
             continue
+        # A side with one point takes the other side's slope.
+        lf = lf or _SideLine(m[i], rf.slope, se0[i] ** 2, cmd[i])
+        rf = rf or _SideLine(m[i + 1], lf.slope, se0[i + 1] ** 2, cmd[i + 1])
         mid = (cmd[i] + cmd[i + 1]) / 2
-        lf, rf = _side_line(cmd[left], m[left], se0[left]), _side_line(cmd[right], m[right],
-                                                                       se0[right])
-        slopes = [f[1] for f in (lf, rf) if f is not None]
-        if not slopes:
-            continue
-        lf = lf or (m[i], slopes[0], se0[i] ** 2, cmd[i])
-        rf = rf or (m[i + 1], slopes[0], se0[i + 1] ** 2, cmd[i + 1])
-        jump = (rf[0] + rf[1] * (mid - rf[3])) - (lf[0] + lf[1] * (mid - lf[3]))
-        noise = float(np.sqrt(lf[2] + rf[2]))
-        step_cover = max(abs(s) for s in slopes) * (cmd[i + 1] - cmd[i])
-        if abs(jump) > max(p.jump_k_se * noise, p.jump_ratio * step_cover, floor):
+        jump = rf.at(mid) - lf.at(mid)
+        step_cover = max(abs(lf.slope), abs(rf.slope)) * (cmd[i + 1] - cmd[i])
+        if abs(jump) > max(p.jump_k_se * math.sqrt(lf.var + rf.var), p.jump_ratio * step_cover,
+                           floor):
             out.append(float(cmd[i + 1] if abs(m[i + 1]) >= abs(m[i]) else cmd[i]))
     return out
 
 
-def _side_line(x: np.ndarray, y: np.ndarray, se: np.ndarray
-               ) -> tuple[float, float, float, float] | None:
-    """(level at x_ref, slope, variance of the level, x_ref) of a line through 2-3 points."""
+def _side_line(x: np.ndarray, y: np.ndarray, se: np.ndarray) -> _SideLine | None:
+    """The line through 2-3 points on one side of a gap (None for fewer than two)."""
     if x.size < 2:
         return None
     x_ref = float(np.mean(x))
@@ -404,7 +416,7 @@ def _side_line(x: np.ndarray, y: np.ndarray, se: np.ndarray
     dof = x.size - 2
     scatter = float(np.sum(resid**2) / dof) if dof > 0 else 0.0
     var_point = max(scatter, float(np.mean(se**2)))
-    return float(level), float(slope), var_point / x.size * JUMP_LEVERAGE, x_ref
+    return _SideLine(float(level), float(slope), var_point / x.size * JUMP_LEVERAGE, x_ref)
 
 
 def _inverse(cmd: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
