@@ -147,6 +147,7 @@ def _section_doc(sec: DepthSection) -> dict:
             "drift_n_per_h": z.drift_n_per_s * 3600.0, "t_ref_s": z.t_ref_s},
         "n_points": len(sec.points),
         "n_points_used_in_fits": int(sec.points.used_in_fits.sum()),
+        "speed_sign": sec.speed_sign,
         "coefficients": {name: _coef_doc(c) for name, c in sec.fits.items()},
         "command_curve": curve,
         "hysteresis": None if h is None else {

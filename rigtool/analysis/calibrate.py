@@ -11,7 +11,14 @@ import rigtool
 from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
 from rigtool.analysis.fits import SECONDS_PER_HOUR, Coefficient, ZeroLine
-from rigtool.analysis.models import FitParams, ModelFits, WindowSamples, fit_models
+from rigtool.analysis.models import (
+    FitParams,
+    ModelFits,
+    WindowSamples,
+    candidate_points,
+    fit_models,
+    speed_sign,
+)
 from rigtool.analysis.quality import (
     Hysteresis,
     Repeatability,
@@ -59,6 +66,7 @@ class DepthSection:
     hysteresis: Hysteresis | None
     repeatability: Repeatability | None
     warnings: list[str]
+    speed_sign: str = "measured"  # or "inferred from command" / "inferred from thrust"
 
     @property
     def label(self) -> str:
@@ -158,6 +166,9 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
                             run.samples.speed_rpm[pick], run.samples.current_a[pick])
 
     ok = points.status == "ok"
+    usable = candidate_points(points, p.fit) & np.isfinite(points.speed.mean)
+    direction = speed_sign(points, run.neutral_command, usable)
+    points.speed_sign = direction.sign
     shallow = bool(np.isfinite(points.depth_m[0]) and points.depth_m[0] < p.deep_depth_m)
     fixed_zero = None
 
@@ -167,9 +178,10 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
         t = points.thrust
         return command_curve(
             points.command[ok], points.t_mid_s[ok], t.mean[ok], t.se[ok], t.min[ok], t.max[ok],
-            points.speed.mean[ok], points.current.mean[ok], command_unit=run.command_unit,
+            points.speed_signed_rpm[ok], points.current.mean[ok], command_unit=run.command_unit,
             neutral_command=run.neutral_command, zero=zero,
-            zero_scatter_n=drift.zero_scatter_n if drift else None, params=p.curve)
+            zero_scatter_n=drift.zero_scatter_n if drift else None,
+            speed_se=points.speed.se[ok], params=p.curve)
 
     if shallow:
         # Points near the surface may be ventilating: the zero comes from dead points or tares.
@@ -181,7 +193,8 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
 
     def fit() -> ModelFits:
         return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
-                          density_kg_m3=run.water_density_kg_m3, params=p.fit, zero=fixed_zero)
+                          density_kg_m3=run.water_density_kg_m3, params=p.fit, zero=fixed_zero,
+                          direction=direction)
 
     models = fit()
     if not shallow:
@@ -198,7 +211,7 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
     hyst = hysteresis(points.command[ok], points.direction[ok], f[ok], points.thrust.se[ok])
     rep = repeatability(points.command[ok], points.direction[ok], points.repeat[ok], f[ok])
     depth = float(points.depth_m[0]) if np.isfinite(points.depth_m[0]) else None
-    warnings = _section_warnings(points, models.coefficients, curve, zero, p)
+    warnings = _section_warnings(points, models.coefficients, curve, zero, p) + models.warnings
     if zero is not None and zero.source.startswith("assumed"):
         warnings.append("no tare and no dead points at this depth: the sensor zero is assumed "
                         "to be 0 (points here may ventilate, so none is fitted through them)")
@@ -206,7 +219,8 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
         warnings.append(f"shallower than {p.deep_depth_m:g} m: the propeller may ventilate, so "
                         "these coefficients include any thrust loss; the thruster's own "
                         "coefficients come from a deep run")
-    return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep, warnings)
+    return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep, warnings,
+                        models.speed_sign)
 
 
 def tare_zero(tares: Tares, drift: TareDrift | None, t_s: np.ndarray) -> ZeroLine:

@@ -46,6 +46,7 @@ class CurveParams:
     jump_ratio: float = 2.0
     jump_frac: float = 0.02
     jump_k_se: float = 8.0
+    speed_floor_frac: float = 0.005  # with speed feedback: slower than this x the top is stopped
 
 
 @dataclass
@@ -179,32 +180,42 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
                   thrust_se: np.ndarray, thrust_min: np.ndarray, thrust_max: np.ndarray,
                   speed_mean: np.ndarray, current_mean: np.ndarray, *, command_unit: str,
                   neutral_command: float, zero: ZeroLine | None = None,
-                  zero_scatter_n: float | None = None,
+                  zero_scatter_n: float | None = None, speed_se: np.ndarray | None = None,
                   params: CurveParams | None = None) -> CommandCurve:
     """Analyse thrust vs command of one depth's points (one entry per point, any order).
 
     Thrust is taken relative to `zero` (offset + drift of the sensor zero at each point's
-    time t_s); without one, the zero is estimated from the dead points themselves.
+    time t_s); without one, the zero is estimated from the dead points themselves. Where the
+    propeller speed is measured (signed, `speed_se` its standard errors), a command is dead
+    when the propeller does not turn, and branches follow the direction it turns: near a
+    deadband the thrust is too small to tell either.
     """
     p = params or CurveParams()
     floor = max(p.floor_n, p.k_tare * zero_scatter_n if zero_scatter_n else 0.0)
     line = zero or _zero_from_dead_points(command, t_s, thrust_mean, thrust_se, floor, p)
     z = line.at(t_s) if line else np.zeros(command.size)
     var_z = line.var_at(t_s) if line else np.zeros(command.size)
-    cmd, k, m, se, lo, hi, spd, cur, var_zero = aggregate(
+    n_se = np.full(command.size, np.nan) if speed_se is None else speed_se
+    cmd, k, m, se, lo, hi, spd, cur, var_zero, spd_se = aggregate(
         command, thrust_mean - z, thrust_se, thrust_min - z, thrust_max - z, speed_mean,
-        current_mean, var_z)
+        current_mean, var_z, n_se)
     se_dead = np.sqrt(se**2 + var_zero)  # a point is dead if zero within the zero's own error
     dead = find_dead(m, se_dead, floor, p)
     if dead.sum() >= MIN_ZERO_POINTS:
         # The dead points' own scatter about zero shows how well the zero is known.
         floor = max(floor, p.k_zero * 1.4826 * float(np.median(np.abs(m[dead]))))
         dead = find_dead(m, se_dead, floor, p)
+    direction = np.sign(m)
+    if np.isfinite(spd).all() and np.any(spd != 0):
+        turning = np.abs(spd) > np.maximum(p.k_se * np.nan_to_num(spd_se),
+                                           p.speed_floor_frac * float(np.max(np.abs(spd))))
+        dead = ~turning
+        direction = np.where(spd != 0, np.sign(spd), direction)
     state = np.where(dead, "dead", "live").astype("<U9")
     branch_of = np.full(cmd.size, -1)
     fit = np.zeros(cmd.size)
     branches = []
-    for start, stop in _live_segments(m, dead):
+    for start, stop in _live_segments(direction, dead):
         sl = slice(start, stop)
         b = _branch(cmd[sl], m[sl], se[sl], neutral_command, p)
         branch_of[sl] = len(branches)
@@ -296,11 +307,11 @@ def _robust_wls(design: np.ndarray, y: np.ndarray, se: np.ndarray, t: np.ndarray
     return fit
 
 
-def _live_segments(mean: np.ndarray, dead: np.ndarray) -> list[tuple[int, int]]:
-    """Runs of live commands, split where the thrust changes sign."""
+def _live_segments(direction: np.ndarray, dead: np.ndarray) -> list[tuple[int, int]]:
+    """Runs of live commands, split where the direction (sign of thrust or speed) changes."""
     out = []
     for start, stop in _runs(~dead):
-        sign = np.sign(mean[start:stop])
+        sign = direction[start:stop]
         cuts = np.flatnonzero(sign[1:] != sign[:-1]) + 1
         bounds = [0, *cuts.tolist(), stop - start]
         out.extend((start + a, start + b) for a, b in zip(bounds[:-1], bounds[1:], strict=True))

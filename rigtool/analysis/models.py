@@ -36,6 +36,10 @@ from rigtool.analysis.fits import (
 from rigtool.analysis.steady import PointTable
 
 DIRECTIONS = (("fwd", 1.0), ("rev", -1.0))
+FAST_FRAC = 0.2  # "fast" points: |speed| above this fraction of the largest
+UNSIGNED_MAX_NEGATIVE = 0.05  # fewer fast points below zero than this: the feedback is unsigned
+WRONG_SIGN_FRAC = 0.2  # signed feedback contradicting the thrust on more fast points: warn
+COMMAND_SIDE_AGREE = 0.95  # the command side of neutral gives the direction when this consistent
 
 
 @dataclass(frozen=True)
@@ -65,21 +69,70 @@ class ModelFits:
     coefficients: dict[str, Coefficient] = field(default_factory=dict)
     used: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     zero: ZeroLine | None = None
+    speed_sign: str = "measured"  # or "inferred from command" / "inferred from thrust"
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class SpeedSign:
+    """Per-point direction of the propeller (+1, -1; 0 where unknown) and where it came from."""
+
+    sign: np.ndarray
+    source: str
+    warnings: list[str]
 
 
 def candidate_points(points: PointTable, params: FitParams) -> np.ndarray:
-    """Points whose window is usable for any fit: status ok, enough samples, not dead."""
-    return ((points.status == "ok") & (points.n_window >= params.min_window)
-            & np.isfinite(points.thrust.mean) & ~points.dead)
+    """Points whose window is usable for any fit: status ok, enough samples (or one sample: a
+    table row that already is a point mean), not dead."""
+    enough = (points.n_window >= params.min_window) | (points.n_samples == 1)
+    return ((points.status == "ok") & enough & np.isfinite(points.thrust.mean) & ~points.dead)
+
+
+def speed_sign(points: PointTable, neutral_command: float, use: np.ndarray) -> SpeedSign:
+    """The propeller's direction at each point.
+
+    Signed feedback is kept (with a warning naming the columns when its sign contradicts the
+    thrust on the fast points). Unsigned feedback (no fast point below zero while thrust takes
+    both signs, as optical tachometers and manufacturer tables give it) takes its sign from
+    the command's side of neutral, oriented by the thrust, or, where the command does not
+    tell (both directions on one side, as on the STM32 bridge), from the sign of the thrust.
+    """
+    n, f = points.speed.mean, points.thrust.mean
+    sign = np.sign(np.nan_to_num(n))
+    ok = use & np.isfinite(n) & np.isfinite(f)
+    if not ok.any():
+        return SpeedSign(sign, "measured", [])
+    fast = ok & (np.abs(n) > FAST_FRAC * np.max(np.abs(n[ok]))) & (f != 0)
+    if not fast.any():
+        return SpeedSign(sign, "measured", [])
+    thrust_sign = np.sign(f)
+    if np.mean(n[fast] < 0) >= UNSIGNED_MAX_NEGATIVE or not (thrust_sign[fast] < 0).any():
+        wrong = int(np.sum(sign[fast] != thrust_sign[fast]))
+        warnings = []
+        if wrong > WRONG_SIGN_FRAC * fast.sum():
+            warnings.append(f"speed_rpm sign disagrees with thrust_n on {wrong} of "
+                            f"{int(fast.sum())} fast points (check the sign convention of the "
+                            "speed feedback or of the thrust axis)")
+        return SpeedSign(sign, "measured", warnings)
+    side = np.sign(points.command - neutral_command)
+    sided = fast & (side != 0)
+    orient = np.sign(np.sum(side[sided] * thrust_sign[sided])) if sided.any() else 0.0
+    agree = np.mean(side[sided] * orient == thrust_sign[sided]) if sided.any() else 0.0
+    if orient != 0 and agree >= COMMAND_SIDE_AGREE:
+        inferred = np.where(side != 0, side * orient, thrust_sign)
+        return SpeedSign(inferred, "inferred from command", [])
+    return SpeedSign(thrust_sign, "inferred from thrust", [])
 
 
 def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float | None,
                density_kg_m3: float | None, params: FitParams | None = None,
-               zero: ZeroLine | None = None) -> ModelFits:
+               zero: ZeroLine | None = None, direction: SpeedSign | None = None) -> ModelFits:
     """All speed/current model coefficients of one depth.
 
     The thrust zero is fitted jointly with C_p unless `zero` is given (points that may be
-    ventilating must not set the zero).
+    ventilating must not set the zero). `direction` gives unsigned speed feedback its sign
+    (see `speed_sign`; default: the feedback as measured).
     """
     p = params or FitParams()
     use = candidate_points(points, p)
@@ -92,11 +145,11 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
     use &= np.isfinite(n)
     if not use.any():
         return result
-    fast = use & (np.abs(n) > 0.2 * np.max(np.abs(n[use])))
-    if np.all(n[use] >= 0) and np.any(f[fast] < 0):
-        # Speed feedback without sign: take the direction from the thrust.
-        n = np.abs(n) * np.sign(f)
-        n_s = np.abs(n_s) * np.sign(f)[samples.point]
+    if direction is not None:
+        result.speed_sign, result.warnings = direction.source, direction.warnings
+        if direction.source != "measured":
+            n = np.abs(n) * direction.sign
+            n_s = np.abs(n_s) * direction.sign[samples.point]
     n_min = max(p.min_speed_rpm, p.min_speed_frac * float(np.max(np.abs(n[use]))))
     masks = {"fwd": use & (n > n_min), "rev": use & (n < -n_min)}
     thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero)

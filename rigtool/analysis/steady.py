@@ -94,6 +94,15 @@ class PointTable:
     dead: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     used_in_fits: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     thrust_zero_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    speed_sign: np.ndarray = field(default_factory=lambda: np.zeros(0))  # set by the fits
+
+    @property
+    def speed_signed_rpm(self) -> np.ndarray:
+        """Mean speed with the direction the fits used (unsigned feedback gets a sign)."""
+        n = self.speed.mean
+        if self.speed_sign.size != n.size:
+            return n
+        return np.where(self.speed_sign != 0, np.abs(n) * self.speed_sign, n)
 
     @property
     def thrust_corrected_n(self) -> np.ndarray:
@@ -139,6 +148,7 @@ class SteadyWindows:
             unsteady=self.unsteady, thrust=self.channels["thrust_n"],
             speed=self.channels["speed_rpm"], current=self.channels["current_a"],
             dead=np.zeros(n, bool), used_in_fits=np.zeros(n, bool), thrust_zero_n=np.zeros(n),
+            speed_sign=np.zeros(n),
         )
 
 

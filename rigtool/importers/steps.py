@@ -113,10 +113,14 @@ def _pattern(n: int) -> np.ndarray:
 
 
 def point_steps(p: Parsed, depth_m: float | None) -> tuple[list[ImportedStep], list[str]]:
-    """One point per row; with std and n columns the point gets n samples of that mean and std."""
+    """One point per row; with std and n columns the point gets n samples of that mean and std.
+
+    Without a time column every row gets t = 0: a table has no time axis, so nothing (a zero
+    drift, say) may be fitted against the row order.
+    """
     n_rows = p.lines.size
     t = p.values["time"] - p.values["time"][0] if "time" in p.values and n_rows else (
-        np.arange(n_rows, dtype=float))
+        np.zeros(n_rows))
     std = p.values.get("thrust_std")
     count = p.values.get("n_samples")
     steps, label = [], _Labeller()

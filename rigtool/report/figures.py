@@ -129,16 +129,6 @@ def _rows(ax: Axes, ncol: int) -> float:
     return LEGEND_ROW_IN * math.ceil(n / ncol) + 0.1
 
 
-def signed_speed(points: PointTable) -> np.ndarray:
-    """Speed with a sign: unsigned feedback takes its direction from the thrust (as the fits do)."""
-    n = points.speed.mean.copy()
-    f = points.thrust.mean
-    ok = np.isfinite(n) & np.isfinite(f)
-    if ok.any() and np.all(n[ok] >= 0) and np.any(f[ok] < 0):
-        n = np.abs(n) * np.sign(f)
-    return n
-
-
 def _cp_model(fits: dict[str, Coefficient], n: np.ndarray) -> np.ndarray:
     """C_p |n| n with the forward or reverse coefficient by the sign of n (NaN without one)."""
     out = np.full(n.shape, np.nan)
@@ -155,7 +145,7 @@ def thrust_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
     is taken relative to the estimated sensor zero (offset and drift), as the fit saw it."""
     fig = _figure(TALL, hspace=0.08)
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1.3])
-    n, f = signed_speed(points), points.thrust_corrected_n
+    n, f = points.speed_signed_rpm, points.thrust_corrected_n
     used = points.used_in_fits
     other = ~used & np.isfinite(n) & np.isfinite(f)
     top.plot(n[other], f[other], "o", mfc="none", color=GREY, label="not in fit")
@@ -187,7 +177,7 @@ def current_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
     """Motor current vs propeller speed with I = C_n |n|^3 + I_0 (and the free-exponent fit)."""
     fig = _figure(WIDE)
     ax = fig.subplots()
-    n, cur = signed_speed(points), points.current.mean.copy()
+    n, cur = points.speed_signed_rpm, points.current.mean.copy()
     rev = points.used_in_fits & (n < 0) & np.isfinite(cur)
     if rev.any() and np.median(cur[rev]) < 0:
         cur = np.abs(cur)
