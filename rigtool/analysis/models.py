@@ -7,6 +7,8 @@ dead-zone points and points without a usable window are left out. The residual s
 sigma_n (speed-based thrust) and sigma_i (current-based thrust, about the directly fitted
 C_i) are given per point mean and per sample, after removing the fitted zero, for the
 sensor-fusion model. Model coefficient intervals carry `rel_systematic` (sensor scale).
+Points that carry no error of their own (table rows, means of a few samples) are weighted by
+the scatter about a first fit, modelled as growing with the thrust (or current).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import optimize
 
 from rigtool.analysis.fits import (
     Coefficient,
@@ -36,10 +39,13 @@ from rigtool.analysis.fits import (
 from rigtool.analysis.steady import PointTable
 
 DIRECTIONS = (("fwd", 1.0), ("rev", -1.0))
-FAST_FRAC = 0.2  # "fast" points: |speed| above this fraction of the largest
+FAST_FRAC = 0.3  # "fast" points: |speed| above this fraction of the largest (9 % of thrust)
+STOPPED_FRAC = 0.005  # slower than this fraction of the largest speed: propeller stopped
 UNSIGNED_MAX_NEGATIVE = 0.05  # fewer fast points below zero than this: the feedback is unsigned
 WRONG_SIGN_FRAC = 0.2  # signed feedback contradicting the thrust on more fast points: warn
 COMMAND_SIDE_AGREE = 0.95  # the command side of neutral gives the direction when this consistent
+SCATTER_ITERATIONS = 4  # reweighted fits of the scatter model of table rows
+SCATTER_FLOOR = 1e-3  # no row's scatter variance below this x the mean (none noiseless)
 
 
 @dataclass(frozen=True)
@@ -83,10 +89,20 @@ class SpeedSign:
 
 
 def candidate_points(points: PointTable, params: FitParams) -> np.ndarray:
-    """Points whose window is usable for any fit: status ok, enough samples (or one sample: a
-    table row that already is a point mean), not dead."""
-    enough = (points.n_window >= params.min_window) | (points.n_samples == 1)
-    return ((points.status == "ok") & enough & np.isfinite(points.thrust.mean) & ~points.dead)
+    """Points whose window is usable for any fit: status ok, not dead, enough samples.
+
+    Enough is `min_window`, or one (a table row is a point mean already), or any number when
+    most points are that short (a log that holds each command briefly: its points are used
+    as point means, see `single_readings`).
+    """
+    ok = (points.status == "ok") & np.isfinite(points.thrust.mean) & ~points.dead
+    return ok & ((points.n_window >= params.min_window) | (points.n_samples == 1)
+                 | _short_log(points, ok, params))
+
+
+def _short_log(points: PointTable, ok: np.ndarray, params: FitParams) -> bool:
+    """True when most usable points have fewer than `min_window` samples in their window."""
+    return bool(ok.any() and np.median(points.n_window[ok]) < params.min_window)
 
 
 def speed_sign(points: PointTable, neutral_command: float, use: np.ndarray) -> SpeedSign:
@@ -97,13 +113,16 @@ def speed_sign(points: PointTable, neutral_command: float, use: np.ndarray) -> S
     both signs, as optical tachometers and manufacturer tables give it) takes its sign from
     the command's side of neutral, oriented by the thrust, or, where the command does not
     tell (both directions on one side, as on the STM32 bridge), from the sign of the thrust.
+    Thrust is taken relative to the thrust with the propeller stopped (the sensor's zero).
     """
-    n, f = points.speed.mean, points.thrust.mean
+    n = points.speed.mean
     sign = np.sign(np.nan_to_num(n))
-    ok = use & np.isfinite(n) & np.isfinite(f)
+    ok = use & np.isfinite(n) & np.isfinite(points.thrust.mean)
     if not ok.any():
         return SpeedSign(sign, "measured", [])
-    fast = ok & (np.abs(n) > FAST_FRAC * np.max(np.abs(n[ok]))) & (f != 0)
+    top = float(np.max(np.abs(n[ok])))
+    f = points.thrust.mean - _stopped_thrust(points, ok, top)
+    fast = ok & (np.abs(n) > FAST_FRAC * top) & (f != 0)
     if not fast.any():
         return SpeedSign(sign, "measured", [])
     thrust_sign = np.sign(f)
@@ -123,6 +142,44 @@ def speed_sign(points: PointTable, neutral_command: float, use: np.ndarray) -> S
         inferred = np.where(side != 0, side * orient, thrust_sign)
         return SpeedSign(inferred, "inferred from command", [])
     return SpeedSign(thrust_sign, "inferred from thrust", [])
+
+
+def single_readings(points: PointTable, params: FitParams) -> np.ndarray:
+    """Points whose speed is one reading (a table row, even one stored as n samples of its
+    mean and std) or a mean of too few samples to judge its error: only the scatter about
+    the fit can tell their errors."""
+    se = points.speed.se
+    return ~(np.isfinite(se) & (se > 0)) | (points.n_window < params.min_window)
+
+
+def scatter_se(pred: np.ndarray, resid: np.ndarray, se: np.ndarray) -> np.ndarray:
+    """Standard errors that make the scatter about a first fit (`pred`, `resid`) their own:
+    `se` plus what it does not explain, a + b |pred| + c pred^2 (absolute noise, speed noise,
+    relative noise), so no point is weighted as if noiseless.
+
+    The variance model is fitted to the squared residuals, reweighted by its own values (a
+    squared residual scatters in proportion to its variance).
+    """
+    stated = np.nan_to_num(se) ** 2
+    excess = resid**2 - stated
+    design = np.column_stack([np.ones(pred.size), np.abs(pred), pred**2])
+    var = np.full(pred.size, max(float(np.mean(np.maximum(excess, 0.0))), 0.0))
+    if not var[0] > 0:
+        return se
+    for _ in range(SCATTER_ITERATIONS):
+        a = design / var[:, None]
+        norm = np.linalg.norm(a, axis=0)
+        norm[norm == 0] = 1.0
+        coef, _ = optimize.nnls(a / norm, excess / var)
+        var = np.maximum(design @ (coef / norm), SCATTER_FLOOR * float(np.mean(var)))
+    return np.sqrt(stated + var)
+
+
+def _stopped_thrust(points: PointTable, ok: np.ndarray, top_rpm: float) -> float:
+    """Median thrust where the propeller stands still (the sensor's zero; 0 without such
+    points): the slow points' thrust is judged against it, not against a zero it may miss."""
+    stopped = ok & (np.abs(points.speed.mean) <= STOPPED_FRAC * top_rpm)
+    return float(np.median(points.thrust.mean[stopped])) if stopped.any() else 0.0
 
 
 def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float | None,
@@ -155,6 +212,10 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
     thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero)
     if thrust_fit is None:
         return result
+    single = single_readings(points, p)
+    if (single & thrust_fit.used).any():
+        se_f = _scatter_weights(thrust_fit, se_f, single)
+        thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero) or thrust_fit
     out = result.coefficients
     cp = {}
     for key in ("fwd", "rev"):
@@ -181,8 +242,33 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
         "RMS of sample thrust minus zero minus C_p |n| n over the steady windows; no interval "
         "(samples are autocorrelated)", interval=False)
     if points.current.measured:
-        out.update(_current_models(points, samples, n, masks, thrust_fit, cp, p))
+        weighted = _current_scatter_weights(points, n, single & result.used)
+        out.update(_current_models(weighted, samples, n, masks, thrust_fit, cp, p))
     return result
+
+
+def _scatter_weights(fit: DirectionalFit, se: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """`se` of the fitted points among `rows` replaced by `scatter_se` of their residuals."""
+    used = np.flatnonzero(fit.used)
+    pick = rows[used]
+    out = np.array(se, dtype=float)
+    out[used[pick]] = scatter_se((fit.y - fit.fit.resid)[pick], fit.fit.resid[pick],
+                                 se[used[pick]])
+    return out
+
+
+def _current_scatter_weights(points: PointTable, n: np.ndarray, rows: np.ndarray) -> PointTable:
+    """`points` with the current SE at `rows` (one reading each) from the scatter about a
+    first I = C_n |n|^3 + I_0 fit, so C_n weighs table rows by their noise, not equally."""
+    cur = points.current
+    m = rows & np.isfinite(cur.mean)
+    if m.sum() < 4:
+        return points
+    i_abs = np.abs(cur.mean[m])
+    fit = fit_current_speed(n[m], i_abs, cur.se[m], None)[2]
+    se = cur.se.copy()
+    se[m] = scatter_se(i_abs - fit.resid, fit.resid, cur.se[m])
+    return dataclasses.replace(points, current=dataclasses.replace(cur, se=se))
 
 
 def _signed_model(coef: dict[str, Coefficient], x: np.ndarray,

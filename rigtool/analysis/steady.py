@@ -268,8 +268,6 @@ def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points:
         se_ar1 = std / np.sqrt(n_eff)
     se = np.fmax(se_ar1, batch_se)
     mean = np.where(cnt > 0, mean, np.nan)
-    se = np.where(cnt > 1, se, np.nan)
-    std = np.where(cnt > 1, std, np.nan)
     lo = np.full(n_points, np.nan)
     hi = np.full(n_points, np.nan)
     nonempty = np.flatnonzero(np.diff(offsets) > 0)
@@ -279,6 +277,11 @@ def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points:
             warnings.simplefilter("ignore", RuntimeWarning)
             lo[nonempty] = np.fmin.reduceat(x, starts)
             hi[nonempty] = np.fmax.reduceat(x, starts)
+    # A channel that never varies in the window (one reading repeated, as a table row is
+    # stored) shows no error: its standard error is unknown, not zero (nor rounding noise).
+    flat = lo == hi
+    se = np.where((cnt > 1) & ~flat, se, np.nan)
+    std = np.where(cnt > 1, np.where(flat, 0.0, std), np.nan)
     return ChannelStats(unit, mean, std, se, lo, hi)
 
 
