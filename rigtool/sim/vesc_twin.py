@@ -73,7 +73,8 @@ class VescTwin(CanBusTwin):
     def address(self) -> dict:
         """What a vesc-can rig section needs to reach this twin."""
         return {"interface": self.interface, "channel": self.channel,
-                "controller_id": self.controller_id, "pole_pairs": self.pole_pairs}
+                "controller_id": self.controller_id, "pole_pairs": self.pole_pairs,
+                "command_timeout_s": self.timeout_s}
 
     # ----- receiving -----
 
