@@ -461,7 +461,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--depth", type=float, default=1.0, help="initial propeller depth (m)")
     p.add_argument("--fault", action="append", metavar="PART.SWITCH=VALUE",
                    help="inject a fault, e.g. netft.drop=0.01, netft.silent=true, bridge.garbage=true, "
-                        "bridge.no_replies=true, vesc.fault_code=4, stage.stalled=true (repeatable)")
+                        "bridge.no_replies=true, vesc.fault_code=4, vesc.deaf=true, stage.stalled=true "
+                        "(repeatable)")
     p.add_argument("--rig-out", help="also write the rig file here")
     p.set_defaults(func=cmd_sim)
 

@@ -21,7 +21,7 @@ from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
 from rigtool.rig import RigSet
-from rigtool.safety import LimitMonitor
+from rigtool.safety import FollowMonitor, LimitMonitor
 from rigtool.store import StepRecord, Store
 
 CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this often
@@ -94,6 +94,8 @@ class Engine:
         self.confirm = confirm
         self.clock = rig.clock
         self.limits = LimitMonitor(protocol.limits)
+        self.follow = FollowMonitor(rig.actuator.info,
+                                    getattr(rig.actuator, "expected_speed_rpm", None))
         self.unit = rig.actuator.info.command_unit
         self._command = rig.actuator.info.neutral
         self._t0 = 0.0
@@ -131,7 +133,7 @@ class Engine:
                 status, reason = "aborted", str(exc)
                 signals.closing = True
                 self._safe_neutral()
-                self._event("limit_trip", {"message": str(exc)})
+                self._event("limit_trip", {"message": str(exc), **exc.detail})
             except DeviceError as exc:
                 status, reason = "aborted", f"device fault: {exc}"
                 signals.closing = True
@@ -182,7 +184,8 @@ class Engine:
                     raise
                 stored = self._stored_idx == step.idx
                 neutral = "Thruster at neutral" if self._safe_neutral() else "NEUTRAL FAILED"
-                self._event("limit_trip", {"message": str(trip), "action": "paused"}, step.idx)
+                self._event("limit_trip", {"message": str(trip), **trip.detail, "action": "paused"},
+                            step.idx)
                 self.limits.reset()
                 what = "Continue with the next point" if stored else f"Retry point {step.idx}"
                 try:
@@ -199,10 +202,13 @@ class Engine:
         timing = self.protocol.timing
         rate = timing.acquire.rate_hz
         t_start = self._now()
+        self.follow.start_point()
         self._ramp_to(step.command, step)
+        self.follow.hold(step.command, self.clock.now())
         settle_s, settled = self._settle(step, rate)
         t_acq = self._now()
         samples = self._acquire(step, timing.acquire.n_samples, rate)
+        self.follow.release()
         self._ramp_to(self.rig.actuator.info.neutral, step)
         record = StepRecord(
             idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
@@ -289,6 +295,7 @@ class Engine:
         # held over: one bad 50 Hz frame would otherwise count as 20 samples at 1 kHz
         self.limits.check({"thrust_n": out["thrust_n"], "current_a": feedback.current_a,
                            "speed_rpm": feedback.speed_rpm})
+        self.follow.check(feedback)
         if step is not None and self.reporter.wants_live:
             self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
         return out

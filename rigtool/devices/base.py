@@ -60,7 +60,12 @@ class ActuatorInfo:
 
 @runtime_checkable
 class Actuator(Protocol):
-    """Sets a command; can always be put in its safe neutral state."""
+    """Sets a command; can always be put in its safe neutral state.
+
+    Optionally, `expected_speed_rpm(command) -> float | None` gives the steady speed a
+    command should produce where the driver knows it (speed control, the twin's map);
+    the engine then checks that the speed feedback follows (rigtool/safety.py).
+    """
 
     info: ActuatorInfo
 

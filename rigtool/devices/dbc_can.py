@@ -228,6 +228,12 @@ class DbcCanDriver:
             return
         self._link.command(self._command_frame(self.config.neutral), retry=True)
 
+    def expected_speed_rpm(self, command: float) -> float | None:
+        """A command in r/min is the speed the drive holds; other units: unknown."""
+        if self.info.command_unit != "rpm":
+            return None
+        return min(max(command, self.info.command_min), self.info.command_max)
+
     def read_feedback(self) -> FeedbackBlock:
         """Feedback samples since the last call; DeviceError on a reported fault or on silence."""
         if self._fault is not None:

@@ -182,6 +182,12 @@ class VescCanDriver:
             return
         self._link.command(self._message(SET_CURRENT, 0.0), retry=True)
 
+    def expected_speed_rpm(self, command: float) -> float | None:
+        """In rpm mode the VESC's speed loop holds the commanded speed; otherwise unknown."""
+        if self.config.mode != "rpm":
+            return None
+        return self._to_protocol(command) / self.config.pole_pairs
+
     def read_feedback(self) -> FeedbackBlock:
         """Status samples since the last call; DeviceError on a fault or on silence."""
         if self._fault:
