@@ -161,8 +161,10 @@ class Engine:
     def _prepare_depth(self, step: PlanStep) -> None:
         if step.depth_m != self._depth:
             self._ramp_to(self.rig.actuator.info.neutral)
-            reached = self.rig.depth_stage.move_to(step.depth_m)
-            self._event("depth", {"target_m": step.depth_m, "reached_m": reached}, step.idx)
+            stage = self.rig.depth_stage
+            reached = stage.move_to(step.depth_m)
+            self._event("depth", {"target_m": step.depth_m, "reached_m": reached,
+                                  "by": stage.reached_by}, step.idx)
             self._depth = step.depth_m
             if self.protocol.timing.tare == "per_depth":
                 self._tare("per_depth", step.idx)

@@ -106,6 +106,8 @@ class SimForceSensor:
 class SimDepthStage:
     """A motorised truss on the twin: takes time to move, then the twin sees the new depth."""
 
+    reached_by = "simulator"
+
     def __init__(self, world: SimWorld) -> None:
         self.world = world
 
