@@ -154,7 +154,23 @@ def cmd_show(args: argparse.Namespace) -> int:
         counts[ev["kind"]] = counts.get(ev["kind"], 0) + 1
     if counts:
         out.print("  events: " + ", ".join(f"{k} x{v}" for k, v in sorted(counts.items())))
+    for line in _counters_lines(store.transport_counters(run_id), len(steps)):
+        out.print(line, markup=False)
     return 0
+
+
+def _counters_lines(summary: dict, n_points: int) -> list[str]:
+    """Transport counters over the stored points, and which points had problems, for `show`."""
+    if not summary["totals"]:
+        return ["  transport counters: none stored (simulated devices, or an older run)"]
+    lines = ["  transport counters over the stored points:"]
+    for role, counters in summary["totals"].items():
+        lines.append(f"    {role}: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
+    bad = summary["problem_points"]
+    shown = ", ".join(str(i) for i in bad[:10]) + (", ..." if len(bad) > 10 else "")
+    lines.append(f"  points with lost, garbage or failed frames: {len(bad)} of {n_points}"
+                 + (f" (points {shown})" if bad else ""))
+    return lines
 
 
 def _actuator_text(actuator: dict) -> str:

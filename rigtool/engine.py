@@ -20,7 +20,7 @@ from rigtool.errors import DeviceError, SafetyTrip, StoreError
 from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
-from rigtool.rig import RigSet
+from rigtool.rig import RigSet, counter_delta
 from rigtool.safety import FollowMonitor, LimitMonitor
 from rigtool.store import StepRecord, Store
 
@@ -204,6 +204,7 @@ class Engine:
         timing = self.protocol.timing
         rate = timing.acquire.rate_hz
         t_start = self._now()
+        counters = self.rig.counters()
         self.follow.start_point()
         self._ramp_to(step.command, step)
         self.follow.hold(step.command, self.clock.now())
@@ -216,6 +217,7 @@ class Engine:
             idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
             repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
             t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
+            counters=counter_delta(counters, self.rig.counters()),
         )
         self.store.add_step(self.run_id, record, samples)
         self._stored_idx = step.idx
@@ -247,6 +249,9 @@ class Engine:
         try:
             if not neutral_ok:
                 self._event("neutral_failed", {"message": "the final neutral command failed"})
+            counters = self.rig.counters()
+            if counters:
+                self._event("transport_counters", counters)
             for ann in self.rig.annotations():
                 self.store.add_event(self.run_id, ann["kind"], ann["detail"],
                                      t_s=ann["t_s"] - self._t0)
