@@ -154,7 +154,23 @@ def cmd_show(args: argparse.Namespace) -> int:
         counts[ev["kind"]] = counts.get(ev["kind"], 0) + 1
     if counts:
         out.print("  events: " + ", ".join(f"{k} x{v}" for k, v in sorted(counts.items())))
+    for line in _counters_lines(store.transport_counters(run_id), len(steps)):
+        out.print(line, markup=False)
     return 0
+
+
+def _counters_lines(summary: dict, n_points: int) -> list[str]:
+    """Transport counters over the stored points, and which points had problems, for `show`."""
+    if not summary["totals"]:
+        return ["  transport counters: none stored (simulated devices, or an older run)"]
+    lines = ["  transport counters over the stored points:"]
+    for role, counters in summary["totals"].items():
+        lines.append(f"    {role}: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
+    bad = summary["problem_points"]
+    shown = ", ".join(str(i) for i in bad[:10]) + (", ..." if len(bad) > 10 else "")
+    lines.append(f"  points with lost, garbage or failed frames: {len(bad)} of {n_points}"
+                 + (f" (points {shown})" if bad else ""))
+    return lines
 
 
 def _actuator_text(actuator: dict) -> str:
@@ -461,7 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--depth", type=float, default=1.0, help="initial propeller depth (m)")
     p.add_argument("--fault", action="append", metavar="PART.SWITCH=VALUE",
                    help="inject a fault, e.g. netft.drop=0.01, netft.silent=true, bridge.garbage=true, "
-                        "bridge.no_replies=true, vesc.fault_code=4, stage.stalled=true (repeatable)")
+                        "bridge.no_replies=true, vesc.fault_code=4, vesc.deaf=true, stage.stalled=true "
+                        "(repeatable)")
     p.add_argument("--rig-out", help="also write the rig file here")
     p.set_defaults(func=cmd_sim)
 

@@ -123,6 +123,16 @@ def format_validation_error(path: Path, exc: ValidationError, data: Any, lines: 
     return problems
 
 
+def locate(path: Path, loc: Loc) -> str:
+    """`file:line` of the field at `loc` (or of its nearest parent given), for errors found
+    after loading; `file:?` when the file can no longer be read."""
+    try:
+        _, lines = read_yaml(path)
+    except ConfigError:
+        lines = {}
+    return f"{path}:{_line_for(loc, lines) or '?'}"
+
+
 def load_model(path: Path, model: type[M], context: dict | None = None) -> tuple[M, dict]:
     """Read `path` and validate it as `model`; return the model and the raw data."""
     data, lines = read_yaml(path)

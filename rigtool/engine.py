@@ -20,8 +20,8 @@ from rigtool.errors import DeviceError, SafetyTrip, StoreError
 from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
-from rigtool.rig import RigSet
-from rigtool.safety import LimitMonitor
+from rigtool.rig import RigSet, counter_delta
+from rigtool.safety import FollowMonitor, LimitMonitor
 from rigtool.store import StepRecord, Store
 
 CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this often
@@ -94,6 +94,8 @@ class Engine:
         self.confirm = confirm
         self.clock = rig.clock
         self.limits = LimitMonitor(protocol.limits)
+        self.follow = FollowMonitor(rig.actuator.info,
+                                    getattr(rig.actuator, "expected_speed_rpm", None))
         self.unit = rig.actuator.info.command_unit
         self._command = rig.actuator.info.neutral
         self._t0 = 0.0
@@ -131,7 +133,7 @@ class Engine:
                 status, reason = "aborted", str(exc)
                 signals.closing = True
                 self._safe_neutral()
-                self._event("limit_trip", {"message": str(exc)})
+                self._event("limit_trip", {"message": str(exc), **exc.detail})
             except DeviceError as exc:
                 status, reason = "aborted", f"device fault: {exc}"
                 signals.closing = True
@@ -159,8 +161,10 @@ class Engine:
     def _prepare_depth(self, step: PlanStep) -> None:
         if step.depth_m != self._depth:
             self._ramp_to(self.rig.actuator.info.neutral)
-            reached = self.rig.depth_stage.move_to(step.depth_m)
-            self._event("depth", {"target_m": step.depth_m, "reached_m": reached}, step.idx)
+            stage = self.rig.depth_stage
+            reached = stage.move_to(step.depth_m)
+            self._event("depth", {"target_m": step.depth_m, "reached_m": reached,
+                                  "by": stage.reached_by}, step.idx)
             self._depth = step.depth_m
             if self.protocol.timing.tare == "per_depth":
                 self._tare("per_depth", step.idx)
@@ -182,7 +186,8 @@ class Engine:
                     raise
                 stored = self._stored_idx == step.idx
                 neutral = "Thruster at neutral" if self._safe_neutral() else "NEUTRAL FAILED"
-                self._event("limit_trip", {"message": str(trip), "action": "paused"}, step.idx)
+                self._event("limit_trip", {"message": str(trip), **trip.detail, "action": "paused"},
+                            step.idx)
                 self.limits.reset()
                 what = "Continue with the next point" if stored else f"Retry point {step.idx}"
                 try:
@@ -199,15 +204,20 @@ class Engine:
         timing = self.protocol.timing
         rate = timing.acquire.rate_hz
         t_start = self._now()
+        counters = self.rig.counters()
+        self.follow.start_point()
         self._ramp_to(step.command, step)
+        self.follow.hold(step.command, self.clock.now())
         settle_s, settled = self._settle(step, rate)
         t_acq = self._now()
         samples = self._acquire(step, timing.acquire.n_samples, rate)
+        self.follow.release()
         self._ramp_to(self.rig.actuator.info.neutral, step)
         record = StepRecord(
             idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
             repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
             t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
+            counters=counter_delta(counters, self.rig.counters()),
         )
         self.store.add_step(self.run_id, record, samples)
         self._stored_idx = step.idx
@@ -239,6 +249,9 @@ class Engine:
         try:
             if not neutral_ok:
                 self._event("neutral_failed", {"message": "the final neutral command failed"})
+            counters = self.rig.counters()
+            if counters:
+                self._event("transport_counters", counters)
             for ann in self.rig.annotations():
                 self.store.add_event(self.run_id, ann["kind"], ann["detail"],
                                      t_s=ann["t_s"] - self._t0)
@@ -289,6 +302,7 @@ class Engine:
         # held over: one bad 50 Hz frame would otherwise count as 20 samples at 1 kHz
         self.limits.check({"thrust_n": out["thrust_n"], "current_a": feedback.current_a,
                            "speed_rpm": feedback.speed_rpm})
+        self.follow.check(feedback)
         if step is not None and self.reporter.wants_live:
             self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
         return out

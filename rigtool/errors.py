@@ -32,4 +32,8 @@ class DeviceError(RigtoolError):
 
 
 class SafetyTrip(RigtoolError):
-    """A safety limit tripped during a sweep."""
+    """A safety limit tripped during a sweep; `detail` is stored with its event."""
+
+    def __init__(self, message: str, detail: dict | None = None) -> None:
+        super().__init__(message)
+        self.detail = detail or {}

@@ -123,9 +123,28 @@ class RigSet:
                             "speed_rpm": ev.speed_rpm}}
                 for ev in twin.events]
 
+    def counters(self) -> dict[str, dict[str, int]]:
+        """Transport counters (frames, garbage, lost packets...) of the devices that keep them."""
+        out = {}
+        for role, dev in (("actuator", self.actuator), ("sensor", self.sensor),
+                          ("depth_stage", self.depth_stage)):
+            gauges = getattr(dev, "stats_gauges", ())
+            kept = {k: v for k, v in (getattr(dev, "stats", None) or {}).items()
+                    if type(v) is int and k not in gauges}
+            if kept:
+                out[role] = kept
+        return out
+
     def close(self) -> None:
         for dev in (self.actuator, self.sensor, self.depth_stage):
             dev.close()
+
+
+def counter_delta(before: dict[str, dict[str, int]],
+                  after: dict[str, dict[str, int]]) -> dict[str, dict[str, int]]:
+    """What each transport counter added between two `RigSet.counters()` readings."""
+    return {role: {k: v - before.get(role, {}).get(k, 0) for k, v in counters.items()}
+            for role, counters in after.items()}
 
 
 def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset") -> RigSet:

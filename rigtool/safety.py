@@ -1,9 +1,13 @@
-"""Safety limits checked on every sample block, with a debounce so one noisy sample cannot trip."""
+"""Safety checks on every sample block: debounced limits, and feedback that must follow the command."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 
+from rigtool.devices.base import ActuatorInfo, FeedbackBlock
 from rigtool.errors import SafetyTrip
 from rigtool.protocol import Limits
 
@@ -58,3 +62,152 @@ class LimitMonitor:
 
     def reset(self) -> None:
         self._carry = dict.fromkeys(self.checks, 0)
+
+
+FOLLOW_WINDOW_S = 0.2  # feedback is judged as means over windows this long
+FOLLOW_SETTLE_S = 1.0  # the command map is checked this long after the command is held (3 tau)
+FOLLOW_BAND = {"speed_rpm": 0.5, "current_a": 0.3}  # below this fraction: not following
+FOLLOW_MIN_FRAC = 0.1  # the map is checked only where it expects this fraction of full speed
+FOLLOW_NOISE_K = 5.0  # a fall counts only after a rise of this many noise deviations
+FOLLOW_WINDOWS = 2  # consecutive failing windows before a trip
+_MAP_GRID = 801  # commands at which the map is sampled to find its full-scale speed
+_MAD_TO_SD = 0.954  # median |x[i+1] - x[i]| of white noise, in noise standard deviations
+
+
+@dataclass
+class _Window:
+    """One window of feedback: mean, noise estimate and start time."""
+
+    t0_s: float
+    mean: float
+    noise: float  # feedback noise or resolution, whichever is larger; NaN with too few frames
+
+
+def _window(t: np.ndarray, v: np.ndarray) -> _Window:
+    """Mean of a window, and its noise: the standard deviation from successive differences
+    (robust to a trend), at least the smallest step between frames (quantised feedback)."""
+    if v.size < 3:
+        return _Window(float(t[0]), float(v.mean()), float("nan"))
+    steps = np.abs(np.diff(v))
+    moved = steps[steps > 0]
+    noise = max(float(np.median(steps)) / _MAD_TO_SD, float(moved.min()) if moved.size else 0.0)
+    return _Window(float(t[0]), float(v.mean()), noise)
+
+
+class FollowMonitor:
+    """Trips (raises SafetyTrip) when the actuator's feedback stops following a held command.
+
+    Two checks, both judged on `FOLLOW_WINDOW_S` means of the feedback the driver already
+    reads (speed, else current; nothing without either), and both only while the command of
+    a point is held:
+    - map: where the actuator knows the speed its command should give
+      (`expected_speed_rpm`), the speed must reach `FOLLOW_BAND` of it once the command
+      has been held `FOLLOW_SETTLE_S`; commands whose expected speed is below
+      `FOLLOW_MIN_FRAC` of full speed (dead zones) are not checked.
+    - fall: a feedback level that rose clearly during the point (by `FOLLOW_NOISE_K` noise
+      deviations from its lowest window) must not fall below `FOLLOW_BAND` of its peak. A
+      speed still decaying from the previous point never rises, so a command in a dead
+      zone cannot trip it.
+    `FOLLOW_WINDOWS` failing windows in a row trip.
+    """
+
+    def __init__(self, info: ActuatorInfo,
+                 speed_map: Callable[[float], float | None] | None = None) -> None:
+        self.signal = next((s for s in ("speed_rpm", "current_a") if s in info.feedback), None)
+        self.unit = info.command_unit
+        self.band = FOLLOW_BAND.get(self.signal, 0.0)
+        self.speed_map = speed_map if self.signal == "speed_rpm" else None
+        self.full_scale = self._full_scale(info) if self.speed_map else 0.0
+        self._reset(active=False)
+
+    def _full_scale(self, info: ActuatorInfo) -> float:
+        """Largest |speed| the map gives over the command range (0: the map knows nothing)."""
+        grid = np.linspace(info.command_min, info.command_max, _MAP_GRID)
+        speeds = [self.speed_map(c) for c in grid]
+        return max((abs(s) for s in speeds if s is not None), default=0.0)
+
+    def start_point(self) -> None:
+        """A point begins (its ramp from neutral): forget the previous point."""
+        self._reset(active=self.signal is not None)
+
+    def _reset(self, active: bool) -> None:
+        self._active = active
+        self._hold_t: float | None = None
+        self._command = float("nan")
+        self._expected: float | None = None
+        self._t = np.empty(0)
+        self._v = np.empty(0)
+        self._trough = float("inf")
+        self._peak = 0.0
+        self._armed = False  # the level rose clearly during the point: a fall now means a stop
+        self._noise: list[float] = []
+        self._failed = 0
+
+    def hold(self, command: float, t_s: float) -> None:
+        """The command reached the point's value at time `t_s`; checks apply from now on."""
+        self._hold_t, self._command = t_s, command
+        expected = self.speed_map(command) if self.speed_map else None
+        checkable = expected is not None and abs(expected) >= FOLLOW_MIN_FRAC * self.full_scale > 0
+        self._expected = expected if checkable else None
+
+    def release(self) -> None:
+        """The point's command is being left (ramp to neutral): stop checking until the next."""
+        self._active = False
+
+    def check(self, feedback: FeedbackBlock) -> None:
+        """Take the feedback of one read; judge every window it completes."""
+        values = getattr(feedback, self.signal) if self._active else None
+        if values is None or not len(feedback):
+            return
+        ok = np.isfinite(values)
+        self._t = np.concatenate([self._t, feedback.t_s[ok]])
+        self._v = np.concatenate([self._v, values[ok]])
+        while self._t.size and self._t[-1] - self._t[0] >= FOLLOW_WINDOW_S:
+            cut = int(np.searchsorted(self._t, self._t[0] + FOLLOW_WINDOW_S))
+            window = _window(self._t[:cut], self._v[:cut])
+            self._t, self._v = self._t[cut:], self._v[cut:]
+            self._judge(window)
+
+    def _judge(self, w: _Window) -> None:
+        if np.isfinite(w.noise):
+            self._noise.append(w.noise)
+        held = self._hold_t is not None and w.t0_s >= self._hold_t
+        problem = self._map_problem(w) if held else None
+        problem = problem or (self._fall_problem(w) if held else None)
+        if problem is None:
+            self._failed = 0
+            self._track(abs(w.mean))
+            return
+        self._failed += 1
+        if self._failed >= FOLLOW_WINDOWS:
+            held_s = w.t0_s + FOLLOW_WINDOW_S - self._hold_t
+            raise SafetyTrip(
+                f"actuator not following the command: {self.signal} {w.mean:.4g} with "
+                f"{self._command:g} {self.unit} held for {held_s:.2f} s ({problem}); a drive "
+                "that timed out (keep-alive, watchdog), was disabled or lost its supply?",
+                detail={"check": "follow", "command": self._command, "signal": self.signal,
+                        "value": w.mean, "expected": self._expected, "peak": self._peak,
+                        "held_s": held_s})
+
+    def _track(self, level: float) -> None:
+        """Follow the point's lowest level and the peak after it, until the rise is clear."""
+        if not self._armed and level < self._trough:
+            self._trough = self._peak = level
+        self._peak = max(self._peak, level)
+        rise = self._peak - self._trough
+        self._armed = self._armed or (
+            bool(self._noise) and rise >= FOLLOW_NOISE_K * float(np.median(self._noise)))
+
+    def _map_problem(self, w: _Window) -> str | None:
+        """Why the window misses the command map's speed, or None."""
+        if self._expected is None or w.t0_s < self._hold_t + FOLLOW_SETTLE_S:
+            return None
+        if np.sign(self._expected) * w.mean >= self.band * abs(self._expected):
+            return None
+        return f"expected about {self._expected:.4g}"
+
+    def _fall_problem(self, w: _Window) -> str | None:
+        """Why the window is a fall from a level the point clearly reached, or None."""
+        if not self._armed or abs(w.mean) >= self.band * self._peak:
+            return None
+        return f"fell from {self._peak:.4g} earlier in the point"

@@ -36,6 +36,11 @@ SAMPLE_COLUMNS = (
 
 STAT_FIELDS = ("thrust_n", "speed_rpm", "current_a")
 
+# Transport counters that count ordinary traffic; every other counter a driver keeps
+# (garbage, lost_packets, timeouts, error_frames...) is a problem a reader should see.
+TRAFFIC_COUNTERS = frozenset({"frames", "datagrams", "records", "sent", "replies", "heartbeats",
+                              "telemetry", "lines", "readings", "queries", "starts", "ignored"})
+
 SCHEMA_V1 = """
 CREATE TABLE runs (
     id TEXT PRIMARY KEY,
@@ -127,6 +132,8 @@ MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [
     # v4: when the run was last started or resumed, which `last` resolves by
     lambda conn: _execute_script(conn, "ALTER TABLE runs ADD COLUMN started_utc TEXT; "
                                        "UPDATE runs SET started_utc = created_utc"),
+    # v5: what each device's transport counters (frames, garbage, lost...) added during a point
+    lambda conn: conn.execute("ALTER TABLE steps ADD COLUMN counters_json TEXT"),
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -181,6 +188,7 @@ class StepRecord:
     settled: bool
     rate_hz: float
     status: str = "ok"
+    counters: dict | None = None  # transport counters added during the point, by device role
 
 
 class Store:
@@ -304,7 +312,10 @@ class Store:
     ) -> int:
         """Insert one point and all its samples in a single transaction; return the step id."""
         n = len(samples["t_s"])
-        row: dict[str, Any] = {"run_id": run_id, **step.__dict__, "n": n}
+        fields = dict(step.__dict__)
+        counters = fields.pop("counters")
+        row: dict[str, Any] = {"run_id": run_id, **fields, "n": n,
+                               "counters_json": json.dumps(counters) if counters else None}
         row["settled"] = int(step.settled)
         for name in STAT_FIELDS:
             row.update(_stats(name, samples.get(name)))
@@ -416,6 +427,27 @@ class Store:
         for r in rows:
             r["detail"] = json.loads(r.pop("detail_json"))
         return rows
+
+    def transport_counters(self, run_id: str) -> dict:
+        """Transport counters summed over a run's stored points, and the points with problems.
+
+        Returns {"totals": {role: {counter: n}}, "problem_points": [idx, ...]}, where a
+        problem is any counter outside TRAFFIC_COUNTERS that moved during the point.
+        """
+        totals: dict[str, dict[str, int]] = {}
+        problems = []
+        rows = self.conn.execute("SELECT idx, counters_json FROM steps WHERE run_id = ? "
+                                 "AND counters_json IS NOT NULL ORDER BY idx", (run_id,))
+        for idx, text in rows:
+            bad = False
+            for role, counters in json.loads(text).items():
+                into = totals.setdefault(role, {})
+                for name, n in counters.items():
+                    into[name] = into.get(name, 0) + n
+                    bad = bad or (n > 0 and name not in TRAFFIC_COUNTERS)
+            if bad:
+                problems.append(idx)
+        return {"totals": totals, "problem_points": problems}
 
     def samples(self, run_id: str, columns: Iterable[str] = SAMPLE_COLUMNS) -> dict[str, np.ndarray]:
         """All samples of a run as float arrays (NULL -> NaN), ordered by step then time."""

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rigtool import __version__
+from rigtool.config import locate
 from rigtool.engine import Engine, Outcome
 from rigtool.errors import ConfigError, UsageError
 from rigtool.plan import PlanStep, expand
@@ -66,8 +67,27 @@ def check_compatible(setup: SweepSetup, rigset: RigSet) -> None:
         raise ConfigError(problems)
 
 
+def check_depth_source(setup: SweepSetup) -> None:
+    """Depths are set by a stage, the simulator or the operator; `preset` holds only one."""
+    rig, depth = setup.rig, setup.protocol.depth
+    if rig.simulator is not None or rig.depth_stage is not None or depth.mode == "manual":
+        return
+    where = locate(setup.protocol_path, ("depth", "mode"))
+    if depth.mode == "stage":
+        raise ConfigError([f"{where}: depth.mode: 'stage' needs a `depth_stage:` section in "
+                           f"rig {rig.name!r}, which has none"])
+    depths = sorted(set(depth.depths_m()))
+    if len(depths) > 1:
+        listed = ", ".join(f"{d:g}" for d in depths)
+        raise ConfigError([
+            f"{where}: depth.mode: 'preset' means one fixed depth, but the protocol asks for "
+            f"{len(depths)} ({listed} m) and rig {rig.name!r} has no `depth_stage:` to set them; "
+            "use `mode: manual` (the operator sets and confirms each depth) or add a depth stage"])
+
+
 def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
     """Open the rig's devices and check the protocol against them (closing them on failure)."""
+    check_depth_source(setup)
     rigset = open_rig(setup.rig, start_depth_m=setup.plan[start_idx].depth_m,
                       depth_mode=setup.protocol.depth.mode)
     try:

@@ -169,7 +169,7 @@ def test_keepalive_feeds_the_servo_watchdog(twin, live, open_driver):
 
 
 def test_without_keepalive_the_servo_stops_and_reports_comm_timeout(twin, live, open_driver):
-    driver = open_driver(keepalive_s=0)
+    driver = open_driver(keepalive_s=0, command_timeout_s=0)  # the rig file says "no watchdog"
     driver.set_command(40.0)
     assert wait_for(lambda: live.command == 40.0, 0.5)
     assert wait_for(lambda: twin.timed_out and live.command == 0.0, 2.0)
@@ -295,6 +295,9 @@ def test_encode_signal_selects_the_multiplexer():
          ValidationError, "scale must not be 0"),
         ({"enable": {"message": "SERVO_ENABLE", "signal": "Enable", "on": 1}}, ValidationError,
          "Extra inputs"),
+        ({"keepalive_s": 0}, ValidationError, r"0 turns the keep-alive off.*0.5 s after"),
+        ({"keepalive_s": 0.3}, ValidationError, r"too slow for the drive's command timeout of 0.5"),
+        ({"keepalive_s": 0.2, "command_timeout_s": 0.3}, ValidationError, r"at most half .*0.15 s"),
     ],
 )  # fmt: skip
 def test_config_errors_name_the_problem(fields, error, message):

@@ -80,8 +80,9 @@ def test_sweep_against_sim_process(sim_rig, tmp_path, capsys):
         assert 4.5 < by[(depth, 300)] < 5.5  # forward saturated, 5 N
         assert 0.5 < by[(depth, 415)] < 4.5  # inverted forward branch
         assert -3.5 < by[(depth, 460)] < -1.0  # reverse after the break-away
-    depths = [e["detail"]["reached_m"] for e in store.events(run_id, "depth")]
-    assert depths == pytest.approx([0.3, 0.35], abs=0.002)
+    depths = [e["detail"] for e in store.events(run_id, "depth")]
+    assert [d["reached_m"] for d in depths] == pytest.approx([0.3, 0.35], abs=0.002)
+    assert [d["by"] for d in depths] == ["stage", "stage"]
     assert store.run(run_id)["rig"]["resolved"]["kind"] == "hardware"
 
 

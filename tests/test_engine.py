@@ -102,6 +102,24 @@ def test_all_points_stored_and_stats_match_samples(write_yaml, db_path):
     assert [e["kind"] for e in store.events(outcome.run_id)][:3] == ["run_start", "tare", "depth"]
 
 
+def test_depth_events_say_who_reported_the_depth(write_yaml, db_path):
+    setup, rigset = _setup(write_yaml, SMALL_PROTOCOL.replace("values: [1.0]", "values: [0.5, 1.0]"))
+    store, outcome = _run(setup, rigset, db_path)
+    assert [e["detail"] for e in store.events(outcome.run_id, "depth")] == [
+        {"target_m": 0.5, "reached_m": 0.5, "by": "simulator"},
+        {"target_m": 1.0, "reached_m": 1.0, "by": "simulator"}]
+
+
+def test_a_preset_depth_is_never_recorded_as_reached(write_yaml, db_path):
+    from rigtool.devices.depth import PresetDepth
+
+    setup, rigset = _setup(write_yaml)
+    rigset.depth_stage = PresetDepth()  # a hardware rig without a stage: nothing sets the depth
+    store, outcome = _run(setup, rigset, db_path)
+    (depth,) = store.events(outcome.run_id, "depth")
+    assert depth["detail"] == {"target_m": 1.0, "reached_m": None, "by": "preset"}
+
+
 def test_slew_limit_ramps_the_command(write_yaml, db_path):
     setup, rigset = _setup(write_yaml)
     _run(setup, rigset, db_path)

@@ -195,6 +195,18 @@ def test_missing_reply_names_the_port(fw, live, open_bridge):
     assert drv.stats["timeouts"] >= 2
 
 
+def test_unacknowledged_neutral_is_an_error_not_a_warning(fw, live, open_bridge):
+    drv = open_bridge(fw.pty_path, timeout_s=0.2)
+    drv.set_command(420)
+    fw.no_replies = True
+    with pytest.raises(DeviceError, match=rf"neutral not acknowledged by STM32 bridge on "
+                       rf"{fw.pty_path}: no reply .*'STOP'.*; no reply .*'SET 1 0'"):
+        drv.neutral()
+    assert live.command == 0  # the firmware applied it, but nobody said so
+    fw.no_replies = False
+    drv.neutral()  # acknowledged again: no error
+
+
 def test_silent_port_fails_on_open():
     master, slave, path = open_pty()
     try:

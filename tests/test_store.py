@@ -140,13 +140,35 @@ def test_migration_from_v1_keeps_data_and_adds_seq(db_path):
     conn.commit()
     conn.close()
     store = Store(db_path)
-    assert store.version == SCHEMA_VERSION >= 4
+    assert store.version == SCHEMA_VERSION >= 5
+    assert store.steps("r1")[0]["counters_json"] is None
+    assert store.transport_counters("r1") == {"totals": {}, "problem_points": []}
     back = store.samples("r1", ["t_s", "thrust_n", "seq"])
     assert back["thrust_n"][0] == 2.5 and np.isnan(back["seq"][0])
     run = store.run("r1")
     assert run["actuator"] is None and run["started_utc"] == run["created_utc"] == "2026-01-01"
     new = _run(store)  # a run started after the migration is `last`
     assert store.resolve_run_id("last") == new
+
+
+def test_transport_counters_are_stored_with_each_point_and_summed(db_path):
+    store = Store(db_path)
+    run_id = _run(store)
+    samples = {"t_s": np.arange(3.0), "thrust_n": np.ones(3)}
+    per_point = [
+        {"actuator": {"frames": 50, "garbage": 0}, "sensor": {"records": 200, "lost_packets": 0}},
+        {"actuator": {"frames": 48, "garbage": 2}, "sensor": {"records": 190, "lost_packets": 10}},
+        None,  # simulated devices keep no counters
+    ]
+    for idx, counters in enumerate(per_point):
+        step = _step(idx)
+        step.counters = counters
+        store.add_step(run_id, step, samples)
+    assert [s["counters_json"] is None for s in store.steps(run_id)] == [False, False, True]
+    assert store.transport_counters(run_id) == {
+        "totals": {"actuator": {"frames": 98, "garbage": 2},
+                   "sensor": {"records": 390, "lost_packets": 10}},
+        "problem_points": [1]}
 
 
 def test_sequence_numbers_are_stored(db_path, write_yaml):

@@ -192,7 +192,7 @@ def test_keepalive_keeps_the_twin_running(live, channel, open_driver):
 def test_without_keepalive_the_twin_times_out_and_stops(live, channel, open_driver):
     twin = VescTwin(live, channel=channel, controller_id=CTRL, timeout_s=0.5).start()
     try:
-        driver = open_driver(keepalive_s=0)
+        driver = open_driver(keepalive_s=0, command_timeout_s=0)  # the rig file says "no timeout"
         driver.set_command(40.0)
         assert live.command == 40.0 or wait_for(lambda: live.command == 40.0, 0.5)
         assert wait_for(lambda: twin.timed_out and live.command == 0.0, 2.0)
@@ -303,11 +303,20 @@ def test_commands_are_clipped_to_the_range(twin, live, open_driver):
         ({"mode": "duty", "command_unit": "amps"}, "takes command_unit percent"),
         ({"controller_id": 254}, "host_id must differ"),
         ({"interface": "virtual", "channel": "x", "speed": 3}, "Extra inputs"),
+        ({"keepalive_s": 0}, r"0 turns the keep-alive off, but the VESC stops the motor 1 s"),
+        ({"keepalive_s": 1.5}, r"1.5 s is too slow for the VESC's command timeout of 1 s"),
+        ({"keepalive_s": 0.1, "command_timeout_s": 0.15}, r"at most half .*0.075 s"),
     ],
 )
 def test_config_validation(fields, message):
     with pytest.raises(ValidationError, match=message):
         VescCanConfig(**{"driver": "vesc-can", "channel": "can0", **fields})
+
+
+@pytest.mark.parametrize("fields", [{}, {"keepalive_s": 0.5}, {"keepalive_s": 0, "command_timeout_s": 0},
+                                    {"keepalive_s": 2.0, "command_timeout_s": 0}])
+def test_keepalive_within_the_command_timeout_is_accepted(fields):
+    VescCanConfig(**{"driver": "vesc-can", "channel": "can0", **fields})
 
 
 def test_example_rig_file_is_valid():

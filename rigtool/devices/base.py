@@ -60,7 +60,12 @@ class ActuatorInfo:
 
 @runtime_checkable
 class Actuator(Protocol):
-    """Sets a command; can always be put in its safe neutral state."""
+    """Sets a command; can always be put in its safe neutral state.
+
+    Optionally, `expected_speed_rpm(command) -> float | None` gives the steady speed a
+    command should produce where the driver knows it (speed control, the twin's map);
+    the engine then checks that the speed feedback follows (rigtool/safety.py).
+    """
 
     info: ActuatorInfo
 
@@ -97,8 +102,11 @@ class ForceSensor(Protocol):
 class DepthStage(Protocol):
     """Puts the propeller centre at a depth below the surface (m)."""
 
-    def move_to(self, depth_m: float) -> float:
-        """Move (or have the operator move) to `depth_m`; return the depth reached."""
+    reached_by: str  # who reports the depth reached: "stage", "operator", "simulator", "preset"
+
+    def move_to(self, depth_m: float) -> float | None:
+        """Move (or have the operator move) to `depth_m`; return the depth reached as the
+        device or the operator reported it, or None when nothing confirmed it."""
 
     def close(self) -> None:
         """Release the transport."""

@@ -30,6 +30,21 @@ _SEND_TIMEOUT_S = 0.1  # wait this long for room in the interface's transmit que
 FRAME_COUNTERS = ("frames", "garbage", "ignored")
 
 
+def check_keepalive(keepalive_s: float, command_timeout_s: float, drive: str) -> float:
+    """`keepalive_s` if it re-sends the command at least twice per drive command timeout
+    (0: the drive has none); else ValueError saying what to set. Validates rig files."""
+    if command_timeout_s <= 0 or 0 < keepalive_s <= command_timeout_s / 2:
+        return keepalive_s
+    limit = f"at most half of command_timeout_s ({command_timeout_s / 2:g} s)"
+    if keepalive_s == 0:
+        raise ValueError(f"0 turns the keep-alive off, but the {drive} stops the motor "
+                         f"{command_timeout_s:g} s after the last command (command_timeout_s); "
+                         f"set keepalive_s {limit}, or command_timeout_s: 0 if the {drive} has "
+                         "no command timeout")
+    raise ValueError(f"{keepalive_s:g} s is too slow for the {drive}'s command timeout of "
+                     f"{command_timeout_s:g} s (command_timeout_s); set keepalive_s {limit}")
+
+
 def bus_name(interface: str, channel: str) -> str:
     """How a bus is named in messages: interface and channel, e.g. `socketcan:can0`."""
     return f"{interface}:{channel}"

@@ -20,16 +20,17 @@ from typing import Literal
 import can
 import cantools
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from rigtool.devices.base import COMMAND_UNITS, ActuatorInfo, FeedbackBlock
-from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer
+from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer, check_keepalive
 from rigtool.errors import DeviceError, UsageError
 
 log = logging.getLogger(__name__)
 
 SHIPPED_DBC = Path(__file__).resolve().parent.parent / "dbc" / "servo_driver.dbc"
 SHIPPED_MAPPING = SHIPPED_DBC.with_suffix(".yaml")
+SHIPPED_WATCHDOG_S = 0.5  # the shipped servo stops this long after its last SERVO_CONTROL
 _SECTIONS = ("command", "feedback", "fault", "enable")
 
 
@@ -101,8 +102,18 @@ class DbcCanConfig(_Strict):
     fault: FaultRef | None = None
     enable: EnableRef | None = None
     neutral: float = 0.0  # safe command, in command.unit
-    keepalive_s: float = Field(0.1, ge=0)  # re-send period of the command in force; 0 = off
+    # the drive's command watchdog; null: SHIPPED_WATCHDOG_S with the shipped DBC, else none
+    command_timeout_s: float | None = Field(None, ge=0)
+    keepalive_s: float = Field(0.1, ge=0, validate_default=True)  # re-send period; 0 = off
     timeout_s: float = Field(1.0, gt=0)  # no feedback/fault frame this long -> DeviceError
+
+    @field_validator("keepalive_s")
+    @classmethod
+    def _keeps_alive(cls, value: float, info: ValidationInfo) -> float:
+        timeout = info.data.get("command_timeout_s")
+        if timeout is None:
+            timeout = SHIPPED_WATCHDOG_S if info.data.get("dbc") is None else 0.0
+        return check_keepalive(value, timeout, "drive")
 
     @model_validator(mode="after")
     def _has_command(self) -> DbcCanConfig:
@@ -216,6 +227,12 @@ class DbcCanDriver:
         if self._closed:
             return
         self._link.command(self._command_frame(self.config.neutral), retry=True)
+
+    def expected_speed_rpm(self, command: float) -> float | None:
+        """A command in r/min is the speed the drive holds; other units: unknown."""
+        if self.info.command_unit != "rpm":
+            return None
+        return min(max(command, self.info.command_min), self.info.command_max)
 
     def read_feedback(self) -> FeedbackBlock:
         """Feedback samples since the last call; DeviceError on a reported fault or on silence."""

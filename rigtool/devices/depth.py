@@ -9,10 +9,13 @@ from rigtool.errors import UsageError
 
 
 class PresetDepth:
-    """The rig's depth is fixed (or set before the run); moving only records the value."""
+    """The rig's one fixed depth, as the protocol declares it; nothing moves or confirms it."""
 
-    def move_to(self, depth_m: float) -> float:
-        return depth_m
+    reached_by = "preset"
+
+    def move_to(self, depth_m: float) -> None:
+        """Nothing to move; None, because nobody reported a depth reached."""
+        return None
 
     def close(self) -> None:
         return None
@@ -20,6 +23,8 @@ class PresetDepth:
 
 class ManualDepth:
     """Prompts the operator at the terminal to set the truss and confirm."""
+
+    reached_by = "operator"
 
     def __init__(self, ask: Callable[[str], str] = input, interactive: bool | None = None) -> None:
         self._ask = ask

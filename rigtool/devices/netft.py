@@ -208,6 +208,7 @@ class NetFTSensor:
     """
 
     channels = FT_CHANNELS
+    stats_gauges = ("last_status", "buffered")  # states in `stats`, not counters
 
     def __init__(self, config: NetFTConfig | Mapping, *, now: Callable[[], float] = time.monotonic
                  ) -> None:

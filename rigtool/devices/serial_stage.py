@@ -52,6 +52,8 @@ class SerialStageConfig(BaseModel):
 class SerialStage:
     """DepthStage driver: moves the truss and reports the depth actually reached."""
 
+    reached_by = "stage"
+
     def __init__(self, config: SerialStageConfig) -> None:
         self.config = config
         self.name = f"serial stage on {config.url}"

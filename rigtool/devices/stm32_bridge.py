@@ -183,7 +183,7 @@ class Stm32Bridge:
         self.command = float(value)
 
     def neutral(self) -> None:
-        """Stop (or set neutral); never raises unless nothing at all could be sent."""
+        """Stop (or set neutral); DeviceError unless the firmware acknowledged one of them."""
         if self._closed:
             return
         cfg = self.config
@@ -201,8 +201,7 @@ class Stm32Bridge:
                 continue
             self.command = self.info.neutral
             return
-        self.command = self.info.neutral
-        log.warning("neutral sent to %s but not confirmed: %s", self.name, "; ".join(problems))
+        raise DeviceError(f"neutral not acknowledged by {self.name}: {'; '.join(problems)}")
 
     def read_feedback(self) -> FeedbackBlock:
         """Telemetry lines received since the last call (none unless telemetry_regex is set)."""

@@ -24,10 +24,10 @@ import time
 from typing import Literal
 
 import can
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
-from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer
+from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer, check_keepalive
 from rigtool.errors import DeviceError
 
 log = logging.getLogger(__name__)
@@ -63,9 +63,15 @@ class VescCanConfig(BaseModel):
     max_erpm: float | None = Field(None, gt=0)  # rpm mode: command limit, and what 100 % means
     max_current_a: float | None = Field(None, gt=0)  # current mode: limit, and what 100 % means
     current_source: Literal["input", "motor"] = "input"  # STATUS_4 supply A or STATUS motor A
-    keepalive_s: float = Field(0.1, ge=0)  # re-send period, well under the VESC timeout; 0 = off
+    command_timeout_s: float = Field(1.0, ge=0)  # the VESC's App Settings > Timeout; 0 = none
+    keepalive_s: float = Field(0.1, ge=0, validate_default=True)  # re-send period; 0 = off
     timeout_s: float = Field(1.0, gt=0)  # no status frame for this long -> DeviceError
     poll_fault: bool = True  # poll the fault code with every keep-alive
+
+    @field_validator("keepalive_s")
+    @classmethod
+    def _keeps_alive(cls, value: float, info: ValidationInfo) -> float:
+        return check_keepalive(value, info.data.get("command_timeout_s", 0.0), "VESC")
 
     @model_validator(mode="after")
     def _consistent(self) -> VescCanConfig:
@@ -175,6 +181,12 @@ class VescCanDriver:
         if self._closed:
             return
         self._link.command(self._message(SET_CURRENT, 0.0), retry=True)
+
+    def expected_speed_rpm(self, command: float) -> float | None:
+        """In rpm mode the VESC's speed loop holds the commanded speed; otherwise unknown."""
+        if self.config.mode != "rpm":
+            return None
+        return self._to_protocol(command) / self.config.pole_pairs
 
     def read_feedback(self) -> FeedbackBlock:
         """Status samples since the last call; DeviceError on a fault or on silence."""

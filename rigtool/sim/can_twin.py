@@ -23,6 +23,7 @@ class CanBusTwin:
         self.bitrate = bitrate
         self.silent = False  # fault switch: transmit nothing
         self.garbage = False  # fault switch: add truncated and error frames
+        self.deaf = False  # fault switch: hear nothing (commands stop arriving; its timeout acts)
         self._fault_code = 0
         self._bus: can.BusABC | None = None
         self._send_lock = threading.Lock()

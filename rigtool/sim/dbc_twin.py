@@ -6,8 +6,9 @@ repeated within `watchdog_s` or the servo stops and reports CommTimeout; SERVO_S
 (speed, supply current, bus voltage, fault code) goes out at `status_hz` and
 SERVO_HEARTBEAT (NMT state) at `heartbeat_hz`. Frame ids are the DBC's plus `node_id`.
 
-Fault switches: `silent` (transmits nothing), `garbage` (adds truncated status frames and
-error frames), `fault_code` (a FaultCode value: motor stopped, commands ignored, reported).
+Fault switches: `silent` (transmits nothing), `deaf` (receives nothing, so its watchdog
+stops the motor), `garbage` (adds truncated status frames and error frames), `fault_code`
+(a FaultCode value: motor stopped, commands ignored, reported).
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ class DbcServoTwin(CanBusTwin):
                 msg = self._bus.recv(timeout=0.02)
             except can.CanError:
                 continue
-            if msg is None or msg.is_error_frame or msg.is_extended_id:
+            if msg is None or self.deaf or msg.is_error_frame or msg.is_extended_id:
                 continue
             if msg.arbitration_id not in (enable_id, control_id):
                 continue

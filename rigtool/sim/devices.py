@@ -51,6 +51,10 @@ class SimActuator:
     def neutral(self) -> None:
         self.set_command(self.info.neutral)
 
+    def expected_speed_rpm(self, command: float) -> float:
+        """The twin's steady speed at `command` (its command map), for the follow check."""
+        return self.world.twin.steady_state(command)[0]
+
     def read_feedback(self) -> FeedbackBlock:
         blocks, self.world.feedback = self.world.feedback, []
         if not blocks:
@@ -101,6 +105,8 @@ class SimForceSensor:
 
 class SimDepthStage:
     """A motorised truss on the twin: takes time to move, then the twin sees the new depth."""
+
+    reached_by = "simulator"
 
     def __init__(self, world: SimWorld) -> None:
         self.world = world

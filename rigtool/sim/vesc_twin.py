@@ -10,8 +10,9 @@ Commands map onto the profile's percent command: duty d -> 100 d %; ERPM e -> th
 mechanical speed e / pole_pairs as a percent of the profile's max speed; motor current
 I -> the speed where propeller torque (~ n^2) balances it, 100 sqrt(|I| / I_max) % with
 I_max the motor current at max speed. Fault switches: `silent` (transmits nothing),
-`garbage` (adds truncated status frames and error frames), `fault_code` (motor stopped,
-commands ignored, code reported by the poll).
+`deaf` (receives nothing, so its command timeout stops the motor), `garbage` (adds
+truncated status frames and error frames), `fault_code` (motor stopped, commands ignored,
+code reported by the poll).
 """
 
 from __future__ import annotations
@@ -73,7 +74,8 @@ class VescTwin(CanBusTwin):
     def address(self) -> dict:
         """What a vesc-can rig section needs to reach this twin."""
         return {"interface": self.interface, "channel": self.channel,
-                "controller_id": self.controller_id, "pole_pairs": self.pole_pairs}
+                "controller_id": self.controller_id, "pole_pairs": self.pole_pairs,
+                "command_timeout_s": self.timeout_s}
 
     # ----- receiving -----
 
@@ -83,7 +85,7 @@ class VescTwin(CanBusTwin):
                 msg = self._bus.recv(timeout=0.02)
             except can.CanError:
                 continue
-            if msg is None or not msg.is_extended_id or msg.is_error_frame:
+            if msg is None or self.deaf or not msg.is_extended_id or msg.is_error_frame:
                 continue
             packet, node = msg.arbitration_id >> 8, msg.arbitration_id & 0xFF
             if node not in (self.controller_id, _BROADCAST):
