@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from rigtool.analysis.betm import Betm, fuse_estimates, split_variances
+from rigtool.analysis.betm import split_variances
 from rigtool.analysis.events import (
     EventParams,
     clip_to_windows,
@@ -16,13 +16,15 @@ from rigtool.analysis.events import (
     relative_drop,
 )
 from rigtool.analysis.gp import GpParams, fit_exact, fit_hetero, sklearn_predict
+from rigtool.analysis.qctm_export import model_document
 from rigtool.analysis.trainset import huber_weights, strata_keys, stratified_pick
 from rigtool.models import (
     MODEL_FILE,
     VARIANCE_FILE,
+    Betm,
+    fuse_estimates,
     gp_features,
     load_model,
-    model_document,
     window_mean,
 )
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +25,7 @@ from rigtool.cavitation_artefacts import (
     write_cavitation_artefacts,
 )
 from rigtool.cli import main
-from rigtool.models import load_model
+from rigtool.models import CURRENT_FAULT, OUT_OF_DOMAIN, load_model
 from rigtool.store import Store
 
 BASE = """rigtool_protocol: 1
@@ -166,3 +168,73 @@ def test_report_without_a_deep_base_run_warns_and_still_writes(tmp_path, capsys)
     assert main(["report", run, "--db", str(tmp_path / "db.sqlite"), "--out", str(tmp_path / "rep")]) == 0
     assert "no quasi-cavitation section" in capsys.readouterr().err
     assert 'id="cavitation"' not in (tmp_path / "rep" / run / "report.html").read_text()
+
+
+def _exported(twin):
+    tmp, _, _, train, _, res = twin
+    folder = tmp / "out" / train
+    if not (folder / "qctm_gp.json").exists():
+        write_cavitation_artefacts(res, tmp / "out", created_utc="2026-01-01T00:00:00+00:00")
+    return load_model(folder), res
+
+
+def test_current_faults_fall_back_to_the_speed_estimate(twin):
+    """A dropout (I = 0), a current below idle, and a current far above what the speed needs
+    give the speed estimate, inside [0, f_n], with the fault flagged; never reversed thrust."""
+    model, res = _exported(twin)
+    n = np.full(10, float(np.median(res.training.x[:, 0])))
+    i_hat = res.betm.c_n * n**3 + res.betm.i_0
+    i = i_hat.copy()
+    i[3] = 0.0  # dropout
+    i[5] = 0.5 * res.betm.i_0  # below idle
+    i[7] = 3.0 * i_hat[7]  # speed and current disagree
+    p = model.evaluate(n, i, np.full(10, 0.3))
+    f_n = res.betm.speed_estimate(n)
+    for k in (3, 5, 7):
+        assert p.flags[k] & CURRENT_FAULT
+        assert 0.0 <= p.thrust_n[k] <= f_n[k]
+        assert p.lo95[k] <= 0.0 and p.hi95[k] >= f_n[k]
+    ok = [k for k in range(10) if k not in (3, 5, 7)]
+    assert not np.any(p.flags[ok] & CURRENT_FAULT)
+    # a fault is left out of its neighbours' shortfall window: they see a full current
+    np.testing.assert_allclose(model.features(n, i, 0.3)[ok, 1], 0.0, atol=1e-9)
+    assert np.all(p.thrust_n >= 0.0)
+
+
+def test_no_reversed_thrust_for_a_forward_propeller(twin):
+    model, res = _exported(twin)
+    rng = np.random.default_rng(5)
+    n = rng.uniform(50, 2500, 400)
+    i = rng.uniform(0.0, 15.0, 400)
+    h = rng.uniform(0.0, 1.5, 400)
+    p = model.evaluate(n, i, h)
+    f_b = res.betm.fuse(n, np.where(p.flags & CURRENT_FAULT, np.nan, i)).thrust_n
+    assert np.all(p.thrust_n >= 0.0)
+    assert np.all(p.thrust_n <= f_b + model.bounds.above_n + 1e-9)
+    assert np.all((p.lo95 <= p.thrust_n) & (p.thrust_n <= p.hi95))
+
+
+def test_inputs_outside_the_training_domain_are_flagged_and_widened(twin):
+    model, res = _exported(twin)
+    x = res.training.x
+    inside = model.evaluate(x[:30, 0], x[:30, 1], x[:30, 2])
+    assert not np.any(inside.flags & OUT_OF_DOMAIN)
+    speed = float(x[:, 0].max()) * 1.4  # faster than any training block, current to match
+    current = res.betm.c_n * speed**3 + res.betm.i_0
+    far = model.evaluate(np.full(3, speed), np.full(3, current), np.array([0.3, 0.3, 2.0]))
+    assert np.all(far.flags & OUT_OF_DOMAIN)
+    f_b = res.betm.fuse(np.full(3, speed), np.full(3, current)).thrust_n
+    assert np.all(far.lo95 <= 0.0) and np.all(far.hi95 >= f_b)
+    doc = json.loads((twin[0] / "out" / res.run_id / "qctm_gp.json").read_text())
+    assert set(doc["domain"]["ranges"]) == {"speed_rpm", "current_a", "depth_m",
+                                            "shortfall_thrust_n"}
+    assert doc["bounds"]["above_n"] >= 0.0
+
+
+def test_models_import_numpy_alone():
+    """rigtool.models is the run-time side: no scikit-learn, scipy, sqlite_utils or store."""
+    code = ("import sys, rigtool.models; bad = sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('sklearn', 'scipy', 'sqlite_utils', 'pandas', 'matplotlib') or m.startswith("
+            "('rigtool.analysis', 'rigtool.store'))); print(bad)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

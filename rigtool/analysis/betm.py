@@ -11,97 +11,13 @@ measurement noise (see `split_variances`), because both residuals share the forc
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.errors import UsageError
-
-
-@dataclass(frozen=True)
-class Betm:
-    """Coefficients and variances of the fused thrust estimate; all SI units (N, r/min, A)."""
-
-    cp_fwd: float
-    cp_rev: float
-    c_n: float
-    i_0: float
-    ci_fwd: float
-    ci_rev: float
-    sigma_n: float  # std of the speed-based estimate's own error (N)
-    sigma_i: float  # std of the current-based estimate's own error (N)
-    sigma_meas: float = 0.0  # force measurement noise at the calibration's time base (N)
-    u0: float = 0.0  # prior mean (N)
-    sigma0: float = 1e3  # prior std (N); the default is uninformative
-    gamma: float = 3.0  # consistency threshold on the normalised distance
-    level_n: tuple[float, ...] = ()  # |f_n| knots (N) of the level-dependent stds below
-    sigma_n_level: tuple[float, ...] = ()  # std of f_n's error at each knot (N)
-    sigma_i_level: tuple[float, ...] = ()  # std of f_i's error at each knot (N)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    def speed_estimate(self, speed_rpm: np.ndarray) -> np.ndarray:
-        """f_n = C_p |n| n with the forward or reverse coefficient."""
-        n = np.asarray(speed_rpm, dtype=float)
-        return np.where(n >= 0, self.cp_fwd, self.cp_rev) * np.abs(n) * n
-
-    def current_estimate(self, current_a: np.ndarray, sign: np.ndarray) -> np.ndarray:
-        """f_i = sign C_i (|I| - I_0)^(2/3); sign from the speed (or command) direction."""
-        s = np.sign(np.asarray(sign, dtype=float))
-        d = np.maximum(np.abs(np.asarray(current_a, dtype=float)) - self.i_0, 0.0)
-        return s * np.where(s >= 0, self.ci_fwd, self.ci_rev) * d ** (2 / 3)
-
-    def variances(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(sigma_n^2, sigma_i^2) at thrust level f: interpolated in |f| when knots exist."""
-        a = np.abs(np.asarray(f, dtype=float))
-        if not self.level_n:
-            return np.full(a.shape, self.sigma_n**2), np.full(a.shape, self.sigma_i**2)
-        knots = np.asarray(self.level_n)
-        return (np.interp(a, knots, np.asarray(self.sigma_n_level)) ** 2,
-                np.interp(a, knots, np.asarray(self.sigma_i_level)) ** 2)
-
-    def fuse(self, speed_rpm: np.ndarray, current_a: np.ndarray,
-             sign: np.ndarray | None = None) -> BetmEstimate:
-        """Fused estimate, its variance and the consistency flag for every sample."""
-        n = np.asarray(speed_rpm, dtype=float)
-        f_n = self.speed_estimate(n)
-        f_i = self.current_estimate(current_a, n if sign is None else sign)
-        return fuse_estimates(f_n, f_i, *self.variances(f_n), self.u0, self.sigma0**2,
-                              self.gamma)
-
-
-@dataclass
-class BetmEstimate:
-    """Per-sample BETM output: fused thrust, its variance, the two inputs, and the test result."""
-
-    thrust_n: np.ndarray
-    var: np.ndarray
-    f_n: np.ndarray
-    f_i: np.ndarray
-    distance: np.ndarray
-    consistent: np.ndarray
-
-
-def fuse_estimates(f_n: np.ndarray, f_i: np.ndarray, var_n: np.ndarray, var_i: np.ndarray,
-                   u0: float, var0: float, gamma: float) -> BetmEstimate:
-    """Inverse-variance fusion of f_n, f_i and the prior; f_i is dropped where d > gamma.
-
-    A missing current (NaN) counts as dropped.
-    """
-    f_n = np.asarray(f_n, dtype=float)
-    f_i = np.asarray(f_i, dtype=float)
-    var_n = np.broadcast_to(np.asarray(var_n, dtype=float), f_n.shape)
-    var_i = np.broadcast_to(np.asarray(var_i, dtype=float), f_n.shape)
-    with np.errstate(invalid="ignore"):
-        d = np.abs(f_n - f_i) / np.sqrt(var_n + var_i)
-        ok = np.isfinite(f_i) & (d <= gamma)
-    w_n, w_0 = 1.0 / var_n, 1.0 / var0
-    w_i = np.where(ok, 1.0 / var_i, 0.0)
-    num = f_n * w_n + np.where(ok, f_i, 0.0) * w_i + u0 * w_0
-    den = w_n + w_i + w_0
-    return BetmEstimate(num / den, 1.0 / den, f_n, f_i, d, ok)
+from rigtool.models.betm import Betm
 
 
 def split_variances(e_n: np.ndarray, e_i: np.ndarray) -> tuple[float, float, float]:

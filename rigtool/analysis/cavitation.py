@@ -37,6 +37,7 @@ from rigtool.analysis.events import (
     relative_drop,
 )
 from rigtool.analysis.gp import ExactGp, GpParams, fit_exact, fit_hetero
+from rigtool.analysis.qctm_export import fit_limits, model_document
 from rigtool.analysis.trainset import (
     TrainingSet,
     huber_weights,
@@ -44,7 +45,9 @@ from rigtool.analysis.trainset import (
     stratified_pick,
 )
 from rigtool.errors import UsageError
-from rigtool.models import Z95, gp_features
+from rigtool.models import Z95, Bounds, Domain, ThrustModel, gp_features, model_from_document
+from rigtool.models.domain import DEFAULT_SHORTFALL
+from rigtool.models.qctm import shortfall
 from rigtool.store import Store
 
 EVENT_KIND = "ventilation"
@@ -66,6 +69,7 @@ class CavitationParams:
     edge_s: float = 0.5
     shortfall_window_s: float = 1.0  # averaging window of the current shortfall
     causal: bool = False  # window of past blocks only (a controller's view); else centred
+    shortfall_range: tuple[float, float] = DEFAULT_SHORTFALL  # else a current fault
     events: EventParams = field(default_factory=EventParams)
     gp: GpParams = field(default_factory=GpParams)
 
@@ -125,6 +129,8 @@ class CavitationResult:
     evaluation: Evaluation
     series: dict[str, np.ndarray]
     warnings: list[str] = field(default_factory=list)
+    bounds: Bounds = field(default_factory=Bounds)
+    domain: Domain | None = None
 
 
 def is_shallow(store: Store, run_id: str) -> bool:
@@ -326,12 +332,15 @@ def training_blocks(run: RunData, betm: Betm, events: list[Event],
     b = block_means(run, params.train_block_s)
     ok = np.isfinite(b.thrust_n) & np.isfinite(b.speed_rpm) & np.isfinite(b.current_a)
     b = b.take(np.flatnonzero(ok))
+    s = shortfall(betm, b.speed_rpm, b.current_a)
+    valid = (s >= params.shortfall_range[0]) & (s <= params.shortfall_range[1])
+    xf = gp_features(betm, b.speed_rpm, b.current_a, b.depth_m, b.point, params.window_blocks,
+                     params.lead_blocks, valid)
+    b, xf = b.take(np.flatnonzero(valid)), xf[valid]  # current faults are not training data
     f_betm = betm.fuse(b.speed_rpm, b.current_a).thrust_n
     y = b.thrust_n - f_betm
     vent = in_intervals(b.t_s, [(e.t_start_s, e.t_end_s) for e in events])
     w, scale = huber_weights(y, b.point)
-    xf = gp_features(betm, b.speed_rpm, b.current_a, b.depth_m, b.point, params.window_blocks,
-                     params.lead_blocks)
     ts = TrainingSet(
         x=np.column_stack([b.speed_rpm, b.current_a, b.depth_m]), xf=xf, y=y, w=w, t_s=b.t_s,
         command=b.command, ventilated=vent, thrust_n=b.thrust_n, betm_n=f_betm,
@@ -485,8 +494,10 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     warnings = []
     if len(training) < 50:
         warnings.append(f"only {len(training)} training blocks: the GP is poorly constrained")
+    bounds, domain = fit_limits(training, p.shortfall_range)
     return CavitationResult(run_id, base_id, p, betm, deep_blocks, deep_samples, records, table,
-                            training, len(all_blocks), gp, evaluation, series, warnings)
+                            training, len(all_blocks), gp, evaluation, series, warnings,
+                            bounds=bounds, domain=domain)
 
 
 def _two_fold(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: Blocks,
@@ -547,15 +558,10 @@ def train_model(store: Store, run_ids: list[str], base_run_id: str,
     return betm, gp, training
 
 
-def predictor(betm: Betm, gp: ExactGp | object, window: int = 1,
-              lead: int | None = None) -> Predictor:
-    """(speed, current, depth, segment) of consecutive blocks -> (thrust, lo95, hi95) from BETM
-    plus a fitted GP correction on gp_features (shortfall averaged over `window` blocks)."""
-    def predict(n: np.ndarray, i: np.ndarray, h: np.ndarray,
-                segment: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-        x = gp_features(betm, n, i, h, segment, window, lead)
-        mean, std = gp.predict(x)  # type: ignore[attr-defined]
-        f = betm.fuse(n, i).thrust_n + mean
-        return f, f - Z95 * std, f + Z95 * std
-
-    return predict  # type: ignore[return-value]
+def thrust_model(betm: Betm, gp: ExactGp, training: TrainingSet,
+                 params: CavitationParams) -> ThrustModel:
+    """The model `calibrate` exports (bounds and domain from `training`), ready to evaluate."""
+    bounds, domain = fit_limits(training, params.shortfall_range)
+    doc = model_document(betm, gp, {}, params.window_blocks, params.train_block_s,
+                         params.lead_blocks, bounds, domain)
+    return model_from_document(doc, gp.k_inv)

@@ -1,7 +1,8 @@
-"""Load an exported QCTM-GP thrust model and evaluate it with numpy only (no scikit-learn).
+"""Evaluate an exported QCTM-GP thrust model with numpy only (no scikit-learn, no scipy).
 
     model = load_model("calibrations/<run-id>")
     thrust_n, lo95, hi95 = model.predict(speed_rpm, current_a, depth_m, segment)
+    p = model.evaluate(speed_rpm, current_a, depth_m, segment)   # + p.flags, p.distance
 
 Inputs are consecutive block means (`features.block_s`, 0.2 s) of one record; `segment` (one
 label per block, default: all one segment) marks where the record is cut (e.g. a new point).
@@ -11,7 +12,15 @@ averaged over a window of `features.window_blocks` blocks within the segment tha
 thrust = f_BETM(n, I) + y_mean + g(z) + sum_j a_j m(r_j) with the gated mean term
 g(z) = beta z / (1 + exp(-(|z| - z0) / s)), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r) and
 r_j = || (x - X_j) / (x_scale * length_scales) ||; the noise variance of a new measurement is
-exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic); see docs/cavitation.md.
+exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic).
+
+Safety (format 4): a block whose shortfall lies outside `bounds.shortfall` (current dropout,
+current below idle, speed and current that disagree) is a current fault: it falls back to the
+speed estimate f_n with the interval [0, f_n] widened by f_n's error, and is left out of its
+neighbours' shortfall window. The corrected thrust is held between 0 and f_BETM +
+`bounds.above_n` in the direction of the speed: a ventilating propeller loses thrust, it never
+reverses it. Inputs outside `domain` (per-input ranges, distance to the training rows) are
+flagged and their interval widened to that physical prior. See docs/cavitation.md.
 """
 
 from __future__ import annotations
@@ -22,12 +31,20 @@ from pathlib import Path
 
 import numpy as np
 
-from rigtool.analysis.betm import Betm
+from rigtool.models.betm import Betm
+from rigtool.models.domain import (
+    CLAMPED,
+    CURRENT_FAULT,
+    OUT_OF_DOMAIN,
+    Bounds,
+    Domain,
+    nearest_distance,
+)
 
 MODEL_FILE = "qctm_gp.json"
 VARIANCE_FILE = "qctm_gp_kinv.npy"
 FORMAT = "rigtool-qctm-gp"
-FORMAT_VERSION = 3  # 3: gated mean term and lead_blocks; 2 (plain beta z, centred) still loads
+FORMAT_VERSION = 4  # 4: bounds and domain; 3: gated mean term, lead_blocks; 2: plain beta z
 Z95 = 1.959963984540054
 SQRT5 = 5.0**0.5
 LOG_CHI2_BIAS = 1.2703628454614782  # -E[log chi^2_1]: exp(E[log e^2] + this) = var(e), e Gaussian
@@ -52,36 +69,46 @@ def segment_runs(segment: np.ndarray | None, size: int) -> list[tuple[int, int]]
 
 
 def window_mean(v: np.ndarray, segment: np.ndarray | None, window: int,
-                lead: int | None = None) -> np.ndarray:
+                lead: int | None = None, valid: np.ndarray | None = None) -> np.ndarray:
     """Mean of v over `window` samples ending `lead` samples ahead, truncated at segment ends.
 
     lead = window // 2 (the default) centres the window; lead = 0 uses past samples only.
+    Samples where `valid` is False are left out of every window (0 where a window has none).
     """
     v = np.asarray(v, dtype=float)
+    ok = np.ones(v.shape, bool) if valid is None else np.asarray(valid, bool)
     if window <= 1:
-        return v.copy()
+        return np.where(ok, v, 0.0)
     half_hi = window // 2 if lead is None else min(max(lead, 0), window - 1)
     half_lo = window - 1 - half_hi
+    vals = np.where(ok, v, 0.0)
     out = np.empty_like(v)
     for a, b in segment_runs(segment, v.size):
-        c = np.r_[0.0, np.cumsum(v[a:b])]
+        c = np.r_[0.0, np.cumsum(vals[a:b])]
+        k = np.r_[0, np.cumsum(ok[a:b])]
         j = np.arange(b - a)
         lo, hi = np.maximum(j - half_lo, 0), np.minimum(j + half_hi + 1, b - a)
-        out[a:b] = (c[hi] - c[lo]) / (hi - lo)
+        count = k[hi] - k[lo]
+        out[a:b] = np.where(count > 0, (c[hi] - c[lo]) / np.maximum(count, 1), 0.0)
     return out
+
+
+def shortfall(betm: Betm, speed_rpm: np.ndarray, current_a: np.ndarray) -> np.ndarray:
+    """1 - |I| / (C_n |n|^3 + I_0): the fraction of the expected current that is missing."""
+    n = np.asarray(speed_rpm, dtype=float)
+    i_hat = betm.c_n * np.abs(n) ** 3 + betm.i_0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(i_hat > 0, 1.0 - np.abs(np.asarray(current_a, dtype=float)) / i_hat, 0.0)
 
 
 def gp_features(betm: Betm, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
                 segment: np.ndarray | None = None, window: int = 1,
-                lead: int | None = None) -> np.ndarray:
-    """GP inputs (n, z, h): z = f_n(n) * window mean of 1 - |I| / (C_n |n|^3 + I_0) (N)."""
+                lead: int | None = None, valid: np.ndarray | None = None) -> np.ndarray:
+    """GP inputs (n, z, h): z = f_n(n) * window mean of the shortfall over `valid` blocks (N)."""
     n, i, h = np.broadcast_arrays(np.atleast_1d(np.asarray(speed_rpm, float)),
                                   np.atleast_1d(np.asarray(current_a, float)),
                                   np.atleast_1d(np.asarray(depth_m, float)))
-    i_hat = betm.c_n * np.abs(n) ** 3 + betm.i_0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        short = np.where(i_hat > 0, 1.0 - np.abs(i) / i_hat, 0.0)
-    short = window_mean(short, segment, window, lead)
+    short = window_mean(shortfall(betm, n, i), segment, window, lead, valid)
     return np.column_stack([n, betm.speed_estimate(n) * short, h])
 
 
@@ -169,12 +196,24 @@ class ThrustModel:
     lead: int | None = None  # blocks the window reaches ahead (None: window // 2, centred)
     block_s: float = 0.2
     mean_term: GatedMean = GatedMean()  # explicit mean g(z)
+    bounds: Bounds = Bounds()
+    domain: Domain | None = None  # None in files older than format 4: nothing is flagged
 
     def features(self, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
                  segment: np.ndarray | None = None) -> np.ndarray:
-        """GP inputs (n, z, h) of consecutive block means (see gp_features)."""
+        """GP inputs (n, z, h) of consecutive block means; current faults are left out of the
+        shortfall windows (see gp_features and `current_fault`)."""
+        valid = ~self.current_fault(speed_rpm, current_a)
         return gp_features(self.betm, speed_rpm, current_a, depth_m, segment, self.window,
-                           self.lead)
+                           self.lead, valid)
+
+    def current_fault(self, speed_rpm: np.ndarray, current_a: np.ndarray) -> np.ndarray:
+        """True where the block's current cannot be a ventilating propeller's (see Bounds)."""
+        n, i = np.broadcast_arrays(np.atleast_1d(np.asarray(speed_rpm, float)),
+                                   np.atleast_1d(np.asarray(current_a, float)))
+        s = shortfall(self.betm, n, i)
+        lo, hi = self.bounds.shortfall
+        return ~(np.isfinite(i) & (s >= lo) & (s <= hi))
 
     def correction(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(GP mean of f_measured - f_BETM, std of a new measurement) at GP inputs x, N."""
@@ -196,52 +235,74 @@ class ThrustModel:
             var_n2 = var_n2 + self.noise.var_n2(x)
         return out_mean, np.sqrt(var_n2)
 
+    def prior_std(self, x: np.ndarray) -> np.ndarray:
+        """Std of a new measurement under the GP prior (no training data), N."""
+        var = self.y_std**2 * (self.signal_var + self.noise_var)
+        if self.noise is not None:
+            var = var + self.noise.var_n2(x)
+        return np.sqrt(np.broadcast_to(var, (len(x),)))
+
+    def evaluate(self, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
+                 segment: np.ndarray | None = None) -> Prediction:
+        """Thrust, 95 % interval, flags and domain distance for consecutive block means."""
+        n, i, h = np.broadcast_arrays(np.atleast_1d(np.asarray(speed_rpm, float)),
+                                      np.atleast_1d(np.asarray(current_a, float)),
+                                      np.atleast_1d(np.asarray(depth_m, float)))
+        fault = self.current_fault(n, i)
+        x = gp_features(self.betm, n, i, h, segment, self.window, self.lead, ~fault)
+        good = np.all(np.isfinite(x), axis=1)
+        x_safe = np.where(good[:, None], x, self.x_mean)
+        est = self.betm.fuse(n, np.where(fault, np.nan, i))
+        mean, std = self.correction(x_safe)
+        raw = est.thrust_n + mean
+        # physics: between 0 and f_BETM + above_n, in the direction the propeller turns
+        up = np.sign(est.f_n) >= 0
+        lo_b = np.where(up, 0.0, est.thrust_n - self.bounds.above_n)
+        hi_b = np.where(up, est.thrust_n + self.bounds.above_n, 0.0)
+        thrust = np.clip(raw, lo_b, hi_b)
+        flags = np.where(thrust != raw, CLAMPED, 0)
+        lo, hi = thrust - Z95 * std, thrust + Z95 * std
+        # outside the training domain: widen to the physical prior [0, f_BETM] +- prior noise
+        distance = np.full(len(n), np.inf)
+        if self.domain is not None:
+            distance[good] = nearest_distance(x[good], self.x_train, self.x_mean, self.x_scale)
+            out = self.domain.outside({"speed_rpm": n, "current_a": np.abs(i), "depth_m": h,
+                                       "shortfall_thrust_n": x[:, 1]})
+            out |= ~(distance <= self.domain.max_distance)
+        else:
+            out = ~good
+        wide = Z95 * self.prior_std(x_safe)
+        phys_lo, phys_hi = np.minimum(0.0, est.thrust_n), np.maximum(0.0, est.thrust_n)
+        lo = np.where(out, np.minimum(lo, phys_lo - wide), lo)
+        hi = np.where(out, np.maximum(hi, phys_hi + wide), hi)
+        flags = flags | np.where(out, OUT_OF_DOMAIN, 0)
+        # current fault: the speed estimate, anywhere between no loss and total loss
+        sd_n = np.sqrt(self.betm.variances(est.f_n)[0])
+        f_lo, f_hi = np.minimum(0.0, est.f_n), np.maximum(0.0, est.f_n)
+        thrust = np.where(fault, est.f_n, thrust)
+        lo = np.where(fault, np.minimum(f_lo - Z95 * sd_n, lo), lo)
+        hi = np.where(fault, np.maximum(f_hi + Z95 * sd_n, hi), hi)
+        flags = flags | np.where(fault, CURRENT_FAULT, 0)
+        bad = ~(np.isfinite(n) & np.isfinite(h))
+        nan = np.where(bad, np.nan, 0.0)
+        return Prediction(thrust + nan, lo + nan, hi + nan, flags.astype(np.int64), distance)
+
     def predict(self, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
                 segment: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(thrust_n, lo95, hi95) for consecutive block means of speed, current and depth."""
-        x = self.features(speed_rpm, current_a, depth_m, segment)
-        base = self.betm.fuse(x[:, 0], np.broadcast_to(
-            np.atleast_1d(np.asarray(current_a, float)), x[:, 0].shape)).thrust_n
-        mean, std = self.correction(x)
-        f = base + mean
-        return f, f - Z95 * std, f + Z95 * std
+        p = self.evaluate(speed_rpm, current_a, depth_m, segment)
+        return p.thrust_n, p.lo95, p.hi95
 
 
-def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
-                   block_s: float = 0.2, lead: int | None = None) -> dict:
-    """The JSON document of a fitted model (`gp` an analysis.gp.ExactGp on gp_features)."""
-    h = gp.hyper  # type: ignore[attr-defined]
-    y_std = float(gp.y_std)  # type: ignore[attr-defined]
-    alpha = np.asarray(gp.alpha)  # type: ignore[attr-defined]
-    noise = getattr(gp, "noise", None)
-    return {
-        "format": FORMAT, "format_version": FORMAT_VERSION, **extra,
-        "inputs": ["speed_rpm", "current_a", "depth_m"],
-        "features": {"columns": list(FEATURES), "block_s": block_s, "window_blocks": window,
-                     "lead_blocks": window // 2 if lead is None else min(max(lead, 0), window - 1),
-                     "c_n": betm.c_n, "i_0": betm.i_0,
-                     "shortfall": "1 - |I| / (c_n |n|^3 + i_0), mean over window_blocks blocks, the last "
-                                  "lead_blocks of them after the current block",
-                     "z": "betm.speed_estimate(n) * shortfall"},
-        "output": "thrust_n = f_BETM(speed_rpm, current_a) + beta * z / (1 + exp(-(|z| - "
-                  "gate_z0) / gate_s)) + gp_mean(x); gate_s = 0: beta * z",
-        "noise": None if noise is None else noise.to_dict(),
-        "betm": {k: (list(v) if isinstance(v, tuple) else v) for k, v in betm.to_dict().items()},
-        "gp": {
-            "kernel": "matern", "nu": 2.5,
-            "length_scales": h.length_scales.tolist(),
-            "signal_var": h.signal_var, "signal_var_n2": h.signal_var * y_std**2,
-            "noise_var": h.noise_var, "noise_var_n2": h.noise_var * y_std**2,
-            "x_mean": gp.x_mean.tolist(), "x_scale": gp.x_scale.tolist(),  # type: ignore[attr-defined]
-            "y_mean": float(gp.y_mean), "y_std": y_std,  # type: ignore[attr-defined]
-            **getattr(gp, "mean_term", GatedMean()).to_dict(),
-            "x_train": gp.x_train.tolist(),  # type: ignore[attr-defined]
-            "weights": gp.w.tolist(),  # type: ignore[attr-defined]
-            "alpha": alpha.tolist(),
-            "a_n": (y_std * h.signal_var * alpha).tolist(),
-            "variance_file": VARIANCE_FILE,
-        },
-    }
+@dataclass
+class Prediction:
+    """Per block: thrust, its 95 % interval, flags (models.domain bits) and domain distance."""
+
+    thrust_n: np.ndarray
+    lo95: np.ndarray
+    hi95: np.ndarray
+    flags: np.ndarray
+    distance: np.ndarray
 
 
 def load_model(calibration_dir: str | Path) -> ThrustModel:
@@ -257,11 +318,16 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
     if version > FORMAT_VERSION:
         raise ValueError(f"{folder / MODEL_FILE} is format version {version}; this rigtool "
                          f"reads up to {FORMAT_VERSION}: update rigtool")
+    kinv_name = doc.get("gp", {}).get("variance_file", VARIANCE_FILE)
+    kinv_path = folder / kinv_name
+    return model_from_document(doc, np.load(kinv_path) if kinv_path.exists() else None)
+
+
+def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustModel:
+    """A ThrustModel from a qctm_gp.json document (and the posterior-variance matrix)."""
     b = doc["betm"]
     betm = Betm(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in b.items()})
     g = doc["gp"]
-    kinv_path = folder / g.get("variance_file", VARIANCE_FILE)
-    k_inv = np.load(kinv_path) if kinv_path.exists() else None
     return ThrustModel(
         betm=betm, x_mean=np.array(g["x_mean"]), x_scale=np.array(g["x_scale"]),
         length_scales=np.array(g["length_scales"]), signal_var=float(g["signal_var"]),
@@ -272,4 +338,5 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
         lead=None if doc.get("features", {}).get("lead_blocks") is None
         else int(doc["features"]["lead_blocks"]),
         mean_term=GatedMean.from_dict(g),
-        block_s=float(doc.get("features", {}).get("block_s", 0.2)))
+        block_s=float(doc.get("features", {}).get("block_s", 0.2)),
+        bounds=Bounds.from_dict(doc.get("bounds")), domain=Domain.from_dict(doc.get("domain")))
