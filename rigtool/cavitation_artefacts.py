@@ -240,6 +240,7 @@ def cavitation_section_html(res: CavitationResult, image_format: str = "svg") ->
              _f(100 * c.coverage95, 3) + " %", c.max_at] for c in ev.classes]
     parts.append(_table(["class", "blocks", "p95 |e| N", "max |e| N", "rms N", "95 % coverage",
                          "max at"], rows, "kv cav-eval"))
+    parts.append(f'<p class="note">This check is {html.escape(IN_SAMPLE_NOTE)}.</p>')
     if ev.matching is not None:
         m = ev.matching
         parts.append(f"<p>Event detection vs ground truth: {m.n_true_found}/{m.n_true} found, "

@@ -351,6 +351,17 @@ def training_blocks(run: RunData, betm: Betm, events: list[Event],
     return ts, scale
 
 
+def fit_gp(training: TrainingSet, params: CavitationParams) -> ExactGp:
+    """fit_hetero on a training set, folds and error groups by point."""
+    points = np.unique(np.column_stack([training.run_id.astype(str),
+                                        np.round(training.x[:, 2], 3).astype(str),
+                                        training.command.astype(str)]),
+                       axis=0, return_inverse=True)[1]
+    return fit_hetero(training.xf, training.y, training.w,
+                      point_folds(training.x[:, 2], training.command), params.gp,
+                      np.ravel(points))
+
+
 def point_folds(depth_m: np.ndarray, command: np.ndarray,
                 t_in_point_s: np.ndarray | None = None) -> np.ndarray:
     """Fold 0/1 per row: a checkerboard over (depth, command) combinations.
@@ -487,8 +498,7 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     all_blocks, scale = training_blocks(run, betm, events, p)
     all_blocks.provenance.update({"block_s": p.train_block_s, "huber_scale_n": scale})
     training = select(all_blocks, p.budget)
-    gp = fit_hetero(training.xf, training.y, training.w,
-                    point_folds(training.x[:, 2], training.command), p.gp)
+    gp = fit_gp(training, p)
 
     evaluation, series = _two_fold(store, run, all_blocks, det_blocks, events, gp, p)
     warnings = []
@@ -553,8 +563,7 @@ def train_model(store: Store, run_ids: list[str], base_run_id: str,
         ts, _ = training_blocks(run, betm, events, p)
         sets.append(ts)
     training = select(concat(sets), p.budget)
-    gp = fit_hetero(training.xf, training.y, training.w,
-                    point_folds(training.x[:, 2], training.command), p.gp)
+    gp = fit_gp(training, p)
     return betm, gp, training
 
 

@@ -25,7 +25,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
-from rigtool.models import Z95, GatedMean, LogNoise, matern52
+from rigtool.models.qctm import Z95, GatedMean, LogNoise, gate, matern52
 
 NU = 2.5
 MIN_GATE_GAIN = 0.01  # the gate must cut the weighted squared residual by this fraction
@@ -171,16 +171,18 @@ def fit_noise(x: np.ndarray, resid: np.ndarray, p: GpParams) -> LogNoise:
 
 
 def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
-               params: GpParams | None = None) -> ExactGp:
+               params: GpParams | None = None, groups: np.ndarray | None = None) -> ExactGp:
     """Exact GP with heteroscedastic noise: (1) homoscedastic hyperparameters, (2) residuals
     of a 2-fold cross-fit (`fold`: 0/1 per row; hold out whole points, since blocks of one
     point, or of one ventilation event, are autocorrelated and leak), (3) noise model on
     their logs, (4) length scales and signal variance again with the noise fixed, (5) the
     signal variance scaled down by cross-validation over the same folds (`cv_signal_scale`:
-    maximum likelihood reads the autocorrelated rows of one event as signal), (6) final
-    exact GP with alpha_i = var(x_i) / w_i. Before all this the gated mean term g(z)
-    (`fit_gated_mean`; z = x[:, 1], the current-implied thrust loss) is taken out of y: the
-    GP then only corrects it."""
+    maximum likelihood reads the autocorrelated rows of one event as signal; `groups`, a
+    label per point, sets the error's standard error), (6) the noise bias calibrated on the
+    cross-fitted predictive intervals, separately for quiet and ventilating rows
+    (`calibrate_bias`), (7) final exact GP with alpha_i = var(x_i) / w_i. Before all this
+    the gated mean term g(z) (`fit_gated_mean`; z = x[:, 1], the current-implied thrust
+    loss) is taken out of y: the GP then only corrects it."""
     p = params or GpParams()
     fold = np.asarray(fold)
     if fold.shape != (len(y),) or not set(np.unique(fold).tolist()) <= {0, 1}:
@@ -197,12 +199,14 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
             g = fit_exact(x[a], y[a], w[a], p, hyper=h0, keep_inverse=False)
             resid[~a] = y[~a] - g.predict(x[~a])[0]
     noise = fit_noise(x, resid, p)
+    noise.gate_z0, noise.gate_s = mean_term.z0, mean_term.s
     st = Standardiser(x)
     y_std = float(np.std(y)) or 1.0
     alpha = noise.var_n2(x) / w / y_std**2
     h1 = fit_hyper_fixed_noise(st(x), (y - np.mean(y)) / y_std, alpha, p)
-    scale = cv_signal_scale(x, y, w, fold, h1, noise, p)
+    scale = cv_signal_scale(x, y, w, fold, h1, noise, p, groups)
     h1 = Hyper(h1.length_scales, scale * h1.signal_var, h1.noise_var)
+    noise = calibrate_bias(x, y, w, fold, h1, noise, p)
     gp = fit_exact(x, y, w, p, hyper=h1, noise=noise)
     gp.mean_term = mean_term
     gp.signal_scale = scale
@@ -210,21 +214,74 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
 
 
 def cv_signal_scale(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
-                    hyper: Hyper, noise: LogNoise, p: GpParams) -> float:
-    """The factor in SIGNAL_SCALES on the signal variance with the least weighted squared
-    error on held-out folds (1.0 when there is only one fold)."""
+                    hyper: Hyper, noise: LogNoise, p: GpParams,
+                    groups: np.ndarray | None = None) -> float:
+    """The smallest factor in SIGNAL_SCALES on the signal variance whose weighted squared
+    error on held-out folds is within one standard error of the best factor's (1.0 when
+    there is only one fold). The standard error of the difference comes from per-point
+    sums (`groups`; else per fold). Taking the simplest model within the noise of the
+    criterion keeps near-identical inputs from flipping between the two likelihood optima."""
     if np.unique(fold).size < 2:
         return 1.0
-    errors = []
+    labels = np.asarray(fold if groups is None else groups)
+    _, g_idx = np.unique(labels, return_inverse=True)
+    per_group = []
     for c in SIGNAL_SCALES:
         h = Hyper(hyper.length_scales, c * hyper.signal_var, hyper.noise_var)
-        err = 0.0
+        err = np.zeros(len(y))
         for k in (0, 1):
             a = fold != k
             g = fit_exact(x[a], y[a], w[a], p, hyper=h, noise=noise, keep_inverse=False)
-            err += float(np.sum(w[~a] * (y[~a] - g.predict(x[~a])[0]) ** 2))
-        errors.append(err)
-    return SIGNAL_SCALES[int(np.argmin(errors))]
+            err[~a] = w[~a] * (y[~a] - g.predict(x[~a])[0]) ** 2
+        per_group.append(np.bincount(g_idx, weights=err))
+    sums = np.array(per_group)  # (factors, groups)
+    best = int(np.argmin(sums.sum(axis=1)))
+    for j in sorted(range(len(SIGNAL_SCALES)), key=lambda j: SIGNAL_SCALES[j]):
+        d = sums[j] - sums[best]
+        se = float(np.sqrt(d.size) * np.std(d, ddof=1)) if d.size > 1 else 0.0
+        if d.sum() <= se:
+            return SIGNAL_SCALES[j]
+    return SIGNAL_SCALES[best]
+
+
+def calibrate_bias(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
+                   hyper: Hyper, noise: LogNoise, p: GpParams, level: float = 0.95) -> LogNoise:
+    """The noise model with log_bias (quiet rows, gate(z) < 1/2) and log_bias_event (the
+    others) set so that `level` of each group's cross-fitted residuals lie inside the
+    predictive interval (posterior variance of the fold's GP plus the noise). One bias for
+    all rows let the quiet majority set it: events were under-covered, quiet rows over."""
+    if np.unique(fold).size < 2:
+        return noise
+    mean, post, nvar = np.empty(len(y)), np.empty(len(y)), np.empty(len(y))
+    for k in (0, 1):
+        a = fold != k
+        g = fit_exact(x[a], y[a], w[a], p, hyper=hyper, noise=noise)
+        m, sd = g.predict(x[~a])
+        n2 = noise.var_n2(x[~a])
+        mean[~a], post[~a], nvar[~a] = m, np.maximum(sd**2 - n2, 0.0), n2
+    r2 = (y - mean) ** 2
+    base = noise.bias(x)
+    event = gate(x[:, 1], noise.gate_z0, noise.gate_s) >= 0.5
+    out = LogNoise(**{**noise.__dict__})
+    biases = []
+    for sel in (~event, event):
+        if sel.sum() < 20:
+            biases.append(None)
+            continue
+        unit = nvar[sel] / np.exp(base[sel])  # noise variance with bias 0
+
+        def covered(b: float, sel: np.ndarray = sel, unit: np.ndarray = unit) -> float:
+            return float(np.mean(r2[sel] <= Z95**2 * (post[sel] + np.exp(b) * unit)))
+
+        lo, hi = -20.0, 20.0
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if covered(mid) < level else (lo, mid)
+        biases.append(hi)
+    quiet, vent = biases
+    out.log_bias = noise.log_bias if quiet is None else quiet
+    out.log_bias_event = None if vent is None else vent
+    return out
 
 
 def fit_gated_mean(z: np.ndarray, y: np.ndarray, w: np.ndarray) -> GatedMean:

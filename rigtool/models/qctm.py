@@ -112,6 +112,15 @@ def gp_features(betm: Betm, speed_rpm: np.ndarray, current_a: np.ndarray, depth_
     return np.column_stack([n, betm.speed_estimate(n) * short, h])
 
 
+def gate(z: np.ndarray, z0: float, s: float) -> np.ndarray:
+    """1 / (1 + exp(-(|z| - z0) / s)): ~0 for current noise, ~1 for a real shortfall; 0 if s <= 0."""
+    z = np.asarray(z, dtype=float)
+    if s <= 0.0:
+        return np.zeros(z.shape)
+    u = np.clip((np.abs(z) - z0) / s, -700.0, 700.0)  # exp stays finite
+    return 1.0 / (1.0 + np.exp(-u))
+
+
 @dataclass(frozen=True)
 class GatedMean:
     """Explicit mean term g(z) = beta z / (1 + exp(-(|z| - z0) / s)) of the GP (s = 0: beta z).
@@ -127,8 +136,7 @@ class GatedMean:
         z = np.asarray(z, dtype=float)
         if self.s <= 0.0:
             return self.beta * z
-        u = np.clip((np.abs(z) - self.z0) / self.s, -700.0, 700.0)  # exp stays finite
-        return self.beta * z / (1.0 + np.exp(-u))
+        return self.beta * z * gate(z, self.z0, self.s)
 
     def to_dict(self) -> dict:
         return {"beta": self.beta, "gate_z0": self.z0, "gate_s": self.s}
@@ -150,7 +158,20 @@ class LogNoise:
     log_mean: float
     x_train: np.ndarray  # raw inputs
     alpha: np.ndarray
-    log_bias: float = LOG_CHI2_BIAS  # fitted: makes 95 % of the training residuals covered
+    log_bias: float = LOG_CHI2_BIAS  # fitted: 95 % of the cross-fitted residuals covered
+    # A second bias where the shortfall says "ventilating" (gate(z) -> 1), calibrated on those
+    # rows alone: with one bias the many quiet rows set it and events were under-covered.
+    log_bias_event: float | None = None  # None: log_bias everywhere
+    gate_z0: float = 0.0
+    gate_s: float = 0.0
+
+    def bias(self, x: np.ndarray) -> np.ndarray:
+        """log_bias + (log_bias_event - log_bias) gate(z), z = x[:, 1]."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        if self.log_bias_event is None:
+            return np.full(len(x), self.log_bias)
+        return self.log_bias + (self.log_bias_event - self.log_bias) * gate(
+            x[:, 1], self.gate_z0, self.gate_s)
 
     def var_n2(self, x: np.ndarray) -> np.ndarray:
         xs = (np.asarray(x, dtype=float) - self.x_mean) / self.x_scale
@@ -159,21 +180,25 @@ class LogNoise:
         for s in range(0, len(xs), 2048):
             k = self.signal_var * matern52(xs[s:s + 2048], xt, self.length_scales)
             out[s:s + 2048] = k @ self.alpha
-        return np.exp(self.log_mean + self.log_bias + out)
+        return np.exp(self.log_mean + self.bias(x) + out)
 
     def to_dict(self) -> dict:
         return {"kernel": "matern", "nu": 2.5, "x_mean": self.x_mean.tolist(),
                 "x_scale": self.x_scale.tolist(), "length_scales": self.length_scales.tolist(),
                 "signal_var": self.signal_var, "log_mean": self.log_mean,
-                "log_bias": self.log_bias, "x_train": self.x_train.tolist(),
-                "alpha": self.alpha.tolist()}
+                "log_bias": self.log_bias, "log_bias_event": self.log_bias_event,
+                "gate_z0": self.gate_z0, "gate_s": self.gate_s,
+                "x_train": self.x_train.tolist(), "alpha": self.alpha.tolist()}
 
     @classmethod
     def from_dict(cls, d: dict) -> LogNoise:
+        event = d.get("log_bias_event")
         return cls(np.array(d["x_mean"]), np.array(d["x_scale"]), np.array(d["length_scales"]),
                    float(d["signal_var"]), float(d["log_mean"]),
                    np.array(d["x_train"], dtype=float), np.array(d["alpha"]),
-                   float(d.get("log_bias", LOG_CHI2_BIAS)))
+                   float(d.get("log_bias", LOG_CHI2_BIAS)),
+                   None if event is None else float(event),
+                   float(d.get("gate_z0", 0.0)), float(d.get("gate_s", 0.0)))
 
 
 @dataclass
