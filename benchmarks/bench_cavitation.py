@@ -100,7 +100,7 @@ def main() -> None:
           f"held-out seeds {test_seeds}, grid seeds {grid_seeds} (depths 25/45 cm, 30/55/80 %)")
     header = (f"{'base':>5} {'train':>9} {'fit s':>6} | {'p95 ev':>6} {'p95 out':>7} "
               f"{'cov ev':>6} {'cov out':>7} {'cov all':>7} | {'grid p95 ev':>11} "
-              f"{'grid p95 out':>12} {'grid cov':>8}")
+              f"{'grid p95 out':>12} {'grid cov':>8} | scale  length scales (n, z, h)")
     print(header)
     rows = []
     for base_seed, train_seeds in combos:
@@ -114,7 +114,8 @@ def main() -> None:
         gridres = pooled([evaluate_on_run(store, r, predict, betm, p) for r in grids])
         row = (base_seed, train_seeds, fit_s, held, gridres)
         rows.append(row)
-        print(_line(*row), flush=True)
+        print(_line(*row) + f" | {gp.signal_scale:g}  "
+              + " ".join(f"{v:.3g}" for v in gp.hyper.length_scales), flush=True)
     print("worst over combinations:")
     worst = {k: max(r[3][k]["p95"] for r in rows) for k in ("event", "outside")}
     cover = {k: (min(r[3][k]["cover"] for r in rows), max(r[3][k]["cover"] for r in rows))
