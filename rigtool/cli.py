@@ -28,6 +28,9 @@ out = Console(highlight=False, soft_wrap=True, width=None if sys.stdout.isatty()
 err = Console(stderr=True, highlight=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
 
 
+MAX_PRINTED_ERRORS = 200  # unreadable cells of one imported file listed on stderr
+
+
 def _fmt_duration(seconds: float) -> str:
     h, rem = divmod(int(round(seconds)), 3600)
     m, s = divmod(rem, 60)
@@ -373,8 +376,11 @@ def cmd_import(args: argparse.Namespace) -> int:
             args.name and several) else args.name
         result = import_file(store, path, mapping, name=name, thruster_id=args.thruster_id,
                              depth_m=args.depth, strict=args.strict)
-        for line in result.errors:
+        for line in result.errors[:MAX_PRINTED_ERRORS]:
             err.print(line, markup=False)
+        if len(result.errors) > MAX_PRINTED_ERRORS:
+            err.print(f"... and {len(result.errors) - MAX_PRINTED_ERRORS} more unreadable "
+                      "cell(s)", markup=False)
         for warning in result.warnings:
             err.print(f"warning: {warning}", markup=False)
         out.print(result.summary(), markup=False)
