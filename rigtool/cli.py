@@ -28,6 +28,9 @@ out = Console(highlight=False, soft_wrap=True, width=None if sys.stdout.isatty()
 err = Console(stderr=True, highlight=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
 
 
+MAX_PRINTED_ERRORS = 200  # unreadable cells of one imported file listed on stderr
+
+
 def _fmt_duration(seconds: float) -> str:
     h, rem = divmod(int(round(seconds)), 3600)
     m, s = divmod(rem, 60)
@@ -247,7 +250,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from rigtool.sim.server import start_sim
 
     server = start_sim(args.profile, seed=args.seed, sensor=args.sensor, netft=args.netft,
-                       can_channel=args.can_channel, depth_m=args.depth)
+                       can_channel=args.can_channel, depth_m=args.depth, bind=args.bind)
     try:
         for spec in args.fault or ():
             server.set_fault(spec)
@@ -265,6 +268,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
                 fh.write(text)
             os.replace(tmp, args.rig_out)
             err.print(f"rig file written to {args.rig_out}")
+        for warning in server.exposure():
+            err.print(f"warning: {warning}", markup=False)
         out.print(f"# rigtool sim --profile {args.profile}: use this rig file "
                   "(rigtool sweep PROTOCOL --rig FILE); Ctrl-C stops the simulator")
         out.print(text, markup=False)
@@ -373,8 +378,11 @@ def cmd_import(args: argparse.Namespace) -> int:
             args.name and several) else args.name
         result = import_file(store, path, mapping, name=name, thruster_id=args.thruster_id,
                              depth_m=args.depth, strict=args.strict)
-        for line in result.errors:
+        for line in result.errors[:MAX_PRINTED_ERRORS]:
             err.print(line, markup=False)
+        if len(result.errors) > MAX_PRINTED_ERRORS:
+            err.print(f"... and {len(result.errors) - MAX_PRINTED_ERRORS} more unreadable "
+                      "cell(s)", markup=False)
         for warning in result.warnings:
             err.print(f"warning: {warning}", markup=False)
         out.print(result.summary(), markup=False)
@@ -470,10 +478,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", default="stm32-pwm", help="can-bldc | stm32-pwm | esc-1100-1900")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--sensor", default="netft", help="netft | mark10 | hx711")
-    p.add_argument("--netft", default="127.0.0.1:49152", metavar="HOST:PORT",
-                   help="where the Net F/T answers (port 0: any free port)")
-    p.add_argument("--can-channel", default="239.74.163.2",
-                   help="python-can udp_multicast group for the CAN personalities")
+    p.add_argument("--bind", default="127.0.0.1", metavar="ADDRESS",
+                   help="address the network personalities serve on (default 127.0.0.1: this "
+                        "host only; e.g. 0.0.0.0 makes the simulator reachable from the LAN)")
+    p.add_argument("--netft", metavar="[HOST:]PORT",
+                   help="where the Net F/T answers (default: the --bind address, port 49152; "
+                        "port 0: any free port)")
+    p.add_argument("--can-channel", metavar="GROUP[:PORT]",
+                   help="multicast group (239.x.y.z) of the CAN personalities' bus (default: a "
+                        "random group and a free port, so every simulator has its own bus)")
     p.add_argument("--depth", type=float, default=1.0, help="initial propeller depth (m)")
     p.add_argument("--fault", action="append", metavar="PART.SWITCH=VALUE",
                    help="inject a fault, e.g. netft.drop=0.01, netft.silent=true, bridge.garbage=true, "

@@ -7,6 +7,7 @@ belong to in one transaction, so a crash never leaves half a point.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import secrets
@@ -35,6 +36,11 @@ SAMPLE_COLUMNS = (
 )
 
 STAT_FIELDS = ("thrust_n", "speed_rpm", "current_a")
+
+# Bulk writes (imports): sample rows per executemany call, and per transaction, so a big
+# import holds the write lock for about a second at a time and never builds all rows at once.
+BATCH_ROWS = 10_000
+IMPORT_ROWS_PER_TRANSACTION = 200_000
 
 # Transport counters that count ordinary traffic; every other counter a driver keeps
 # (garbage, lost_packets, timeouts, error_frames...) is a problem a reader should see.
@@ -276,13 +282,18 @@ class Store:
         command_unit: str,
         tool_version: str,
         actuator: dict | None = None,
+        status: str = "running",
+        stop_reason: str | None = None,
     ) -> str:
-        """Insert a new running run; `actuator` is its command space (unit, neutral, range)."""
+        """Insert a new run (running, unless an import marks it incomplete until it is done);
+        `actuator` is its command space (unit, neutral, range)."""
+        if status not in RUN_STATUSES:
+            raise ValueError(f"unknown run status {status!r}")
         run_id = new_run_id()
         row = {
             "id": run_id,
             "name": name,
-            "status": "running",
+            "status": status,
             "created_utc": utc_now(),
             "finished_utc": None,
             "tool_version": tool_version,
@@ -296,7 +307,7 @@ class Store:
             "metadata_json": json.dumps(metadata),
             "n_planned": len(plan),
             "command_unit": command_unit,
-            "stop_reason": None,
+            "stop_reason": stop_reason,
             "actuator_json": None if actuator is None else json.dumps(actuator),
             "started_utc": utc_now("microseconds"),
         }
@@ -337,6 +348,71 @@ class Store:
                 matrix.tolist(),
             )
         return step_id
+
+    def add_points(self, run_id: str, points: dict[str, np.ndarray], bounds: np.ndarray,
+                   samples: dict[str, np.ndarray], command_unit: str) -> None:
+        """Insert many finished points (idx 0, 1, ...) with their samples, for imports.
+
+        Point i owns samples[c][bounds[i]:bounds[i + 1]]; `points` holds the StepRecord fields
+        command, depth_m (NaN = none), repeat, direction, t_*_s, settle_s and rate_hz as
+        arrays. Rows go in with executemany in batches of BATCH_ROWS, in transactions of at most
+        IMPORT_ROWS_PER_TRANSACTION sample rows (one point never splits).
+        """
+        bounds = np.asarray(bounds, dtype=np.int64)
+        n_points = bounds.size - 1
+        if n_points and np.any(np.diff(bounds) < 1):
+            raise ValueError("every point needs at least one sample")
+        columns: dict[str, list] = {k: np.asarray(v).tolist() for k, v in points.items()}
+        n = np.diff(bounds)
+        columns["n"] = n.tolist()
+        for name in STAT_FIELDS:
+            stats = segment_stats(samples.get(name), bounds)
+            for key, values in stats.items():
+                columns[f"{name}_{key}"] = values
+        start = 0
+        while start < n_points:
+            limit = bounds[start] + IMPORT_ROWS_PER_TRANSACTION
+            stop = min(n_points, max(start + 1, int(np.searchsorted(bounds, limit, "right")) - 1))
+            with self.transaction():
+                self._insert_points(run_id, columns, bounds, samples, command_unit, start, stop)
+            start = stop
+
+    def _insert_points(self, run_id: str, columns: dict[str, list], bounds: np.ndarray,
+                       samples: dict[str, np.ndarray], command_unit: str, start: int,
+                       stop: int) -> None:
+        """Points start..stop-1 and their samples, inside the caller's transaction."""
+        first_id = self.conn.execute("SELECT COALESCE(MAX(id), 0) + 1 FROM steps").fetchone()[0]
+        filled = {k: v for k, v in columns.items() if any(x is not None for x in v[start:stop])}
+        names = ["id", "run_id", "idx", "command_unit", "settled", "status", *filled]
+        sql = f"INSERT INTO steps ({', '.join(names)}) VALUES ({', '.join('?' * len(names))})"
+        for a in range(start, stop, BATCH_ROWS):
+            b = min(stop, a + BATCH_ROWS)
+            self.conn.executemany(sql, zip(
+                range(first_id + a - start, first_id + b - start), itertools.repeat(run_id),
+                range(a, b), itertools.repeat(command_unit), itertools.repeat(1),
+                itertools.repeat("ok"), *(values[a:b] for values in filled.values())))
+        step_ids = np.repeat(np.arange(first_id, first_id + stop - start),
+                             np.diff(bounds[start:stop + 1]))
+        sql = (f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}) "
+               f"VALUES ({', '.join('?' * len(SAMPLE_COLUMNS))})")
+        lo = int(bounds[start])
+        for a in range(lo, int(bounds[stop]), BATCH_ROWS):
+            b = min(int(bounds[stop]), a + BATCH_ROWS)
+            matrix = np.empty((b - a, len(SAMPLE_COLUMNS)))
+            matrix[:, 0] = step_ids[a - lo:b - lo]
+            for i, c in enumerate(SAMPLE_COLUMNS[1:], start=1):
+                values = samples.get(c)
+                matrix[:, i] = np.nan if values is None else values[a:b]
+            # SQLite stores a bound NaN as NULL, so missing channels read back as NULL.
+            self.conn.executemany(sql, matrix.tolist())
+
+    def add_events(self, run_id: str, events: list[tuple[str, dict]]) -> None:
+        """Insert several (kind, detail) events of a run in one transaction."""
+        with self.transaction():
+            self.conn.executemany(
+                "INSERT INTO events (run_id, t_s, kind, step_idx, detail_json) "
+                "VALUES (?, NULL, ?, NULL, ?)",
+                [(run_id, kind, json.dumps(detail)) for kind, detail in events])
 
     def add_event(
         self, run_id: str, kind: str, detail: dict | None = None,
@@ -498,6 +574,32 @@ class _Transaction:
             self.conn.execute("ROLLBACK")
         if isinstance(exc, sqlite3.OperationalError):
             raise self._explain(exc) from exc
+
+
+def segment_stats(values: np.ndarray | None, bounds: np.ndarray) -> dict[str, list]:
+    """mean, std (ddof 1; 0 for one value), min and max of the finite values of each segment
+    values[bounds[i]:bounds[i + 1]] (None where a segment has none), as `_stats` per point."""
+    n_seg = len(bounds) - 1
+    if values is None or n_seg == 0:
+        return {k: [None] * n_seg for k in ("mean", "std", "min", "max")}
+    v = np.asarray(values, dtype=float)
+    starts = np.asarray(bounds[:-1], dtype=np.int64)
+    seg = np.repeat(np.arange(n_seg), np.diff(bounds))
+    finite = np.isfinite(v)
+    count = np.bincount(seg, weights=finite, minlength=n_seg)
+    good = np.where(finite, v, 0.0)
+    mean = np.bincount(seg, weights=good, minlength=n_seg) / np.maximum(count, 1)
+    dev = np.where(finite, v - mean[seg], 0.0)
+    var = np.bincount(seg, weights=dev * dev, minlength=n_seg) / np.maximum(count - 1, 1)
+    std = np.where(count > 1, np.sqrt(var), 0.0)
+    low = np.minimum.reduceat(np.where(finite, v, np.inf), starts)
+    high = np.maximum.reduceat(np.where(finite, v, -np.inf), starts)
+    out = {}
+    for key, arr in (("mean", mean), ("std", std), ("min", low), ("max", high)):
+        obj = arr.astype(object)
+        obj[count == 0] = None
+        out[key] = obj.tolist()
+    return out
 
 
 def _stats(name: str, values: np.ndarray | None) -> dict[str, float | None]:

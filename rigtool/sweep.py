@@ -117,6 +117,7 @@ def resolve_resume(store: Store, run_ref: str,
     """
     run_id = store.resolve_run_id(run_ref)
     run = store.run(run_id)
+    _refuse_import(run_id, run)
     if run["status"] not in RESUMABLE:
         raise UsageError(f"run {run_id} is {run['status']}; only {', '.join(RESUMABLE)} runs resume")
     protocol = Protocol.model_validate(run["protocol"])
@@ -137,6 +138,18 @@ def resolve_resume(store: Store, run_ref: str,
     t_used = max((s["t_end_s"] for s in steps), default=0.0)
     path = Path(run["protocol_path"] or "protocol")
     return run_id, SweepSetup(protocol, path, rig, plan), len(done), t_used
+
+
+def _refuse_import(run_id: str, run: dict) -> None:
+    """An imported run has no rig to drive and no plan to finish: say so instead of resuming."""
+    resolved = run["rig"].get("resolved") if isinstance(run["rig"], dict) else None
+    if not (isinstance(resolved, dict) and resolved.get("kind") == "import"):
+        return
+    if run["status"] == "completed":
+        raise UsageError(f"run {run_id} is an imported run, not a sweep: it cannot be resumed")
+    raise UsageError(f"run {run_id} is an incomplete import ({run['status']}: "
+                     f"{run['stop_reason'] or 'no reason stored'}); an import cannot be resumed: "
+                     "run `rigtool import` on the file again")
 
 
 def terminal_confirm() -> Callable[[str], bool] | None:

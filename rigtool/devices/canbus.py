@@ -18,6 +18,7 @@ from collections.abc import Callable
 import can
 import numpy as np
 
+from rigtool.devices import udp_loopback
 from rigtool.devices.base import FeedbackBlock
 from rigtool.errors import DeviceError
 
@@ -51,9 +52,12 @@ def bus_name(interface: str, channel: str) -> str:
 
 
 def open_bus(interface: str, channel: str, bitrate: int | None = None) -> can.BusABC:
-    """Open a python-can bus; any failure becomes a DeviceError naming interface and channel."""
+    """Open a python-can bus (or rigtool's loopback-only `udp_loopback`, see udp_loopback.py);
+    any failure becomes a DeviceError naming interface and channel."""
     kwargs = {} if bitrate is None else {"bitrate": bitrate}
     try:
+        if interface == udp_loopback.INTERFACE:
+            return udp_loopback.UdpLoopbackBus(channel, **kwargs)
         return can.Bus(interface=interface, channel=channel, **kwargs)
     except Exception as exc:  # noqa: BLE001 - backends raise anything from ImportError to OSError
         raise DeviceError(

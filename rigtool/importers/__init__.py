@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from rigtool.store import Store
 
 __all__ = ["ImportResult", "Mapping", "RowErrors", "import_file", "load_mapping", "with_overrides"]
 MAX_STORED_ERRORS = 200
+MAX_LISTED_ERRORS = 200  # unreadable cells listed in a --strict error
 
 
 class RowErrors(UsageError):
@@ -74,11 +76,15 @@ def import_file(store: Store, path: str | Path, mapping: Mapping | None = None, 
     """Read one log file and store it as a completed run (unless --strict and rows are bad)."""
     path = Path(path)
     m = mapping or Mapping()
+    if depth_m is not None and not math.isfinite(depth_m):
+        raise UsageError(f"--depth {depth_m!r}: must be a finite number of metres")
     table = read_table(path, delimiter=m.delimiter, decimal=m.decimal, header_row=m.header_row)
     parsed = parse(table, m)
     if strict and parsed.errors:
+        more = len(parsed.errors) - MAX_LISTED_ERRORS
         raise RowErrors(f"{path}: {len(parsed.errors)} unreadable cell(s), nothing imported "
-                        "(--strict):\n" + "\n".join(parsed.errors))
+                        "(--strict):\n" + "\n".join(parsed.errors[:MAX_LISTED_ERRORS])
+                        + (f"\n... and {more} more" if more > 0 else ""))
     if parsed.lines.size == 0:
         raise UsageError(f"{path}: no readable data rows"
                          + (":\n" + "\n".join(parsed.errors[:20]) if parsed.errors else ""))
@@ -86,17 +92,17 @@ def import_file(store: Store, path: str | Path, mapping: Mapping | None = None, 
     if fmt == "timeseries" and "time" not in parsed.values:
         raise UsageError(f"{path}: format timeseries needs a time column (--col time=COLUMN)")
     if fmt == "timeseries":
-        steps, notes = timeseries_steps(parsed, m.settle_s, depth_m)
+        points, notes = timeseries_steps(parsed, m.settle_s, depth_m)
     else:
-        steps, notes = point_steps(parsed, depth_m)
-    if not steps:
+        points, notes = point_steps(parsed, depth_m)
+    if not len(points):
         raise UsageError(f"{path}: no points left after the settling cut: lower --settle-s")
     warnings = parsed.warnings + notes
     result = ImportResult(path, None, parsed.importer, fmt, parsed.command_unit, parsed.n_rows,
-                          parsed.n_skipped, len(steps), parsed.errors, warnings)
+                          parsed.n_skipped, len(points), parsed.errors, warnings)
     metadata = {"thruster_id": thruster_id, "source_file": path.name}
     run_name = name or path.stem
-    protocol = protocol_for(run_name, parsed.command_unit, m.neutral, steps, metadata, path.name)
+    protocol = protocol_for(run_name, parsed.command_unit, m.neutral, points, metadata, path.name)
     events = [("import", {"message": result.summary().replace(", run None", ""),
                           "rows": parsed.n_rows, "skipped": parsed.n_skipped,
                           "errors": parsed.errors[:MAX_STORED_ERRORS]})]
@@ -105,5 +111,5 @@ def import_file(store: Store, path: str | Path, mapping: Mapping | None = None, 
                                               f"skipped as unreadable, first: {parsed.errors[0]}"}))
     events += [("warning", {"message": w}) for w in warnings]
     result.run_id = write_run(store, name=run_name, protocol=protocol,
-                              rig=_rig(path, parsed, m, fmt), steps=steps, events=events)
+                              rig=_rig(path, parsed, m, fmt), points=points, events=events)
     return result

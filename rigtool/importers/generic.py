@@ -13,6 +13,7 @@ from rigtool.importers.mapping import Mapping
 from rigtool.importers.table import RawTable
 
 REQUIRED = ("command", "thrust")
+MAX_SHOWN_CELL = 40  # characters of a bad cell quoted in its error message
 
 
 @dataclass
@@ -44,6 +45,14 @@ class Parsed:
         return self.n_rows - int(self.lines.size)
 
 
+def shown(text: str) -> str:
+    """A cell quoted for an error message, cut short if long (a hostile cell can be huge)."""
+    s = text.strip()
+    if len(s) <= MAX_SHOWN_CELL:
+        return repr(s)
+    return f"{s[:MAX_SHOWN_CELL - 8]!r}... ({len(s)} characters)"
+
+
 def parse_number(text: str, decimal: str) -> float | None:
     """A finite float from a cell (None if empty); ValueError with the reason otherwise."""
     s = text.strip()
@@ -52,13 +61,13 @@ def parse_number(text: str, decimal: str) -> float | None:
     if decimal == ",":
         s = s.replace(",", ".")
     elif "," in s:
-        raise ValueError(f"{text.strip()!r} is not a number (comma decimal? use --decimal-comma)")
+        raise ValueError(f"{shown(text)} is not a number (comma decimal? use --decimal-comma)")
     try:
         x = float(s)
     except ValueError:
-        raise ValueError(f"{text.strip()!r} is not a number") from None
+        raise ValueError(f"{shown(text)} is not a number") from None
     if not math.isfinite(x):
-        raise ValueError(f"{text.strip()!r} is not a finite number")
+        raise ValueError(f"{shown(text)} is not a finite number")
     return x
 
 
@@ -68,13 +77,16 @@ def _find(header: list[str], ref: str | int, fld: str, path: str) -> int:
             raise UsageError(f"{path}: {fld}: column {ref} out of range 1..{len(header)}")
         return ref - 1
     want = ref.strip().lower()
-    for i, h in enumerate(header):
-        if h.lower() == want:
-            return i
-    for i, h in enumerate(header):
-        if units.split_header(h)[0].lower() == want:
-            return i
-    raise UsageError(f"{path}: {fld}: no column {ref!r}; columns are: "
+    for matches in ([i for i, h in enumerate(header) if h.lower() == want],
+                    [i for i, h in enumerate(header) if units.split_header(h)[0].lower() == want]):
+        if len(matches) == 1:
+            return matches[0]
+        if matches:
+            listed = ", ".join(f"{i + 1} ({header[i]!r})" for i in matches)
+            raise UsageError(f"{path}: {fld}: column name {ref!r} is ambiguous, it matches "
+                             f"columns {listed}: give the column number (--col {fld}="
+                             f"{matches[0] + 1}) or a header that names one column")
+    raise UsageError(f"{path}: {fld}: no column {shown(ref)}; columns are: "
                      + ", ".join(repr(h) for h in header))
 
 
@@ -120,35 +132,65 @@ def resolve_columns(table: RawTable, mapping: Mapping) -> tuple[str, dict[str, C
     return importer, refs, command_unit, warnings
 
 
+def _column(cells: list[str], fld: str, ref: ColumnRef, widths: np.ndarray, decimal: str,
+            problems: dict[int, list[str]]) -> np.ndarray:
+    """One mapped column in SI (NaN where an optional cell is empty); bad cells go to `problems`.
+
+    The whole column is converted at once; only a column holding a bad cell is read cell by
+    cell, to say which rows are bad and why.
+    """
+    text = [c.replace(",", ".") for c in cells] if decimal == "," else cells
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            values = np.asarray(text, dtype=float) * ref.factor
+        if np.all(np.isfinite(values)):
+            return values
+    except ValueError:
+        pass
+    values = np.full(len(cells), np.nan)
+    for i, cell in enumerate(cells):
+        try:
+            value = parse_number(cell, decimal)
+        except ValueError as exc:
+            problems.setdefault(i, []).append(f"{fld}: {exc}")
+            continue
+        if value is None:
+            if fld in REQUIRED:
+                problems.setdefault(i, []).append(
+                    f"{fld}: empty" if ref.index < widths[i]
+                    else f"{fld}: missing (row has {widths[i]} cells)")
+        elif not math.isfinite(value * ref.factor):
+            problems.setdefault(i, []).append(
+                f"{fld}: {shown(cell)} is too large once converted from "
+                f"{ref.unit or 'its unit'} (x {ref.factor:g})")
+        else:
+            values[i] = value * ref.factor
+    return values
+
+
 def parse(table: RawTable, mapping: Mapping) -> Parsed:
     """Read every data row; a row with an unreadable mapped cell is skipped and reported."""
     importer, refs, command_unit, warnings = resolve_columns(table, mapping)
-    out: dict[str, list[float]] = {f: [] for f in refs}
-    lines: list[int] = []
-    errors: list[str] = []
-    for line, cells in table.rows:
-        row: dict[str, float] = {}
-        problems = []
-        for fld, ref in refs.items():
-            cell = cells[ref.index] if ref.index < len(cells) else ""
-            try:
-                value = parse_number(cell, mapping.decimal)
-            except ValueError as exc:
-                problems.append(f"{fld}: {exc}")
-                continue
-            if value is None:
-                if fld in REQUIRED:
-                    problems.append(f"{fld}: empty" if ref.index < len(cells)
-                                    else f"{fld}: missing (row has {len(cells)} cells)")
-                value = math.nan
-            row[fld] = value * ref.factor
-        if problems:
-            errors += [f"{table.path}:{line}: {p}" for p in problems]
-            continue
-        for fld, value in row.items():
-            out[fld].append(value)
-        lines.append(line)
-    values = {f: np.asarray(v, dtype=float) for f, v in out.items()}
-    return Parsed(importer, refs, command_unit, values, np.asarray(lines, dtype=int),
-                  len(table.rows), errors, warnings)
-
+    widths = np.fromiter((len(cells) for _, cells in table.rows), dtype=np.int64,
+                         count=len(table.rows))
+    problems: dict[int, list[str]] = {}
+    columns = {}
+    for fld, ref in refs.items():
+        j = ref.index
+        cells = [cells[j] if j < len(cells) else "" for _, cells in table.rows]
+        columns[fld] = _column(cells, fld, ref, widths, mapping.decimal, problems)
+    if "thrust_std" in columns:
+        with np.errstate(over="ignore", invalid="ignore"):
+            spread = np.abs(columns["thrust"]) + np.abs(columns["thrust_std"])
+        for i in np.flatnonzero(np.isinf(spread)).tolist():
+            problems.setdefault(i, []).append(
+                "thrust_std: thrust plus its standard deviation is too large")
+    good = np.ones(len(table.rows), dtype=bool)
+    good[list(problems)] = False
+    row_lines = [line for line, _ in table.rows]
+    errors = [(row_lines[i], p) for i, ps in problems.items() for p in ps] + table.bad
+    errors.sort(key=lambda e: e[0])
+    values = {f: v[good] for f, v in columns.items()}
+    lines = np.asarray(row_lines, dtype=int)[good]
+    return Parsed(importer, refs, command_unit, values, lines, len(table.rows) + len(table.bad),
+                  [f"{table.path}:{n}: {p}" for n, p in errors], warnings)

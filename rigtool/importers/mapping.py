@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from rigtool.config import load_model
 from rigtool.errors import UsageError
@@ -13,6 +13,14 @@ from rigtool.errors import UsageError
 FIELDS = ("time", "command", "thrust", "speed", "current", "voltage", "depth", "thrust_std",
           "n_samples")
 FORMATS = ("auto", "timeseries", "points")
+# Characters a delimiter may not be: the quote, line ends, and what numbers are written with.
+NOT_DELIMITERS = frozenset('"\r\n0123456789.+-eE')
+# Mapping field -> the command-line option that sets it, to name it in errors.
+OPTIONS = {"columns": "--col", "units": "--unit", "command_unit": "--command-unit",
+           "neutral": "--neutral", "format": "--format", "delimiter": "--delimiter",
+           "decimal": "--decimal-comma", "settle_s": "--settle-s", "thrust_sign": "--flip-thrust",
+           "pole_pairs": "--pole-pairs"}
+MAX_COLUMN_DIGITS = 6
 
 
 class _Strict(BaseModel):
@@ -52,12 +60,12 @@ class Mapping(_Strict):
     columns: Columns = Field(default_factory=Columns)
     units: Units = Field(default_factory=Units)
     command_unit: str | None = None
-    neutral: float | None = None
+    neutral: float | None = Field(default=None, allow_inf_nan=False)
     format: Literal["auto", "timeseries", "points"] = "auto"
     delimiter: str | None = None
     decimal: Literal[".", ","] = "."
     header_row: int | None = Field(default=None, ge=1)
-    settle_s: float = Field(default=0.0, ge=0)
+    settle_s: float = Field(default=0.0, ge=0, allow_inf_nan=False)
     thrust_sign: Literal[1, -1] = 1
     pole_pairs: int | None = Field(default=None, ge=1)
 
@@ -66,7 +74,16 @@ class Mapping(_Strict):
     def _one_char(cls, v: str | None) -> str | None:
         if v is not None and v not in ("\t", "tab") and len(v) != 1:
             raise ValueError("delimiter must be one character (or 'tab')")
+        if v is not None and v in NOT_DELIMITERS:
+            raise ValueError(f"{v!r} cannot be the delimiter (quote, line end, or part of numbers)")
         return "\t" if v == "tab" else v
+
+    @model_validator(mode="after")
+    def _delimiter_not_decimal(self) -> Mapping:
+        """A delimiter equal to the decimal mark would split every number in two."""
+        if self.delimiter is not None and self.delimiter == self.decimal:
+            raise ValueError(f"delimiter {self.delimiter!r} is also the decimal mark")
+        return self
 
 
 def load_mapping(path: str | Path) -> Mapping:
@@ -91,11 +108,35 @@ def _pairs(items: list[str] | None, option: str, allowed: tuple[str, ...]) -> di
 def with_overrides(base: Mapping, *, cols: list[str] | None = None,
                    units: list[str] | None = None, **options: object) -> Mapping:
     """`base` with command-line --col/--unit pairs and other options (None = keep) applied."""
-    col_map = {k: (int(v) if v.isdigit() else v) for k, v in _pairs(cols, "--col", FIELDS).items()}
+    col_map = {k: _column_ref(k, v) for k, v in _pairs(cols, "--col", FIELDS).items()}
     unit_map = _pairs(units, "--unit", tuple(Units.model_fields))
     update: dict[str, object] = {k: v for k, v in options.items() if v is not None}
     data = base.model_dump()
     data["columns"].update(col_map)
     data["units"].update(unit_map)
     data.update(update)
-    return Mapping.model_validate(data)
+    try:
+        return Mapping.model_validate(data)
+    except ValidationError as exc:
+        raise UsageError(_options_error(exc, update)) from None
+
+
+def _column_ref(fld: str, value: str) -> str | int:
+    """A --col value: a 1-based column number (ASCII digits) or a header name."""
+    if not (value.isascii() and value.isdigit()):
+        return value
+    if len(value) > MAX_COLUMN_DIGITS:
+        raise UsageError(f"--col {fld}=<{len(value)} digits>: column number out of range")
+    return int(value)
+
+
+def _options_error(exc: ValidationError, given: dict[str, object]) -> str:
+    """Name the command-line option behind each problem, with the value given."""
+    lines = []
+    for e in exc.errors():
+        loc = [str(x) for x in e["loc"]]
+        option = OPTIONS.get(loc[0], "--" + loc[0].replace("_", "-")) if loc else "--delimiter"
+        shown = f" {given[loc[0]]!r}" if loc and loc[0] in given else ""
+        where = f" ({'.'.join(loc[1:])})" if len(loc) > 1 else ""
+        lines.append(f"{option}{shown}{where}: {e['msg'].removeprefix('Value error, ')}")
+    return "\n".join(lines or [str(exc)])

@@ -1,4 +1,8 @@
-"""Group parsed rows into points: a time series by runs of equal command, a table row by row."""
+"""Group parsed rows into points: a time series by runs of equal command, a table row by row.
+
+Points are built column-wise with numpy (no Python work per point), so a log of a million
+rows that are each their own point imports in seconds.
+"""
 
 from __future__ import annotations
 
@@ -6,43 +10,59 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rigtool.errors import UsageError
 from rigtool.importers.generic import Parsed
 
 CHANNELS = {"thrust": "thrust_n", "speed": "speed_rpm", "current": "current_a",
             "voltage": "voltage_v"}
 MAX_SYNTH_SAMPLES = 10_000
+MAX_IMPORT_SAMPLES = 10_000_000  # samples one import may synthesise from a per-point table
 TIMESERIES_MIN_RUN = 3  # median rows per command above which `auto` reads a time series
+MAX_LISTED_DROPS = 10  # dropped points named one by one; the rest are counted
+NO_DEPTH = -1e300  # stands for "no depth" in grouping keys
 
 
 @dataclass
-class ImportedStep:
-    """One point of the imported run: its command and the samples that belong to it."""
+class ImportedPoints:
+    """Every point of an imported run, column-wise; point i owns samples[bounds[i]:bounds[i + 1]].
 
-    command: float
-    depth_m: float | None
-    repeat: int
-    direction: str
-    t_start_s: float
-    t_acquire_s: float
-    t_end_s: float
-    settle_s: float
-    rate_hz: float
+    `depth_m` is NaN where a point has no depth; `direction` holds "up" or "down".
+    """
+
+    command: np.ndarray
+    depth_m: np.ndarray
+    repeat: np.ndarray
+    direction: np.ndarray
+    t_start_s: np.ndarray
+    t_acquire_s: np.ndarray
+    t_end_s: np.ndarray
+    settle_s: np.ndarray
+    rate_hz: np.ndarray
+    bounds: np.ndarray
     samples: dict[str, np.ndarray]
 
+    def __len__(self) -> int:
+        return int(self.command.size)
 
-def _runs(keys: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) of consecutive rows with equal keys."""
-    if keys.size == 0:
-        return []
+    def columns(self) -> dict[str, np.ndarray]:
+        """The per-point fields by steps-table column name."""
+        names = ("command", "depth_m", "repeat", "direction", "t_start_s", "t_acquire_s",
+                 "t_end_s", "settle_s", "rate_hz")
+        return {n: getattr(self, n) for n in names}
+
+
+def _edges(keys: np.ndarray) -> np.ndarray:
+    """Start of every run of equal keys, then the number of rows."""
+    if keys.shape[0] == 0:
+        return np.zeros(1, dtype=int)
     change = np.flatnonzero(np.any(keys[1:] != keys[:-1], axis=1)) + 1
-    edges = np.concatenate(([0], change, [keys.shape[0]]))
-    return list(zip(edges[:-1].tolist(), edges[1:].tolist(), strict=True))
+    return np.concatenate(([0], change, [keys.shape[0]]))
 
 
 def _keys(p: Parsed, depth_m: float | None) -> np.ndarray:
     cmd = p.values["command"]
     depth = p.values.get("depth", np.full(cmd.size, np.nan if depth_m is None else depth_m))
-    return np.column_stack([cmd, np.nan_to_num(depth, nan=-1e300)])
+    return np.column_stack([cmd, np.nan_to_num(depth, nan=NO_DEPTH)])
 
 
 def choose_format(p: Parsed, requested: str, depth_m: float | None) -> str:
@@ -51,68 +71,119 @@ def choose_format(p: Parsed, requested: str, depth_m: float | None) -> str:
         return requested
     if "thrust_std" in p.values or "n_samples" in p.values or "time" not in p.values:
         return "points"
-    lengths = [b - a for a, b in _runs(_keys(p, depth_m))]
-    return "timeseries" if lengths and np.median(lengths) >= TIMESERIES_MIN_RUN else "points"
+    lengths = np.diff(_edges(_keys(p, depth_m)))
+    return "timeseries" if lengths.size and np.median(lengths) >= TIMESERIES_MIN_RUN else "points"
 
 
-def _depth(p: Parsed, i: int, depth_m: float | None) -> float | None:
+def _depths(p: Parsed, rows: np.ndarray, depth_m: float | None) -> np.ndarray:
+    """Depth of each given row: its depth cell if readable, else `depth_m` (NaN for none)."""
+    fallback = np.nan if depth_m is None else depth_m
     d = p.values.get("depth")
-    if d is not None and np.isfinite(d[i]):
-        return float(d[i])
-    return depth_m
+    if d is None:
+        return np.full(rows.size, fallback)
+    return np.where(np.isfinite(d[rows]), d[rows], fallback)
 
 
-class _Labeller:
-    """Repeat index per (command, depth) and sweep direction from the previous command."""
+def _labels(command: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Repeat index per (command, depth) in order of appearance, and the sweep direction."""
+    if command.size == 0:
+        return np.zeros(0, dtype=int), np.zeros(0, dtype=str)
+    keys = np.column_stack([command, np.nan_to_num(depth, nan=NO_DEPTH)])
+    group = np.unique(keys, axis=0, return_inverse=True)[1].ravel()
+    order = np.argsort(group, kind="stable")
+    ordered = group[order]
+    pos = np.arange(order.size)
+    first = np.concatenate(([True], ordered[1:] != ordered[:-1]))
+    rank = pos - np.maximum.accumulate(np.where(first, pos, 0)) + 1
+    repeat = np.empty_like(rank)
+    repeat[order] = rank
+    down = np.concatenate(([False], command[1:] < command[:-1]))
+    return repeat, np.where(down, "down", "up")
 
-    def __init__(self) -> None:
-        self.seen: dict[tuple, int] = {}
-        self.previous: float | None = None
 
-    def __call__(self, command: float, depth: float | None) -> tuple[int, str]:
-        key = (command, depth)
-        self.seen[key] = self.seen.get(key, 0) + 1
-        direction = "down" if self.previous is not None and command < self.previous else "up"
-        self.previous = command
-        return self.seen[key], direction
+def _group_medians(values: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """Median of `values` per group (NaN for an empty group or one holding a NaN)."""
+    out = np.full(n_groups, np.nan)
+    if values.size == 0:
+        return out
+    order = np.lexsort((values, group))
+    v, g = values[order], group[order]
+    counts = np.bincount(g, minlength=n_groups)
+    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    has = counts > 0
+    lo = v[(starts + (counts - 1) // 2)[has]]
+    hi = v[(starts + counts // 2)[has]]
+    out[has] = (lo + hi) / 2
+    out[np.bincount(g, weights=np.isnan(v), minlength=n_groups) > 0] = np.nan
+    return out
+
+
+def _dropped_warnings(p: Parsed, starts: np.ndarray, lengths: np.ndarray,
+                      settle_s: float) -> list[str]:
+    """One warning per dropped point, up to MAX_LISTED_DROPS, then a count of the rest."""
+    out = [f"command {p.values['command'][a]:g} at line {p.lines[a]}: all {n} row(s) inside the "
+           f"{settle_s:g} s settling time; point dropped"
+           for a, n in zip(starts[:MAX_LISTED_DROPS].tolist(), lengths[:MAX_LISTED_DROPS].tolist(),
+                           strict=True)]
+    if starts.size > MAX_LISTED_DROPS:
+        out.append(f"{starts.size - MAX_LISTED_DROPS} more point(s) dropped: all their rows "
+                   f"inside the {settle_s:g} s settling time")
+    return out
 
 
 def timeseries_steps(p: Parsed, settle_s: float, depth_m: float | None) -> tuple[
-        list[ImportedStep], list[str]]:
+        ImportedPoints, list[str]]:
     """One point per run of equal command; the first `settle_s` of each run is dropped."""
     t = p.values["time"]
     t = t - t[0] if t.size else t
     warnings = []
     if t.size > 1 and np.any(np.diff(t) < 0):
         warnings.append("time column goes backwards: rows are kept in file order")
-    steps, label = [], _Labeller()
-    for a, b in _runs(_keys(p, depth_m)):
-        keep = np.arange(a, b)[t[a:b] >= t[a] + settle_s]
-        cmd = float(p.values["command"][a])
-        if keep.size == 0:
-            warnings.append(f"command {cmd:g} at line {p.lines[a]}: all {b - a} row(s) inside "
-                            f"the {settle_s:g} s settling time; point dropped")
-            continue
-        dt = np.diff(t[keep])
-        rate = float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else 0.0
-        depth = _depth(p, a, depth_m)
-        repeat, direction = label(cmd, depth)
-        samples = {"t_s": t[keep], "command": np.full(keep.size, cmd)}
-        samples |= {CHANNELS[k]: p.values[k][keep] for k in CHANNELS if k in p.values}
-        steps.append(ImportedStep(cmd, depth, repeat, direction, float(t[a]), float(t[keep[0]]),
-                                  float(t[b - 1]), settle_s, rate, samples))
-    return steps, warnings
+    edges = _edges(_keys(p, depth_m))
+    starts, stops = edges[:-1], edges[1:]
+    run_of_row = np.repeat(np.arange(starts.size), stops - starts)
+    keep = t >= (t[starts] + settle_s)[run_of_row]
+    kept_per_run = np.bincount(run_of_row[keep], minlength=starts.size)
+    empty = kept_per_run == 0
+    warnings += _dropped_warnings(p, starts[empty], (stops - starts)[empty], settle_s)
+    rows = np.flatnonzero(keep)
+    run_k = run_of_row[rows]
+    first = np.concatenate(([True], run_k[1:] != run_k[:-1])) if rows.size else np.zeros(0, bool)
+    point_of_row = np.cumsum(first) - 1
+    n_points = int(first.sum())
+    same = point_of_row[1:] == point_of_row[:-1]
+    dt = np.diff(t[rows])[same]
+    median_dt = _group_medians(dt, point_of_row[1:][same], n_points)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rate = np.where(median_dt > 0, 1.0 / median_dt, 0.0)
+    a, b = starts[~empty], stops[~empty]
+    first_rows = rows[first]
+    command = p.values["command"][a]
+    depth = _depths(p, a, depth_m)
+    repeat, direction = _labels(command, depth)
+    samples = {"t_s": t[rows], "command": p.values["command"][rows]}
+    samples |= {CHANNELS[k]: p.values[k][rows] for k in CHANNELS if k in p.values}
+    bounds = np.concatenate((np.flatnonzero(first), [rows.size]))
+    points = ImportedPoints(command, depth, repeat, direction, t[a], t[first_rows], t[b - 1],
+                            np.full(n_points, float(settle_s)), rate, bounds, samples)
+    return points, warnings
 
 
-def _pattern(n: int) -> np.ndarray:
-    """n values with mean 0 and sample standard deviation 1 (alternating signs)."""
-    z = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
-    if n % 2:
-        z[-1] = 0.0
-    return z / np.std(z, ddof=1)
+def _pattern(n: np.ndarray) -> np.ndarray:
+    """For points of n[i] samples: values with mean 0 and sample std 1 (alternating signs),
+    back to back; a point of one sample gets 0."""
+    point = np.repeat(np.arange(n.size), n)
+    size = n[point]
+    k = np.arange(size.size) - np.concatenate(([0], np.cumsum(n)[:-1]))[point]
+    z = np.where(k % 2 == 0, 1.0, -1.0)
+    z[(size % 2 == 1) & (k == size - 1)] = 0.0
+    even = size % 2 == 0
+    z[even] /= np.sqrt(size[even] / (size[even] - 1.0))
+    z[size == 1] = 0.0
+    return z
 
 
-def point_steps(p: Parsed, depth_m: float | None) -> tuple[list[ImportedStep], list[str]]:
+def point_steps(p: Parsed, depth_m: float | None) -> tuple[ImportedPoints, list[str]]:
     """One point per row; with std and n columns the point gets n samples of that mean and std.
 
     Without a time column every row gets t = 0: a table has no time axis, so nothing (a zero
@@ -123,18 +194,24 @@ def point_steps(p: Parsed, depth_m: float | None) -> tuple[list[ImportedStep], l
         np.zeros(n_rows))
     std = p.values.get("thrust_std")
     count = p.values.get("n_samples")
-    steps, label = [], _Labeller()
-    for i in range(n_rows):
-        cmd = float(p.values["command"][i])
-        n = 1
-        if std is not None and count is not None and np.isfinite(std[i]) and np.isfinite(count[i]):
-            n = int(min(max(count[i], 1), MAX_SYNTH_SAMPLES))
-        z = _pattern(n) * std[i] if n > 1 else np.zeros(1)
-        samples = {"t_s": np.full(n, t[i]), "command": np.full(n, cmd)}
-        samples |= {CHANNELS[k]: np.full(n, p.values[k][i]) for k in CHANNELS if k in p.values}
-        samples["thrust_n"] = samples["thrust_n"] + z
-        depth = _depth(p, i, depth_m)
-        repeat, direction = label(cmd, depth)
-        steps.append(ImportedStep(cmd, depth, repeat, direction, float(t[i]), float(t[i]),
-                                  float(t[i]), 0.0, 0.0, samples))
-    return steps, []
+    n = np.ones(n_rows, dtype=np.int64)
+    if std is not None and count is not None:
+        ok = np.isfinite(std) & np.isfinite(count)
+        n[ok] = np.clip(count[ok], 1, MAX_SYNTH_SAMPLES).astype(np.int64)
+    total = int(n.sum())
+    if count is not None and total > MAX_IMPORT_SAMPLES:
+        raise UsageError(f"{p.columns['n_samples'].header!r} asks for {total:,} samples in all, "
+                         f"more than the {MAX_IMPORT_SAMPLES:,} one import may synthesise")
+    row = np.repeat(np.arange(n_rows), n)
+    samples = {"t_s": t[row], "command": p.values["command"][row]}
+    samples |= {CHANNELS[k]: p.values[k][row] for k in CHANNELS if k in p.values}
+    if std is not None:
+        spread = n[row] > 1
+        samples["thrust_n"][spread] += _pattern(n)[spread] * std[row][spread]
+    command = p.values["command"]
+    depth = _depths(p, np.arange(n_rows), depth_m)
+    repeat, direction = _labels(command, depth)
+    zeros = np.zeros(n_rows)
+    points = ImportedPoints(command.copy(), depth, repeat, direction, t, t, t, zeros, zeros,
+                            np.concatenate(([0], np.cumsum(n))), samples)
+    return points, []

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from rigtool.errors import UsageError
@@ -14,13 +14,18 @@ CANDIDATE_DELIMITERS = (",", ";", "\t")
 
 @dataclass
 class RawTable:
-    """Header cells and data rows, each row with its 1-based line number in the file."""
+    """Header cells and data rows, each row with its 1-based line number in the file.
+
+    `bad` holds the rows the CSV reader itself refused (a cell over the field size limit, say),
+    each with its line and the reason, so they are reported and counted like unreadable rows.
+    """
 
     path: Path
     header: list[str]
     header_line: int
     rows: list[tuple[int, list[str]]]
     delimiter: str
+    bad: list[tuple[int, str]] = field(default_factory=list)
 
 
 def sniff_delimiter(line: str, decimal: str) -> str:
@@ -51,14 +56,27 @@ def read_table(path: Path, *, delimiter: str | None = None, decimal: str = ".",
     reader = csv.reader(io.StringIO(body, newline=""), delimiter=delim)
     header: list[str] = []
     rows: list[tuple[int, list[str]]] = []
-    for cells in reader:
-        line = header_row + reader.line_num - 1
-        if not header:
-            header = [c.strip() for c in cells]
-            while header and not header[-1]:
-                header.pop()
-            continue
-        if not any(c.strip() for c in cells):
-            continue
-        rows.append((line, cells))
-    return RawTable(path, header, header_row, rows, delim)
+    bad: list[tuple[int, str]] = []
+    while True:  # the reader goes on after a row it refused: note the row and carry on
+        try:
+            for cells in reader:
+                if not header:
+                    header = [c.strip() for c in cells]
+                    while header and not header[-1]:
+                        header.pop()
+                elif (cells and cells[0].strip()) or any(c.strip() for c in cells):
+                    rows.append((header_row + reader.line_num - 1, cells))
+            break
+        except csv.Error as exc:
+            line = header_row + reader.line_num - 1
+            if not header:
+                raise UsageError(f"{path}:{line}: header cannot be read: {_reason(exc)}") from None
+            bad.append((line, _reason(exc)))
+    return RawTable(path, header, header_row, rows, delim, bad)
+
+
+def _reason(exc: csv.Error) -> str:
+    """The CSV reader's complaint in the user's terms."""
+    if "field larger than field limit" in str(exc):
+        return f"a cell is longer than {csv.field_size_limit()} characters"
+    return f"not a valid CSV row ({exc})"

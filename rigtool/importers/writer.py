@@ -1,49 +1,57 @@
-"""Write imported points into the store as a completed run, through the Store's public API."""
+"""Write imported points into the store as a completed run, through the Store's public API.
+
+The run is created already marked as an incomplete import (status `failed`, reason
+INCOMPLETE) and only marked `completed` after its last point is committed, so an import
+killed at any moment leaves either nothing or a run that says what it is.
+"""
 
 from __future__ import annotations
 
+import numpy as np
+
 from rigtool import __version__
 from rigtool.analysis.dataset import NEUTRAL_BY_UNIT
-from rigtool.importers.steps import ImportedStep
-from rigtool.store import StepRecord, Store
+from rigtool.importers.steps import ImportedPoints
+from rigtool.store import Store
+
+INCOMPLETE = ("incomplete import: rigtool import stopped before every point was written; "
+              "re-import the file")
 
 
-def protocol_for(name: str, command_unit: str, neutral: float | None, steps: list[ImportedStep],
+def protocol_for(name: str, command_unit: str, neutral: float | None, points: ImportedPoints,
                  metadata: dict, source: str) -> dict:
     """A protocol-shaped dict describing the imported run (what analysis and report read)."""
-    commands = sorted({s.command for s in steps})
+    depths = points.depth_m[np.isfinite(points.depth_m)]
     return {
         "rigtool_protocol": 1,
         "name": name,
         "description": f"imported from {source}",
         "metadata": metadata,
-        "command": {"unit": command_unit, "values": commands,
+        "command": {"unit": command_unit, "values": np.unique(points.command).tolist(),
                     "neutral": NEUTRAL_BY_UNIT.get(command_unit, 0.0) if neutral is None else neutral,
-                    "order": "as logged", "repeats": max((s.repeat for s in steps), default=1)},
-        "depth": {"unit": "m", "values": sorted({s.depth_m for s in steps if s.depth_m is not None})},
+                    "order": "as logged", "repeats": int(points.repeat.max(initial=1))},
+        "depth": {"unit": "m", "values": np.unique(depths).tolist()},
     }
 
 
-def write_run(store: Store, *, name: str, protocol: dict, rig: dict, steps: list[ImportedStep],
+def _plan(points: ImportedPoints) -> list[dict]:
+    """The stored plan: one entry per point, in file order."""
+    depth = [None if d != d else d for d in points.depth_m.tolist()]
+    return [{"idx": i, "command": c, "depth_m": d, "repeat": r, "direction": s}
+            for i, (c, d, r, s) in enumerate(zip(points.command.tolist(), depth,
+                                                 points.repeat.tolist(),
+                                                 points.direction.tolist(), strict=True))]
+
+
+def write_run(store: Store, *, name: str, protocol: dict, rig: dict, points: ImportedPoints,
               events: list[tuple[str, dict]]) -> str:
-    """Create the run, add every point with its samples and the import events; return the id."""
+    """Create the run, add the import events and every point with its samples; return the id."""
     unit = protocol["command"]["unit"]
-    plan = [{"idx": i, "command": s.command, "depth_m": s.depth_m, "repeat": s.repeat,
-             "direction": s.direction} for i, s in enumerate(steps)]
-    run_id = store.create_run(name=name, protocol=protocol, protocol_path=None, rig=rig, plan=plan,
-                              metadata=protocol["metadata"], seed=None, command_unit=unit,
-                              tool_version=__version__)
-    try:
-        for kind, detail in events:
-            store.add_event(run_id, kind, detail)
-        for i, s in enumerate(steps):
-            record = StepRecord(idx=i, command=s.command, command_unit=unit, depth_m=s.depth_m,
-                                repeat=s.repeat, direction=s.direction, t_start_s=s.t_start_s,
-                                t_acquire_s=s.t_acquire_s, t_end_s=s.t_end_s,
-                                settle_s=s.settle_s, settled=True, rate_hz=s.rate_hz)
-            store.add_step(run_id, record, s.samples)
-    except BaseException:
-        store.finish_run(run_id, "failed", "import stopped before every point was written")
-        raise
+    run_id = store.create_run(name=name, protocol=protocol, protocol_path=None, rig=rig,
+                              plan=_plan(points), metadata=protocol["metadata"], seed=None,
+                              command_unit=unit, tool_version=__version__, status="failed",
+                              stop_reason=INCOMPLETE)
+    store.add_events(run_id, events)
+    store.add_points(run_id, points.columns(), points.bounds, points.samples, unit)
     store.finish_run(run_id, "completed")
     return run_id

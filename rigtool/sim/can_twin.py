@@ -7,6 +7,7 @@ import threading
 
 import can
 
+from rigtool.devices.canbus import open_bus
 from rigtool.sim.live import LiveTwin
 
 
@@ -42,8 +43,7 @@ class CanBusTwin:
             self.live.set_command(self.profile.neutral)
 
     def start(self):  # noqa: ANN201 - returns the subclass instance
-        kwargs = {} if self.bitrate is None else {"bitrate": self.bitrate}
-        self._bus = can.Bus(interface=self.interface, channel=self.channel, **kwargs)
+        self._bus = open_bus(self.interface, self.channel, self.bitrate)
         for target, role in ((self._rx_loop, "rx"), (self._tx_loop, "status")):
             thread = threading.Thread(target=target, name=f"{self.thread_name}-{role}", daemon=True)
             self._threads.append(thread)

@@ -74,6 +74,7 @@ class Stm32BridgeTwin:
         dialect: Dialect | None = None,
         telemetry_hz: float = 0.0,
         seed: int = 0,
+        host: str = "127.0.0.1",
     ) -> None:
         profile = live.twin.profile
         self.live = live
@@ -100,10 +101,10 @@ class Stm32BridgeTwin:
             ("set", d.set), ("pulse", d.pulse), ("get", d.get), ("stop", d.stop),
             ("heartbeat", d.heartbeat), ("ping", d.ping)) if fmt]  # fmt: skip
         self._master, self._slave, self.pty_path = open_pty()
-        self._listener = socket.create_server(("127.0.0.1", 0))
+        self._listener = socket.create_server((host, 0))  # loopback unless told otherwise
         self._listener.setblocking(False)
         self.port = self._listener.getsockname()[1]
-        self.url = f"socket://127.0.0.1:{self.port}"
+        self.url = f"socket://{host}:{self.port}"
         self._sel = selectors.DefaultSelector()
         self._sel.register(self._master, selectors.EVENT_READ, "pty")
         self._sel.register(self._listener, selectors.EVENT_READ, "listen")
