@@ -25,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from rigtool.devices.base import COMMAND_UNITS, ActuatorInfo, FeedbackBlock
 from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer, check_keepalive
 from rigtool.errors import DeviceError, UsageError
+from rigtool.files import MAX_DBC_BYTES, UnreadableFile, read_regular_bytes
 
 log = logging.getLogger(__name__)
 
@@ -134,9 +135,11 @@ def resolve(config: DbcCanConfig) -> DbcCanConfig:
 def load_dbc(path: Path) -> cantools.database.can.Database:
     """Read a DBC file; a missing or invalid file is a UsageError naming it."""
     try:
-        return cantools.database.load_file(str(path), database_format="dbc")
-    except FileNotFoundError:
-        raise UsageError(f"dbc-can: DBC file {path} not found") from None
+        text = read_regular_bytes(path, MAX_DBC_BYTES).decode("cp1252", errors="replace")
+    except UnreadableFile as exc:
+        raise UsageError(f"dbc-can: DBC file {path}: {exc.problem}") from None
+    try:  # cp1252 is cantools' own default for DBC files
+        return cantools.database.load_string(text, database_format="dbc")
     except Exception as exc:  # noqa: BLE001 - cantools raises parser-specific errors
         raise UsageError(f"dbc-can: cannot read DBC file {path}: {exc}") from exc
 
