@@ -13,6 +13,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from rigtool.bounds import (
+    MAX_COMMAND,
     MAX_COMMAND_VALUES,
     MAX_CURRENT_A,
     MAX_DEBOUNCE_SAMPLES,
@@ -22,11 +23,13 @@ from rigtool.bounds import (
     MAX_RATE_HZ,
     MAX_RUN_S,
     MAX_SAMPLES_PER_POINT,
+    MAX_SCALE,
     MAX_SPEED_RPM,
     MAX_THRUST_N,
     MIN_RATE_HZ,
     Command,
     PositiveSeconds,
+    Scale,
     Seconds,
     Seed,
 )
@@ -51,7 +54,7 @@ class CommandRange(_Strict):
 
     start: Command
     stop: Command
-    step: Annotated[float, Field(gt=0, allow_inf_nan=False)]
+    step: Annotated[float, Field(gt=0, le=2 * MAX_COMMAND, allow_inf_nan=False)]
 
     @model_validator(mode="after")
     def _ordered(self) -> CommandRange:
@@ -105,7 +108,7 @@ class DepthAxis(_Strict):
     """Immersion depths of the propeller centre below the surface."""
 
     unit: Literal["m", "cm", "mm"]
-    values: list[Annotated[float, Field(ge=0, allow_inf_nan=False)]] = Field(
+    values: list[Annotated[float, Field(ge=0, le=MAX_DEPTH_M * 1000, allow_inf_nan=False)]] = Field(
         min_length=1, max_length=MAX_POINTS)
     mode: Literal["preset", "manual", "stage"] = "preset"
     loop: Literal["outer", "inner"] = "outer"
@@ -196,7 +199,7 @@ class Limits(_Strict):
     max_current_a: Annotated[float, Field(gt=0, le=MAX_CURRENT_A, allow_inf_nan=False)] | None = None
     max_speed_rpm: Annotated[float, Field(gt=0, le=MAX_SPEED_RPM, allow_inf_nan=False)] | None = None
     max_staleness_s: PositiveSeconds = 1.0
-    slew_per_s: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None  # see Protocol
+    slew_per_s: Annotated[float, Field(gt=0, le=MAX_SCALE, allow_inf_nan=False)] | None = None  # see Protocol
     debounce_samples: Annotated[int, Field(ge=1, le=MAX_DEBOUNCE_SAMPLES)] = 5
     on_trip: Literal["abort", "pause"] = "abort"  # pause: neutral, ask the operator, retry the point
 
@@ -218,7 +221,7 @@ class SimulatorSpec(_Strict):
 
     profile: str
     seed: Seed = 1
-    overrides: dict[str, float | str] = Field(default_factory=dict)
+    overrides: dict[str, Scale | str] = Field(default_factory=dict)
 
     @field_validator("overrides")
     @classmethod
