@@ -8,6 +8,7 @@ import os
 import signal
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
@@ -38,7 +39,14 @@ def _fmt_duration(seconds: float) -> str:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from rigtool.sweep import open_checked, resolve, resume_sweep, run_sweep, terminal_confirm
+    from rigtool.sweep import (
+        open_checked,
+        open_store,
+        resolve,
+        resume_sweep,
+        run_sweep,
+        terminal_confirm,
+    )
 
     if args.resume:
         if args.protocol or args.sim or args.dry_run or args.seed is not None:
@@ -48,7 +56,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         from rigtool.rig import load_rig
 
         rig = load_rig(args.rig)[0] if args.rig else None
-        store = Store(resolve_db_path(args.db, rig.db if rig else None), create=False)
+        store = open_store(args.db, rig, Path(args.rig) if args.rig else None, create=False)
         try:
             if args.force:
                 run_id = store.resolve_run_id(args.resume)
@@ -67,10 +75,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         rigset.close()
         _print_plan(setup, rigset.actuator.info.neutral)
         return 0
-    store = Store(resolve_db_path(args.db, setup.rig.db))
+    store = open_store(args.db, setup.rig, setup.rig_path)
     try:
         outcome = run_sweep(setup, store, default_reporter(), terminal_confirm())
-        return _report_outcome(outcome, len(setup.plan), store)
+        return _report_outcome(outcome, setup.protocol.n_points(), store)
     finally:
         store.close()
 
@@ -91,24 +99,29 @@ def _report_outcome(outcome, n_plan: int, store: Store) -> int:
 
 
 def _print_plan(setup, neutral: float) -> None:
-    p, plan = setup.protocol, setup.plan
+    """The plan's size, timing and first and last steps, all counted without expanding it."""
+    from rigtool.plan import step_at
+
+    p = setup.protocol
+    n = p.n_points()
     unit = UNIT_LABEL.get(p.command.unit, p.command.unit)
-    depths = sorted({s.depth_m for s in plan})
+    depths = sorted(set(p.depth.depths_m()))
     timing = p.timing
-    out.print(f"[bold]{p.name}[/]: {len(plan)} points on rig {setup.rig.name!r}")
-    out.print(f"  commands: {len(p.command.command_values())} values in {unit}, order "
+    out.print(f"[bold]{p.name}[/]: {n} points on rig {setup.rig.name!r}")
+    out.print(f"  commands: {p.command.n_values()} values in {unit}, order "
               f"{p.command.order}, {p.command.repeats} repeat(s)")
     out.print(f"  depths: {', '.join(f'{d:g} m' for d in depths)} ({p.depth.mode}, loop {p.depth.loop})")
     out.print(f"  per point: settle {timing.settle.max_seconds():g} s max, acquire "
               f"{timing.acquire.n_samples} samples at {timing.acquire.rate_hz:g} Hz, rest {timing.rest_s:g} s; "
               f"tare {timing.tare}")
-    out.print(f"  samples to store: {len(plan) * timing.acquire.n_samples:,}")
-    out.print(f"  estimated duration on the rig: {_fmt_duration(estimate_duration_s(p, plan, neutral))}")
+    out.print(f"  samples to store: {n * timing.acquire.n_samples:,}")
+    out.print(f"  estimated duration on the rig: {_fmt_duration(estimate_duration_s(p, neutral))}")
     table = Table("step", "command", "depth (m)", "repeat", "direction")
-    shown = plan if len(plan) <= 6 else plan[:3] + plan[-3:]
-    for i, s in enumerate(shown):
-        if len(plan) > 6 and i == 3:
+    shown = list(range(n)) if n <= 6 else [0, 1, 2, n - 3, n - 2, n - 1]
+    for i, idx in enumerate(shown):
+        if n > 6 and i == 3:
             table.add_row("...", "", "", "", "")
+        s = step_at(p, idx)
         table.add_row(str(s.idx), f"{s.command:g} {unit}", f"{s.depth_m:g}", str(s.repeat), s.direction)
     out.print(table)
 

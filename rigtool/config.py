@@ -9,14 +9,17 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from rigtool.errors import ConfigError
+from rigtool.files import MAX_CONFIG_BYTES, read_regular_text
 
 M = TypeVar("M", bound=BaseModel)
 Loc = tuple[Any, ...]
+MAX_NESTING = 50  # YAML collections inside collections; deeper is refused, not recursed into
 
 
 class _LineLoader(yaml.SafeLoader):
-    """SafeLoader that rejects duplicate keys (a silent overwrite would change an experiment)
-    and aliases (`*name`: recursive or exponential documents are not worth the risk)."""
+    """SafeLoader that rejects duplicate keys (a silent overwrite would change an experiment),
+    aliases (`*name`: recursive or exponential documents are not worth the risk) and
+    nesting deeper than MAX_NESTING (PyYAML composes recursively)."""
 
     def compose_node(self, parent, index):  # noqa: ANN001, ANN201 - PyYAML's signature
         if self.check_event(yaml.AliasEvent):
@@ -24,7 +27,26 @@ class _LineLoader(yaml.SafeLoader):
             raise yaml.composer.ComposerError(
                 None, None, f"YAML aliases (*{event.anchor}) are not supported in rigtool files",
                 event.start_mark)
-        return super().compose_node(parent, index)
+        depth = getattr(self, "_depth", 0)
+        if depth >= MAX_NESTING and self.check_event(yaml.CollectionStartEvent):
+            raise yaml.composer.ComposerError(
+                None, None, f"nested more than {MAX_NESTING} levels deep", self.peek_event().start_mark)
+        self._depth = depth + 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth = depth
+
+
+def _construct_number(loader: _LineLoader, node: yaml.ScalarNode, kind: str) -> Any:
+    """An int or float scalar; a value Python refuses (an int of 5000 digits) names its line."""
+    construct = getattr(yaml.constructor.SafeConstructor, f"construct_yaml_{kind}")
+    try:
+        return construct(loader, node)
+    except ValueError as exc:
+        raise yaml.constructor.ConstructorError(
+            None, None, f"number out of range ({' '.join(str(exc).split()[:8])}...)",
+            node.start_mark) from None
 
 
 def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
@@ -43,6 +65,17 @@ def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode, deep: bool =
 
 
 _LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+_LineLoader.add_constructor("tag:yaml.org,2002:int", lambda ld, n: _construct_number(ld, n, "int"))
+_LineLoader.add_constructor("tag:yaml.org,2002:float", lambda ld, n: _construct_number(ld, n, "float"))
+
+
+class FieldError(ValueError):
+    """A ValueError raised by a model validator that names the field it concerns, so that the
+    message points at that field's line (`loc` is relative to the model being validated)."""
+
+    def __init__(self, loc: Loc, message: str) -> None:
+        super().__init__(message)
+        self.loc = tuple(loc)
 
 
 def _line_map(node: yaml.Node, loc: Loc, out: dict[Loc, int]) -> None:
@@ -59,13 +92,11 @@ def _line_map(node: yaml.Node, loc: Loc, out: dict[Loc, int]) -> None:
 
 
 def read_yaml(path: Path) -> tuple[Any, dict[Loc, int]]:
-    """Parse `path`; return the data and a path -> line map. Errors name file and line."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError([f"{path}: file not found"]) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError([f"{path}: cannot read: {exc}"]) from None
+    """Parse `path`; return the data and a path -> line map. Errors name file and line.
+
+    Only a regular UTF-8 file of at most MAX_CONFIG_BYTES is read (files.py).
+    """
+    text = read_regular_text(path, MAX_CONFIG_BYTES)
     try:
         node = yaml.compose(text, Loader=_LineLoader)
         data = yaml.load(text, Loader=_LineLoader)
@@ -108,7 +139,8 @@ def format_validation_error(path: Path, exc: ValidationError, data: Any, lines: 
     """Turn pydantic errors into `file:line: field: problem` lines."""
     problems = []
     for err in exc.errors():
-        loc = _clean_loc(tuple(err["loc"]), data)
+        named = getattr(err.get("ctx", {}).get("error"), "loc", ())
+        loc = _clean_loc((*err["loc"], *named), data)
         full = (*prefix, *loc)
         line = _line_for(full, lines)
         field = ".".join(str(p) for p in full) or "(top level)"

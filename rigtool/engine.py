@@ -22,10 +22,12 @@ from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
 from rigtool.rig import RigSet, counter_delta
 from rigtool.safety import FollowMonitor, LimitMonitor
-from rigtool.store import StepRecord, Store
+from rigtool.spool import SampleSpool
+from rigtool.store import SAMPLE_COLUMNS, STAT_FIELDS, StepRecord, Store
 
 CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this often
 RAMP_DT_S = 0.05  # command update period while slewing
+FOLD_SAMPLES = 1_000_000  # settle, rest and tare readings beyond this are summed as they come
 FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
 
 
@@ -211,18 +213,20 @@ class Engine:
         settle_s, settled = self._settle(step, rate)
         t_acq = self._now()
         samples = self._acquire(step, timing.acquire.n_samples, rate)
-        self.follow.release()
-        self._ramp_to(self.rig.actuator.info.neutral, step)
-        record = StepRecord(
-            idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
-            repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
-            t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
-            counters=counter_delta(counters, self.rig.counters()),
-        )
-        self.store.add_step(self.run_id, record, samples)
-        self._stored_idx = step.idx
-        thrust = samples["thrust_n"]
-        self.reporter.step_done(step, float(np.mean(thrust)) if thrust.size else None)
+        try:
+            self.follow.release()
+            self._ramp_to(self.rig.actuator.info.neutral, step)
+            record = StepRecord(
+                idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
+                repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
+                t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
+                counters=counter_delta(counters, self.rig.counters()),
+            )
+            self.store.add_step(self.run_id, record, samples)
+            self._stored_idx = step.idx
+            self.reporter.step_done(step, samples.mean("thrust_n"))
+        finally:
+            samples.close()
         if timing.rest_s > 0:
             self._read_for(timing.rest_s, rate, step)
 
@@ -334,16 +338,28 @@ class Engine:
             out[name] = held
         return out
 
-    def _read_for(self, seconds: float, rate: float, step: PlanStep) -> np.ndarray:
-        """Read and discard `seconds` of samples (monitoring limits); return the thrust."""
+    def _read_for(self, seconds: float, rate: float, step: PlanStep) -> float:
+        """Read and discard `seconds` of samples (monitoring limits); return the mean thrust.
+
+        Blocks are folded into a running sum past FOLD_SAMPLES, so a day-long settle or rest
+        needs no more memory than a short one.
+        """
         n_total = max(1, round(seconds * rate))
         chunk = max(1, round(CHUNK_S * rate))
-        thrust = []
+        thrust: list[np.ndarray] = []
+        held = folded = 0
+        total = 0.0
         while n_total > 0:
             n = min(chunk, n_total)
             thrust.append(self._read(n, rate, step)["thrust_n"])
+            held += len(thrust[-1])
             n_total -= n
-        return np.concatenate(thrust)
+            if held > FOLD_SAMPLES:
+                total += float(np.sum(np.concatenate(thrust)))
+                folded, held, thrust = folded + held, 0, []
+        if not folded:
+            return float(np.mean(np.concatenate(thrust)))
+        return (total + float(np.sum(np.concatenate(thrust) if thrust else 0.0))) / (folded + held)
 
     def _settle(self, step: PlanStep, rate: float) -> tuple[float, bool]:
         """Wait for the point to settle; return (seconds waited, whether the criterion was met)."""
@@ -356,9 +372,9 @@ class Engine:
         t0 = self._now()
         if crit.min_s > 0:
             self._read_for(crit.min_s, rate, step)
-        previous = float(np.mean(self._read_for(crit.window_s, rate, step)))
+        previous = self._read_for(crit.window_s, rate, step)
         while True:
-            current = float(np.mean(self._read_for(crit.window_s, rate, step)))
+            current = self._read_for(crit.window_s, rate, step)
             waited = self._now() - t0
             if abs(current - previous) < crit.tolerance_n:
                 return waited, True
@@ -368,29 +384,38 @@ class Engine:
                 return waited, False
             previous = current
 
-    def _acquire(self, step: PlanStep, n_total: int, rate: float) -> dict[str, np.ndarray]:
+    def _acquire(self, step: PlanStep, n_total: int, rate: float) -> SampleSpool:
+        """Read the point's samples into a spool: memory stays bounded by the block size."""
         chunk = max(1, round(CHUNK_S * rate))
-        parts = []
+        spool = SampleSpool(SAMPLE_COLUMNS[1:], STAT_FIELDS, spill_dir=self.store.path.parent)
         remaining = n_total
-        while remaining > 0:
-            n = min(chunk, remaining)
-            parts.append(self._read(n, rate, step))
-            remaining -= n
-        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        try:
+            while remaining > 0:
+                n = min(chunk, remaining)
+                spool.add(self._read(n, rate, step))
+                remaining -= n
+        except BaseException:
+            spool.close()
+            raise
+        return spool
 
     def _tare(self, why: str, step_idx: int | None = None) -> None:
         """Re-zero the sensor at neutral from `tare_s` seconds of readings."""
         self._ramp_to(self.rig.actuator.info.neutral)
         rate = self.protocol.timing.acquire.rate_hz
         n = max(1, round(self.protocol.timing.tare_s * rate))
-        block = self.rig.sensor.read(n, rate)
-        self.samples_read += len(block)
-        feedback = self.rig.actuator.read_feedback()
-        if feedback.fault:
-            raise SafetyTrip(f"driver fault: {feedback.fault}")
-        # feedback limits hold at neutral too; thrust is not checked: the bias is not removed yet
-        self.limits.check({"current_a": feedback.current_a, "speed_rpm": feedback.speed_rpm})
-        offset = block.ft.mean(axis=0)
+        parts, remaining = [], n
+        while remaining > 0:  # one read as before; in blocks only beyond FOLD_SAMPLES
+            block = self.rig.sensor.read(min(remaining, FOLD_SAMPLES), rate)
+            self.samples_read += len(block)
+            remaining -= FOLD_SAMPLES
+            feedback = self.rig.actuator.read_feedback()
+            if feedback.fault:
+                raise SafetyTrip(f"driver fault: {feedback.fault}")
+            # feedback limits hold at neutral too; thrust is not checked: the bias is not removed yet
+            self.limits.check({"current_a": feedback.current_a, "speed_rpm": feedback.speed_rpm})
+            parts.append(block.ft.mean(axis=0) if n <= FOLD_SAMPLES else block.ft.sum(axis=0))
+        offset = parts[0] if n <= FOLD_SAMPLES else np.sum(parts, axis=0) / n
         self.rig.sensor.set_bias(offset)
         self._bias_total = self._bias_total + offset
         self._event("tare", {"why": why, "bias": self._bias_total.tolist(),

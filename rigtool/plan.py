@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 
 from rigtool.protocol import Protocol
@@ -38,35 +39,66 @@ def _command_sequence(protocol: Protocol, repeat: int) -> list[tuple[float, str]
     return [(v, "random") for v in shuffled]
 
 
-def expand(protocol: Protocol) -> list[PlanStep]:
-    """All steps in execution order: depth outer (default) or inner, repeats, command order."""
+def _combos(protocol: Protocol) -> Iterator[tuple[float, int, float, str]]:
+    """(depth, repeat, command, direction) in execution order: depth outer (default) or inner."""
     depths = protocol.depth.depths_m()
     repeats = range(protocol.command.repeats)
-    combos: list[tuple[float, int, float, str]] = []
     if protocol.depth.loop == "outer":
         for depth in depths:
             for rep in repeats:
-                combos += [(depth, rep, c, d) for c, d in _command_sequence(protocol, rep)]
+                for c, d in _command_sequence(protocol, rep):
+                    yield depth, rep, c, d
     else:
         for rep in repeats:
             for c, d in _command_sequence(protocol, rep):
-                combos += [(depth, rep, c, d) for depth in depths]
-    return [PlanStep(i, c, depth, rep, d) for i, (depth, rep, c, d) in enumerate(combos)]
+                for depth in depths:
+                    yield depth, rep, c, d
 
 
-def estimate_duration_s(protocol: Protocol, plan: list[PlanStep], neutral: float | None = None) -> float:
-    """Upper-bound estimate of the run's duration from the timing block and slew limit."""
+def expand(protocol: Protocol) -> list[PlanStep]:
+    """All steps in execution order (at most MAX_POINTS: the protocol validator counts them)."""
+    return [PlanStep(i, c, depth, rep, d) for i, (depth, rep, c, d) in enumerate(_combos(protocol))]
+
+
+def step_at(protocol: Protocol, idx: int) -> PlanStep:
+    """Step `idx` of the plan, found arithmetically (for --dry-run: the plan is never built)."""
+    n_depths, per_rep = len(protocol.depth.values), protocol.command.per_repeat()
+    if protocol.depth.loop == "outer":
+        i_depth, rest = divmod(idx, protocol.command.repeats * per_rep)
+        i_rep, i_cmd = divmod(rest, per_rep)
+    else:
+        i_rep, rest = divmod(idx, per_rep * n_depths)
+        i_cmd, i_depth = divmod(rest, n_depths)
+    command, direction = _command_sequence(protocol, i_rep)[i_cmd]
+    return PlanStep(idx, command, protocol.depth.depths_m()[i_depth], i_rep, direction)
+
+
+def _depth_changes(protocol: Protocol) -> int:
+    """Depth moves in the plan, the first one included."""
+    depths = protocol.depth.depths_m()
+    inside = sum(1 for a, b in zip(depths, depths[1:], strict=False) if a != b)
+    if protocol.depth.loop == "outer":
+        return 1 + inside
+    cycles = protocol.command.repeats * protocol.command.per_repeat()
+    return 1 + cycles * inside + (cycles - 1) * (depths[-1] != depths[0])
+
+
+def estimate_duration_s(protocol: Protocol, neutral: float | None = None) -> float:
+    """Upper-bound estimate of the run's duration from the timing block and slew limit.
+
+    Counted arithmetically from the protocol, so even the largest plan is never built.
+    """
     timing = protocol.timing
-    per_point = (timing.settle.max_seconds() + timing.acquire.n_samples / timing.acquire.rate_hz
-                 + timing.rest_s)
-    total = per_point * len(plan)
+    n = protocol.n_points()
+    total = timing.point_s() * n
     slew = protocol.limits.slew_per_s
     if slew and neutral is not None:
-        total += sum(2 * abs(s.command - neutral) / slew for s in plan)
-    depth_changes = 1 + sum(1 for a, b in zip(plan, plan[1:], strict=False) if a.depth_m != b.depth_m)
+        visits = n // protocol.command.n_values()  # every command is visited this often
+        total += visits * sum(2 * abs(v - neutral) for v in protocol.command.command_values()) / slew
+    depth_changes = _depth_changes(protocol)
     total += depth_changes * DEPTH_MOVE_S
     if timing.tare == "per_point":
-        total += timing.tare_s * len(plan)
+        total += timing.tare_s * n
     elif timing.tare == "per_depth":
         total += timing.tare_s * depth_changes
     elif timing.tare == "at_start":

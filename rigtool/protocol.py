@@ -8,25 +8,41 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    NonNegativeFloat,
-    PositiveFloat,
-    PositiveInt,
-    model_validator,
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+
+from rigtool.bounds import (
+    MAX_COMMAND,
+    MAX_COMMAND_VALUES,
+    MAX_CURRENT_A,
+    MAX_DEBOUNCE_SAMPLES,
+    MAX_DEPTH_M,
+    MAX_DURATION_S,
+    MAX_POINTS,
+    MAX_RATE_HZ,
+    MAX_RUN_S,
+    MAX_SAMPLES_PER_POINT,
+    MAX_SCALE,
+    MAX_SPEED_RPM,
+    MAX_THRUST_N,
+    MIN_RATE_HZ,
+    Command,
+    PositiveSeconds,
+    Scale,
+    Seconds,
+    Seed,
 )
-
-from rigtool.config import load_model
+from rigtool.config import FieldError, load_model
 from rigtool.devices.base import COMMAND_UNITS
+from rigtool.errors import UsageError
+from rigtool.sim.profiles import PROFILES, profile_with_overrides
 
 CommandUnit = Literal["percent", "pwm_counts", "pulse_us", "rpm", "amps"]
 assert set(CommandUnit.__args__) == set(COMMAND_UNITS)  # type: ignore[attr-defined]
 
 DEPTH_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+RateHz = Annotated[float, Field(ge=MIN_RATE_HZ, le=MAX_RATE_HZ, allow_inf_nan=False)]
 
 
 class _Strict(BaseModel):
@@ -36,22 +52,27 @@ class _Strict(BaseModel):
 class CommandRange(_Strict):
     """Evenly spaced commands from start to stop inclusive."""
 
-    start: float
-    stop: float
-    step: PositiveFloat
+    start: Command
+    stop: Command
+    step: Annotated[float, Field(gt=0, le=2 * MAX_COMMAND, allow_inf_nan=False)]
 
     @model_validator(mode="after")
     def _ordered(self) -> CommandRange:
         if self.stop < self.start:
             raise ValueError(f"stop ({self.stop}) must not be below start ({self.start}); "
                              "use order: down to sweep downwards")
-        if (self.stop - self.start) / self.step > 100_000:
-            raise ValueError("more than 100000 commands: check start/stop/step")
+        if (self.stop - self.start) / self.step >= MAX_COMMAND_VALUES:
+            raise FieldError(("step",), f"more than {MAX_COMMAND_VALUES:,} commands: check "
+                                        "start/stop/step")
         return self
 
-    def values(self) -> list[float]:
+    def count(self) -> int:
+        """How many values `values()` gives, without building them."""
         n = int(round((self.stop - self.start) / self.step + 1e-9)) + 1
-        vals = [round(self.start + i * self.step, 9) for i in range(n)]
+        return n - (round(self.start + (n - 1) * self.step, 9) > self.stop + 1e-9)
+
+    def values(self) -> list[float]:
+        vals = [round(self.start + i * self.step, 9) for i in range(self.count())]
         return [v for v in vals if v <= self.stop + 1e-9]
 
 
@@ -59,11 +80,11 @@ class CommandAxis(_Strict):
     """The swept command: unit, values (list or range), order and repeats."""
 
     unit: CommandUnit
-    values: list[float] | None = Field(default=None, min_length=1)
+    values: list[Command] | None = Field(default=None, min_length=1, max_length=MAX_COMMAND_VALUES)
     range: CommandRange | None = None
     order: Literal["up", "down", "up-down", "random"] = "up"
-    repeats: PositiveInt = 1
-    seed: int = 0
+    repeats: Annotated[int, Field(ge=1, le=MAX_POINTS)] = 1
+    seed: Seed = 0
 
     @model_validator(mode="after")
     def _one_source(self) -> CommandAxis:
@@ -74,14 +95,30 @@ class CommandAxis(_Strict):
     def command_values(self) -> list[float]:
         return sorted(self.values) if self.values is not None else self.range.values()  # type: ignore[union-attr]
 
+    def n_values(self) -> int:
+        """Distinct positions in one pass (duplicates in `values` count), without building them."""
+        return len(self.values) if self.values is not None else self.range.count()  # type: ignore[union-attr]
+
+    def per_repeat(self) -> int:
+        """Points in one repeat of the command sequence (up-down visits every value twice)."""
+        return self.n_values() * (2 if self.order == "up-down" else 1)
+
 
 class DepthAxis(_Strict):
     """Immersion depths of the propeller centre below the surface."""
 
     unit: Literal["m", "cm", "mm"]
-    values: list[NonNegativeFloat] = Field(min_length=1)
+    values: list[Annotated[float, Field(ge=0, le=MAX_DEPTH_M * 1000, allow_inf_nan=False)]] = Field(
+        min_length=1, max_length=MAX_POINTS)
     mode: Literal["preset", "manual", "stage"] = "preset"
     loop: Literal["outer", "inner"] = "outer"
+
+    @model_validator(mode="after")
+    def _in_reach(self) -> DepthAxis:
+        deepest = max(self.values) * DEPTH_TO_M[self.unit]
+        if deepest > MAX_DEPTH_M:
+            raise FieldError(("values",), f"depth {deepest:g} m is beyond {MAX_DEPTH_M:g} m")
+        return self
 
     def depths_m(self) -> list[float]:
         return [round(v * DEPTH_TO_M[self.unit], 9) for v in self.values]
@@ -90,16 +127,16 @@ class DepthAxis(_Strict):
 class SteadySettle(_Strict):
     """Settle until the thrust mean of two consecutive windows differs by < tolerance."""
 
-    window_s: PositiveFloat = 0.5
-    tolerance_n: PositiveFloat = 0.1
-    min_s: NonNegativeFloat = 0.0
-    timeout_s: PositiveFloat = 10.0
+    window_s: PositiveSeconds = 0.5
+    tolerance_n: Annotated[float, Field(gt=0, le=MAX_THRUST_N, allow_inf_nan=False)] = 0.1
+    min_s: Seconds = 0.0
+    timeout_s: PositiveSeconds = 10.0
 
 
 class Settle(_Strict):
     """Either a fixed wait or a settling criterion on thrust."""
 
-    seconds: NonNegativeFloat | None = None
+    seconds: Seconds | None = None
     until_steady: SteadySettle | None = None
 
     @model_validator(mode="after")
@@ -122,14 +159,18 @@ class Settle(_Strict):
 class Acquire(_Strict):
     """How much to record per point: N samples or T seconds, at a rate."""
 
-    rate_hz: PositiveFloat
-    samples: PositiveInt | None = None
-    seconds: PositiveFloat | None = None
+    rate_hz: RateHz
+    samples: Annotated[int, Field(ge=1, le=MAX_SAMPLES_PER_POINT)] | None = None
+    seconds: PositiveSeconds | None = None
 
     @model_validator(mode="after")
     def _one(self) -> Acquire:
         if (self.samples is None) == (self.seconds is None):
             raise ValueError("give exactly one of `samples` or `seconds`")
+        if self.n_samples > MAX_SAMPLES_PER_POINT:
+            raise FieldError(("seconds",), f"{self.seconds:g} s at {self.rate_hz:g} Hz is "
+                                           f"{self.n_samples:,} samples per point; the limit is "
+                                           f"{MAX_SAMPLES_PER_POINT:,}")
         return self
 
     @property
@@ -142,20 +183,24 @@ class Timing(_Strict):
 
     settle: Settle
     acquire: Acquire
-    rest_s: NonNegativeFloat = 0.0
+    rest_s: Seconds = 0.0
     tare: Literal["never", "at_start", "per_depth", "per_point"] = "at_start"
-    tare_s: PositiveFloat = 1.0
+    tare_s: PositiveSeconds = 1.0
+
+    def point_s(self) -> float:
+        """Longest time of one point at its command, and its rest: settle, acquire, rest."""
+        return self.settle.max_seconds() + self.acquire.n_samples / self.acquire.rate_hz + self.rest_s
 
 
 class Limits(_Strict):
     """Safety limits checked on every sample block; a trip sends the actuator to neutral."""
 
-    max_thrust_n: PositiveFloat | None = None
-    max_current_a: PositiveFloat | None = None
-    max_speed_rpm: PositiveFloat | None = None
-    max_staleness_s: PositiveFloat = 1.0
-    slew_per_s: PositiveFloat | None = None
-    debounce_samples: PositiveInt = 5
+    max_thrust_n: Annotated[float, Field(gt=0, le=MAX_THRUST_N, allow_inf_nan=False)] | None = None
+    max_current_a: Annotated[float, Field(gt=0, le=MAX_CURRENT_A, allow_inf_nan=False)] | None = None
+    max_speed_rpm: Annotated[float, Field(gt=0, le=MAX_SPEED_RPM, allow_inf_nan=False)] | None = None
+    max_staleness_s: PositiveSeconds = 1.0
+    slew_per_s: Annotated[float, Field(gt=0, le=MAX_SCALE, allow_inf_nan=False)] | None = None  # see Protocol
+    debounce_samples: Annotated[int, Field(ge=1, le=MAX_DEBOUNCE_SAMPLES)] = 5
     on_trip: Literal["abort", "pause"] = "abort"  # pause: neutral, ask the operator, retry the point
 
 
@@ -166,8 +211,8 @@ class Metadata(_Strict):
     propeller: str | None = None
     operator: str | None = None
     notes: str | None = None
-    propeller_diameter_m: PositiveFloat | None = None
-    water_density_kg_m3: PositiveFloat | None = None
+    propeller_diameter_m: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] | None = None
+    water_density_kg_m3: Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)] | None = None
     extra: dict[str, str] = Field(default_factory=dict)
 
 
@@ -175,8 +220,27 @@ class SimulatorSpec(_Strict):
     """Which simulator twin profile to run with `--sim`, its seed and parameter overrides."""
 
     profile: str
-    seed: int = 1
-    overrides: dict[str, float | str] = Field(default_factory=dict)
+    seed: Seed = 1
+    overrides: dict[str, Scale | str] = Field(default_factory=dict)
+
+    @field_validator("overrides")
+    @classmethod
+    def _known(cls, overrides: dict[str, float | str], info: ValidationInfo) -> dict[str, float | str]:
+        """Unknown parameters and bad values are file errors, found before any device opens."""
+        profile = info.data.get("profile")
+        if profile is not None:
+            try:
+                profile_with_overrides(profile, overrides)
+            except UsageError as exc:
+                raise ValueError(str(exc)) from None
+        return overrides
+
+    @field_validator("profile")
+    @classmethod
+    def _profile(cls, profile: str) -> str:
+        if profile not in PROFILES:
+            raise ValueError(f"unknown thruster profile {profile!r}; known: {', '.join(PROFILES)}")
+        return profile
 
 
 class Protocol(_Strict):
@@ -192,6 +256,45 @@ class Protocol(_Strict):
     depth: DepthAxis
     timing: Timing
     limits: Limits = Field(default_factory=Limits)
+
+    @model_validator(mode="after")
+    def _bounded(self) -> Protocol:
+        """The whole run must fit MAX_POINTS and MAX_RUN_S; counted, never expanded."""
+        n = self.n_points()
+        if n > MAX_POINTS:
+            raise FieldError(("command", "repeats"), (
+                f"the plan has {n:,} points ({len(self.depth.values)} depth(s) x "
+                f"{self.command.repeats} repeat(s) x {self.command.per_repeat():,} command(s)); "
+                f"the limit is {MAX_POINTS:,}"))
+        least = self.min_duration_s()
+        if least > MAX_RUN_S:
+            where = ("limits", "slew_per_s") if self._ramps_s() > least / 2 else ("timing",)
+            raise FieldError(where, (
+                f"the run would take at least {least / 86_400:,.3g} days ({n:,} points); the "
+                f"limit is {MAX_RUN_S / 86_400:g} days (single durations are limited to "
+                f"{MAX_DURATION_S:g} s)"))
+        return self
+
+    def n_points(self) -> int:
+        """Points in the plan: depths x repeats x commands per repeat."""
+        return len(self.depth.values) * self.command.repeats * self.command.per_repeat()
+
+    def _ramps_s(self) -> float:
+        """Least total slew time whatever the neutral: each point ramps out and back, and the
+        sum of distances to any neutral is smallest at the median command."""
+        slew = self.limits.slew_per_s
+        if slew is None:
+            return 0.0
+        values = sorted(self.command.command_values())
+        median = values[len(values) // 2]
+        per_pass = sum(abs(v - median) for v in values) * (2 if self.command.order == "up-down" else 1)
+        return 2 * per_pass * self.command.repeats * len(self.depth.values) / slew
+
+    def min_duration_s(self) -> float:
+        """A lower bound of the run's length: every point's timing and ramps, the first tare."""
+        n = self.n_points()
+        tares = n if self.timing.tare == "per_point" else int(self.timing.tare != "never")
+        return n * self.timing.point_s() + tares * self.timing.tare_s + self._ramps_s()
 
 
 def load_protocol(path: str | Path) -> tuple[Protocol, dict]:

@@ -7,11 +7,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from rigtool.bounds import DepthM
 from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model
 from rigtool.devices.axes import rotation_deg, wrench_transform
@@ -42,8 +43,8 @@ class Mount(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     rotation_axis: Literal["x", "y", "z"] = "z"
-    rotation_deg: float = 0.0
-    offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation_deg: Annotated[float, Field(ge=-360, le=360)] = 0.0
+    offset_m: tuple[DepthM, DepthM, DepthM] = (0.0, 0.0, 0.0)  # propeller centre from the sensor
 
     def matrix(self) -> np.ndarray:
         return wrench_transform(rotation_deg(self.rotation_axis, self.rotation_deg), self.offset_m)

@@ -24,6 +24,7 @@ import numpy as np
 import sqlite_utils
 
 from rigtool.errors import StoreError, UsageError
+from rigtool.spool import SampleSpool
 
 DB_ENV = "RIGTOOL_DB"
 DEFAULT_DB = "rigtool.sqlite"
@@ -319,34 +320,36 @@ class Store:
         self,
         run_id: str,
         step: StepRecord,
-        samples: dict[str, np.ndarray],
+        samples: dict[str, np.ndarray] | SampleSpool,
     ) -> int:
-        """Insert one point and all its samples in a single transaction; return the step id."""
-        n = len(samples["t_s"])
+        """Insert one point and all its samples in a single transaction; return the step id.
+
+        `samples` is a dict of arrays or the engine's SampleSpool; rows go to SQLite in
+        blocks, so memory stays bounded however many samples the point has.
+        """
+        spool = samples if isinstance(samples, SampleSpool) else SampleSpool.of(
+            samples, SAMPLE_COLUMNS[1:], STAT_FIELDS)
         fields = dict(step.__dict__)
         counters = fields.pop("counters")
-        row: dict[str, Any] = {"run_id": run_id, **fields, "n": n,
+        row: dict[str, Any] = {"run_id": run_id, **fields, "n": spool.n,
                                "counters_json": json.dumps(counters) if counters else None}
         row["settled"] = int(step.settled)
         for name in STAT_FIELDS:
-            row.update(_stats(name, samples.get(name)))
-        matrix = np.empty((n, len(SAMPLE_COLUMNS)))
-        for i, c in enumerate(SAMPLE_COLUMNS[1:], start=1):
-            values = samples.get(c)
-            matrix[:, i] = np.nan if values is None else values
+            keys = [f"{name}_{s}" for s in ("mean", "std", "min", "max")]
+            row.update(zip(keys, spool.stats(name) or (None,) * 4, strict=True))
         with self.transaction():
             cur = self.conn.execute(
                 f"INSERT INTO steps ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
                 list(row.values()),
             )
             step_id = cur.lastrowid
-            matrix[:, 0] = step_id
-            # SQLite stores a bound NaN as NULL, so missing channels read back as NULL.
-            self.conn.executemany(
-                f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}) "
-                f"VALUES ({', '.join('?' * len(SAMPLE_COLUMNS))})",
-                matrix.tolist(),
-            )
+            for rows in spool.row_blocks():
+                # SQLite stores a bound NaN as NULL, so missing channels read back as NULL.
+                self.conn.executemany(
+                    f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}) "
+                    f"VALUES ({', '.join('?' * len(SAMPLE_COLUMNS))})",
+                    ((step_id, *r) for r in rows.tolist()),
+                )
         return step_id
 
     def add_points(self, run_id: str, points: dict[str, np.ndarray], bounds: np.ndarray,
@@ -600,15 +603,3 @@ def segment_stats(values: np.ndarray | None, bounds: np.ndarray) -> dict[str, li
         obj[count == 0] = None
         out[key] = obj.tolist()
     return out
-
-
-def _stats(name: str, values: np.ndarray | None) -> dict[str, float | None]:
-    keys = [f"{name}_{s}" for s in ("mean", "std", "min", "max")]
-    if values is None:
-        return dict.fromkeys(keys)
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return dict.fromkeys(keys)
-    std = float(v.std(ddof=1)) if v.size > 1 else 0.0
-    return dict(zip(keys, (float(v.mean()), std, float(v.min()), float(v.max())), strict=True))

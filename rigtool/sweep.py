@@ -3,30 +3,46 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import socket
+import sqlite3
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from rigtool import __version__
+from rigtool.bounds import MAX_RUN_S, MAX_SEED
 from rigtool.config import locate
 from rigtool.engine import Engine, Outcome
-from rigtool.errors import ConfigError, UsageError
-from rigtool.plan import PlanStep, expand
+from rigtool.errors import ConfigError, StoreError, UsageError
+from rigtool.files import UnreadableFile
+from rigtool.plan import PlanStep, estimate_duration_s, expand, step_at
 from rigtool.protocol import Protocol, load_protocol
 from rigtool.rig import Rig, RigSet, load_rig, open_rig, sim_rig
-from rigtool.store import Store
+from rigtool.store import DB_ENV, Store, resolve_db_path
 
 
 @dataclass
 class SweepSetup:
-    """Everything a sweep needs, resolved and checked before any device moves."""
+    """Everything a sweep needs, resolved and checked before any device moves.
+
+    The plan is expanded on first use only, so `--dry-run` never builds it.
+    """
 
     protocol: Protocol
     protocol_path: Path
     rig: Rig
-    plan: list[PlanStep]
+    expanded: list[PlanStep] | None = None
+    rig_path: Path | None = None  # the rig file, when the rig came from one
+
+    @property
+    def plan(self) -> list[PlanStep]:
+        if self.expanded is None:
+            self.expanded = expand(self.protocol)
+        return self.expanded
 
 
 def resolve(protocol_path: str | Path, rig_path: str | None = None, sim: bool = False,
@@ -34,35 +50,72 @@ def resolve(protocol_path: str | Path, rig_path: str | None = None, sim: bool = 
     """Load the protocol, choose the rig (--rig, --sim, or the protocol's `rig:`), expand the plan."""
     path = Path(protocol_path)
     protocol, _ = load_protocol(path)
+    if seed is not None and not 0 <= seed <= MAX_SEED:
+        raise UsageError(f"--seed {seed}: a simulator seed is 0..{MAX_SEED}")
+    rig_file = None
     if rig_path:
-        rig, _ = load_rig(rig_path)
+        rig_file = Path(rig_path)
+        rig, _ = load_rig(rig_file)
     elif sim:
         if protocol.simulator is None:
-            raise ConfigError([f"{path}: --sim needs a `simulator:` section naming a profile "
-                               "(e.g. `simulator: {profile: can-bldc}`)"])
+            raise ConfigError([f"{locate(path, ())}: --sim needs a `simulator:` section naming a "
+                               "profile (e.g. `simulator: {profile: can-bldc}`)"])
         rig = sim_rig(protocol.simulator)
     elif protocol.rig:
-        rig, _ = load_rig(path.parent / protocol.rig)
+        rig_file = path.parent / protocol.rig
+        try:
+            rig, _ = load_rig(rig_file)
+        except UnreadableFile as exc:
+            raise ConfigError([f"{locate(path, ('rig',))}: rig: {exc.problem}: {rig_file}"]) from None
     else:
-        raise UsageError(f"{path}: no rig given: pass --rig RIG.yaml, or --sim for the simulator")
+        raise ConfigError([f"{locate(path, ())}: no rig given: add `rig: RIG.yaml`, pass "
+                           "--rig RIG.yaml, or --sim for the simulator"])
     if seed is not None and rig.simulator is not None:
         rig = rig.model_copy(update={"simulator": rig.simulator.model_copy(update={"seed": seed})})
-    return SweepSetup(protocol, path, rig, expand(protocol))
+    return SweepSetup(protocol, path, rig, rig_path=rig_file)
+
+
+def open_store(cli_db: str | None, rig: Rig | None, rig_path: Path | None,
+               create: bool = True) -> Store:
+    """The run database; when the rig file's `db:` chose it, a path that cannot be a
+    database is a config error naming that line."""
+    path = resolve_db_path(cli_db, rig.db if rig else None)
+    from_rig = rig is not None and rig.db and rig_path is not None and not (
+        cli_db or os.environ.get(DB_ENV))
+    try:
+        return Store(path, create=create)
+    except (UsageError, StoreError) as exc:
+        cause = exc.__cause__
+        about_path = isinstance(exc, UsageError) or isinstance(cause, OSError) or (
+            isinstance(cause, sqlite3.DatabaseError)
+            and any(k in str(cause) for k in ("unable to open", "not a database")))
+        if not (from_rig and about_path):
+            raise
+        raise ConfigError([f"{locate(rig_path, ('db',))}: db: {exc}"]) from None
 
 
 def check_compatible(setup: SweepSetup, rigset: RigSet) -> None:
-    """The protocol's commands must be in the actuator's unit and range."""
+    """The protocol's commands must be in the actuator's unit and range, and the run, ramps
+    included, must fit MAX_RUN_S now that the actuator's neutral is known."""
     info = rigset.actuator.info
     cmd = setup.protocol.command
+    path = setup.protocol_path
     problems = []
     if cmd.unit != info.command_unit:
-        problems.append(f"{setup.protocol_path}: command.unit: the rig's actuator takes "
-                        f"{info.command_unit}, the protocol sweeps {cmd.unit}")
+        problems.append(f"{locate(path, ('command', 'unit'))}: command.unit: the rig's actuator "
+                        f"takes {info.command_unit}, the protocol sweeps {cmd.unit}")
     values = cmd.command_values()
     lo, hi = min(values), max(values)
     if lo < info.command_min or hi > info.command_max:
-        problems.append(f"{setup.protocol_path}: command: values {lo:g}..{hi:g} leave the "
-                        f"actuator's range {info.command_min:g}..{info.command_max:g} {info.command_unit}")
+        source = "values" if cmd.values is not None else "range"
+        problems.append(f"{locate(path, ('command', source))}: command.{source}: values "
+                        f"{lo:g}..{hi:g} leave the actuator's range {info.command_min:g}.."
+                        f"{info.command_max:g} {info.command_unit}")
+    duration = estimate_duration_s(setup.protocol, info.neutral)
+    if not problems and duration > MAX_RUN_S:
+        problems.append(f"{locate(path, ('limits', 'slew_per_s'))}: limits.slew_per_s: the run "
+                        f"would take {duration / 86_400:,.3g} days with its ramps from neutral "
+                        f"{info.neutral:g} {info.command_unit}; the limit is {MAX_RUN_S / 86_400:g} days")
     if problems:
         raise ConfigError(problems)
 
@@ -88,7 +141,7 @@ def check_depth_source(setup: SweepSetup) -> None:
 def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
     """Open the rig's devices and check the protocol against them (closing them on failure)."""
     check_depth_source(setup)
-    rigset = open_rig(setup.rig, start_depth_m=setup.plan[start_idx].depth_m,
+    rigset = open_rig(setup.rig, start_depth_m=step_at(setup.protocol, start_idx).depth_m,
                       depth_mode=setup.protocol.depth.mode)
     try:
         check_compatible(setup, rigset)
@@ -120,9 +173,14 @@ def resolve_resume(store: Store, run_ref: str,
     _refuse_import(run_id, run)
     if run["status"] not in RESUMABLE:
         raise UsageError(f"run {run_id} is {run['status']}; only {', '.join(RESUMABLE)} runs resume")
-    protocol = Protocol.model_validate(run["protocol"])
     rig_data = {k: v for k, v in run["rig"].items() if k not in ("resolved", "host")}
-    stored = Rig.model_validate(rig_data)
+    try:
+        protocol = Protocol.model_validate(run["protocol"])
+        stored = Rig.model_validate(rig_data)
+    except ValidationError as exc:
+        raise UsageError(f"run {run_id}: its stored protocol or rig no longer validates "
+                         f"({exc.error_count()} problem(s), first: {exc.errors()[0]['msg']}); "
+                         "cannot resume") from None
     if rig is not None and _rig_kind(rig) != _rig_kind(stored):
         raise UsageError(f"run {run_id} was recorded on rig {stored.name!r}; the rig given to "
                          "--resume must have the same drivers, thrust axis and mount (only "

@@ -289,7 +289,7 @@ def test_encode_signal_selects_the_multiplexer():
         ({"command": {"message": "SERVO_CONTROL", "signal": "Speed"}}, UsageError,
          "no signal 'Speed'.*SpeedCmd_rpm"),
         ({"dbc": "/no/such.dbc", "command": {"message": "A", "signal": "B"}}, UsageError,
-         "/no/such.dbc not found"),
+         "/no/such.dbc: file not found"),
         ({"neutral": 150.0}, UsageError, "neutral 150 outside"),
         ({"command": {"message": "SERVO_CONTROL", "signal": "SpeedCmd_pct", "scale": 0}},
          ValidationError, "scale must not be 0"),

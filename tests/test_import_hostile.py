@@ -12,6 +12,7 @@ import pytest
 
 from rigtool import store as store_module
 from rigtool.cli import main
+from rigtool.spool import SampleSpool
 from rigtool.store import Store
 
 GOOD = "t,cmd,F\n0,1500,0\n1,1600,1.0\n2,1700,2.0\n3,1800,3.0\n"
@@ -210,10 +211,14 @@ def test_stats_of_bulk_points_match_single_points(db_path: Path) -> None:
     speed[bounds[2]:bounds[3]] = rng.normal(size=sizes[2])
     stats = store_module.segment_stats(thrust, bounds)
     for i in range(len(sizes)):
-        expect = store_module._stats("thrust_n", thrust[bounds[i]:bounds[i + 1]])
+        part = thrust[bounds[i]:bounds[i + 1]]
+        one = SampleSpool.of({"t_s": np.zeros(part.size), "thrust_n": part}, ("t_s", "thrust_n"),
+                             ("thrust_n",))
+        expect = dict(zip(("mean", "std", "min", "max"), one.stats("thrust_n") or (None,) * 4,
+                          strict=True))
         got = {k: v[i] for k, v in stats.items()}
         for k in ("mean", "std", "min", "max"):
-            e, g = expect[f"thrust_n_{k}"], got[k]
+            e, g = expect[k], got[k]
             assert (e is None and g is None) or g == pytest.approx(e, rel=1e-12, abs=1e-15)
     speed_stats = store_module.segment_stats(speed, bounds)
     assert speed_stats["mean"][0] is None and speed_stats["mean"][2] is not None

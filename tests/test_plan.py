@@ -54,7 +54,7 @@ def test_random_order_is_seeded(write_yaml):
 def test_duration_estimate_counts_every_phase(write_yaml):
     protocol, plan = _plan(write_yaml, SMALL_PROTOCOL)
     per_point = 0.5 + 200 / 500 + 0.2
-    est = estimate_duration_s(protocol, plan, neutral=0.0)
+    est = estimate_duration_s(protocol, neutral=0.0)
     slew = sum(2 * abs(s.command) / 400 for s in plan)
     assert abs(est - (4 * per_point + slew + 10 + 1.0)) < 1e-9
 

@@ -22,12 +22,13 @@ import re
 import threading
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from rigtool.bounds import Baudrate, PositiveSeconds, Scale
 from rigtool.devices.base import FT_CHANNELS, ForceBlock
 from rigtool.devices.buffer import SampleBuffer
 from rigtool.devices.netft import FORCE_UNITS_N, unit_factor
@@ -52,22 +53,22 @@ PRESETS: dict[str, dict[str, Any]] = {
 class AsciiGaugeConfig(BaseModel):
     """The `sensor:` section of a rig file for a serial ASCII force gauge."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     driver: Literal["ascii-gauge"]
     url: str = Field(min_length=1)  # pyserial URL: /dev/ttyUSB0, socket://host:port, a pty
-    baudrate: int = Field(9600, gt=0)
+    baudrate: Baudrate = 9600
     preset: Literal["mark10", "hx711-csv"] | None = None  # fills mode, query, pattern, unit
     mode: Literal["poll", "stream"] | None = None
     query: str | None = None  # poll: sent for every reading (YAML "?\r" is ? + CR)
     pattern: str | None = None  # regex with a named group `value` (optional `unit`, `seq`)
     unit: str | None = None  # unit of `value` when the line has no `unit` group or it is empty
-    scale: float = 1.0  # e.g. N per count for a raw HX711 value (with unit: N)
-    offset: float = 0.0  # subtracted from `value` before scaling (e.g. the raw zero)
+    scale: Scale = 1.0  # e.g. N per count for a raw HX711 value (with unit: N)
+    offset: Scale = 0.0  # subtracted from `value` before scaling (e.g. the raw zero)
     channel: Literal["fx", "fy", "fz"] = "fx"  # F/T channel the gauge's axis maps to
     sign: Literal[1, -1] = 1
-    timeout_s: float = Field(1.0, gt=0)  # reply timeout (poll); longest silence (stream)
-    max_failures: int = Field(5, ge=1)  # poll: consecutive queries without a reading before a fault
-    max_gap_s: float = Field(0.25, gt=0)  # stream: pause between reads after which old lines are dropped
+    timeout_s: PositiveSeconds = 1.0  # reply timeout (poll); longest silence (stream)
+    max_failures: Annotated[int, Field(ge=1, le=1_000_000)] = 5  # poll: consecutive queries without a reading before a fault
+    max_gap_s: PositiveSeconds = 0.25  # stream: pause between reads after which old lines are dropped
 
     @model_validator(mode="before")
     @classmethod

@@ -22,9 +22,11 @@ import cantools
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
+from rigtool.bounds import Baudrate, Command, PositiveSeconds, Scale, Seconds
 from rigtool.devices.base import COMMAND_UNITS, ActuatorInfo, FeedbackBlock
 from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer, check_keepalive
 from rigtool.errors import DeviceError, UsageError
+from rigtool.files import MAX_DBC_BYTES, UnreadableFile, read_regular_bytes
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +37,7 @@ _SECTIONS = ("command", "feedback", "fault", "enable")
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class SignalRef(_Strict):
@@ -43,7 +45,7 @@ class SignalRef(_Strict):
 
     message: str = Field(min_length=1)  # DBC message name
     signal: str = Field(min_length=1)  # DBC signal name (physical value, DBC scaling applied)
-    scale: float = 1.0  # e.g. 0.2 for motor r/min behind a 5:1 gearbox
+    scale: Scale = 1.0  # e.g. 0.2 for motor r/min behind a 5:1 gearbox
 
 
 class CommandRef(_Strict):
@@ -52,9 +54,9 @@ class CommandRef(_Strict):
     message: str = Field(min_length=1)  # DBC message name
     signal: str = Field(min_length=1)  # DBC signal name
     unit: Literal[COMMAND_UNITS] = "percent"  # command unit the engine works in
-    scale: float = 1.0  # signal units per command unit, e.g. 18 for percent -> r/min
-    min: float | None = None  # command limits (command unit); default: DBC range / scale
-    max: float | None = None
+    scale: Scale = 1.0  # signal units per command unit, e.g. 18 for percent -> r/min
+    min: Command | None = None  # command limits (command unit); default: DBC range / scale
+    max: Command | None = None
 
     @model_validator(mode="after")
     def _nonzero(self) -> CommandRef:
@@ -76,7 +78,7 @@ class FaultRef(_Strict):
 
     message: str = Field(min_length=1)
     signal: str = Field(min_length=1)
-    ok: float = 0.0
+    ok: Scale = 0.0
 
 
 class EnableRef(_Strict):
@@ -84,8 +86,8 @@ class EnableRef(_Strict):
 
     message: str = Field(min_length=1)
     signal: str = Field(min_length=1)
-    on_start: float = 1.0
-    on_close: float = 0.0
+    on_start: Scale = 1.0
+    on_close: Scale = 0.0
 
 
 class DbcCanConfig(_Strict):
@@ -94,18 +96,18 @@ class DbcCanConfig(_Strict):
     driver: Literal["dbc-can"]
     interface: str = Field("socketcan", min_length=1)  # python-can: socketcan, slcan, pcan, virtual
     channel: str = Field(min_length=1)  # python-can channel: can0, /dev/ttyACM0, a virtual bus name
-    bitrate: int | None = Field(500000, gt=0)  # bit/s; null keeps the interface's own setting
+    bitrate: Baudrate | None = 500000  # bit/s; null keeps the interface's own setting
     dbc: str | None = None  # path to the .dbc; null: shipped servo_driver.dbc + servo_driver.yaml
     node_id: int = Field(1, ge=0, le=0x1FFFFFFF)  # added to every DBC frame id; 0 for absolute ids
     command: CommandRef | None = None  # required with your own dbc
     feedback: FeedbackMap | None = None  # none: the actuator reports no feedback
     fault: FaultRef | None = None
     enable: EnableRef | None = None
-    neutral: float = 0.0  # safe command, in command.unit
+    neutral: Command = 0.0  # safe command, in command.unit
     # the drive's command watchdog; null: SHIPPED_WATCHDOG_S with the shipped DBC, else none
-    command_timeout_s: float | None = Field(None, ge=0)
-    keepalive_s: float = Field(0.1, ge=0, validate_default=True)  # re-send period; 0 = off
-    timeout_s: float = Field(1.0, gt=0)  # no feedback/fault frame this long -> DeviceError
+    command_timeout_s: Seconds | None = None
+    keepalive_s: Seconds = Field(0.1, validate_default=True)  # re-send period; 0 = off
+    timeout_s: PositiveSeconds = 1.0  # no feedback/fault frame this long -> DeviceError
 
     @field_validator("keepalive_s")
     @classmethod
@@ -134,9 +136,11 @@ def resolve(config: DbcCanConfig) -> DbcCanConfig:
 def load_dbc(path: Path) -> cantools.database.can.Database:
     """Read a DBC file; a missing or invalid file is a UsageError naming it."""
     try:
-        return cantools.database.load_file(str(path), database_format="dbc")
-    except FileNotFoundError:
-        raise UsageError(f"dbc-can: DBC file {path} not found") from None
+        text = read_regular_bytes(path, MAX_DBC_BYTES).decode("cp1252", errors="replace")
+    except UnreadableFile as exc:
+        raise UsageError(f"dbc-can: DBC file {path}: {exc.problem}") from None
+    try:  # cp1252 is cantools' own default for DBC files
+        return cantools.database.load_string(text, database_format="dbc")
     except Exception as exc:  # noqa: BLE001 - cantools raises parser-specific errors
         raise UsageError(f"dbc-can: cannot read DBC file {path}: {exc}") from exc
 

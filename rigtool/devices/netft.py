@@ -37,6 +37,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from rigtool.bounds import MAX_SAMPLES_PER_POINT, PositiveScale, PositiveSeconds
 from rigtool.devices.base import FT_CHANNELS, ForceBlock
 from rigtool.devices.buffer import SampleBuffer
 from rigtool.errors import DeviceError
@@ -90,22 +91,22 @@ def pack_request(command: int, sample_count: int = 0) -> bytes:
 class NetFTConfig(BaseModel):
     """The `sensor:` section of a rig file for an ATI Net F/T."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     driver: Literal["ati-netft"]
     host: str = Field(min_length=1)
     port: int = Field(RDT_PORT, ge=1, le=65535)
     http_port: int = Field(80, ge=1, le=65535)
     # Calibration: both counts, or neither (then fetched from http://host:http_port/netftapi2.xml).
-    counts_per_force: float | None = Field(None, gt=0)
-    counts_per_torque: float | None = Field(None, gt=0)
+    counts_per_force: PositiveScale | None = None
+    counts_per_torque: PositiveScale | None = None
     force_unit: str = "N"  # unit the configured counts refer to (the box's scfgfu)
     torque_unit: str = "N-m"  # (the box's scfgtu)
     sample_count: int = Field(0, ge=0, lt=_SEQ_MOD)  # per start request; 0 = stream until stopped
-    timeout_s: float = Field(1.0, gt=0)
+    timeout_s: PositiveSeconds = 1.0
     bias: Literal["host", "device"] = "host"
     on_status: Literal["fault", "warn"] = "fault"
-    max_gap_s: float = Field(0.25, gt=0)
-    buffer_samples: int = Field(200_000, ge=1000)
+    max_gap_s: PositiveSeconds = 0.25
+    buffer_samples: int = Field(200_000, ge=1000, le=MAX_SAMPLES_PER_POINT)
 
     @field_validator("force_unit")
     @classmethod

@@ -13,11 +13,12 @@ import contextlib
 import math
 import re
 import time
-from typing import Literal
+from typing import Annotated, Literal
 
 import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from rigtool.bounds import Baudrate, DepthM, PositiveSeconds
 from rigtool.errors import DeviceError, UsageError
 
 _LINE = re.compile(r"(?P<kind>OK|ERR|DONE|POS)(?:\s+(?P<arg>.*?))?\s*")
@@ -31,15 +32,15 @@ class _Timeout(DeviceError):
 class SerialStageConfig(BaseModel):
     """Rig-file section for the serial linear stage (`driver: serial-stage`)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     driver: Literal["serial-stage"]
     url: str = Field(min_length=1)  # pyserial URL: /dev/ttyUSB0, socket://host:port
-    baudrate: int = Field(115200, gt=0)  # ignored by socket:// and loop://
-    speed_mm_s: float = Field(10.0, gt=0)  # stage speed, for move timeouts
-    timeout_s: float = Field(2.0, gt=0)  # reply timeout, and slack added to every move
-    min_depth_m: float = 0.0  # soft limits on the propeller-centre depth
-    max_depth_m: float = 1.5
-    zero_offset_m: float = 0.0  # stage position at which the propeller centre is at the surface
+    baudrate: Baudrate = 115200  # ignored by socket:// and loop://
+    speed_mm_s: Annotated[float, Field(gt=0, le=10_000)] = 10.0  # stage speed, for move timeouts
+    timeout_s: PositiveSeconds = 2.0  # reply timeout, and slack added to every move
+    min_depth_m: DepthM = 0.0  # soft limits on the propeller-centre depth
+    max_depth_m: DepthM = 1.5
+    zero_offset_m: DepthM = 0.0  # stage position at which the propeller centre is at the surface
     direction: Literal[1, -1] = 1  # +1: larger stage positions put the propeller deeper
 
     @model_validator(mode="after")

@@ -21,6 +21,7 @@ import numpy as np
 import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from rigtool.bounds import MAX_CLOCK_HZ, MAX_DURATION_S, Baudrate, Command, PositiveSeconds, Seconds
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
 from rigtool.errors import DeviceError, UsageError
 
@@ -34,21 +35,21 @@ _READ_TIMEOUT_S = 0.02  # reader thread poll period
 class Stm32BridgeConfig(BaseModel):
     """Rig-file section for the STM32 PWM bridge (`driver: stm32-bridge`)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     driver: Literal["stm32-bridge"]
     url: str = Field(min_length=1)  # pyserial URL: /dev/ttyACM0, socket://host:port, loop://
-    baudrate: int = Field(115200, gt=0)  # ignored by socket:// and loop://
-    channel: int = Field(1, ge=0)  # timer channel the thruster's ESC/driver is wired to
+    baudrate: Baudrate = 115200  # ignored by socket:// and loop://
+    channel: int = Field(1, ge=0, le=255)  # timer channel the thruster's ESC/driver is wired to
     command_unit: Literal["pwm_counts", "pulse_us"] = "pwm_counts"  # pulse_us for an ESC
-    timer_clock_hz: float = Field(72e6, gt=0)  # timer input clock (f_TIM)
+    timer_clock_hz: float = Field(72e6, ge=1, le=MAX_CLOCK_HZ)  # timer input clock (f_TIM)
     psc: int = Field(0, ge=0, le=65535)  # prescaler: tick = (psc + 1) / timer_clock_hz
     arr: int = Field(799, ge=1, le=2**32 - 1)  # auto-reload: counts 0..arr per period
-    neutral: float | None = None  # in command_unit; default 0 counts or 1500 us
-    command_min: float | None = None  # in command_unit; default 0 counts or 1100 us
-    command_max: float | None = None  # in command_unit; default arr counts or 1900 us
-    timeout_s: float = Field(0.5, gt=0)  # wait this long for each reply
-    heartbeat_s: float = Field(0.1, ge=0)  # heartbeat period; 0 = no heartbeat thread
-    watchdog_ms: int = Field(500, ge=0)  # firmware watchdog; 0 = firmware has none
+    neutral: Command | None = None  # in command_unit; default 0 counts or 1500 us
+    command_min: Command | None = None  # in command_unit; default 0 counts or 1100 us
+    command_max: Command | None = None  # in command_unit; default arr counts or 1900 us
+    timeout_s: PositiveSeconds = 0.5  # wait this long for each reply
+    heartbeat_s: Seconds = 0.1  # heartbeat period; 0 = no heartbeat thread
+    watchdog_ms: int = Field(500, ge=0, le=int(MAX_DURATION_S * 1000))  # firmware watchdog; 0 = firmware has none
     line_end: Literal["\n", "\r\n", "\r"] = "\n"  # appended to every command line
     # command formats ({channel}, {value} placeholders; "" = the firmware lacks it)
     set_format: str = Field("SET {channel} {value}", min_length=1)  # compare value in counts

@@ -26,6 +26,7 @@ from typing import Literal
 import can
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
+from rigtool.bounds import MAX_CURRENT_A, MAX_SPEED_RPM, Baudrate, PositiveSeconds, Seconds
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
 from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer, check_keepalive
 from rigtool.errors import DeviceError
@@ -50,22 +51,22 @@ _DEFAULT_UNIT = {"duty": "percent", "rpm": "rpm", "current": "amps"}
 class VescCanConfig(BaseModel):
     """Rig-file section for a VESC on a CAN bus (`driver: vesc-can`)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     driver: Literal["vesc-can"]
     interface: str = Field("socketcan", min_length=1)  # python-can: socketcan, slcan, pcan, virtual
     channel: str = Field(min_length=1)  # python-can channel: can0, /dev/ttyACM0, socket://host:port
-    bitrate: int | None = Field(500000, gt=0)  # bit/s (VESC default); null: the interface's own
+    bitrate: Baudrate | None = 500000  # bit/s (VESC default); null: the interface's own
     controller_id: int = Field(0, ge=0, le=254)  # VESC ID (VESC Tool: App Settings > General)
     host_id: int = Field(254, ge=0, le=254)  # our CAN id for fault-poll replies; unused by any VESC
     mode: Literal["duty", "current", "rpm"] = "duty"  # which SET_* packet carries the command
     command_unit: Literal["percent", "rpm", "amps"] | None = None  # default: percent/rpm/amps
-    pole_pairs: int = Field(7, ge=1)  # motor pole pairs: ERPM = mechanical r/min x pole_pairs
-    max_erpm: float | None = Field(None, gt=0)  # rpm mode: command limit, and what 100 % means
-    max_current_a: float | None = Field(None, gt=0)  # current mode: limit, and what 100 % means
+    pole_pairs: int = Field(7, ge=1, le=1000)  # motor pole pairs: ERPM = mechanical r/min x pole_pairs
+    max_erpm: float | None = Field(None, gt=0, le=MAX_SPEED_RPM * 1000)  # rpm mode: command limit, and what 100 % means
+    max_current_a: float | None = Field(None, gt=0, le=MAX_CURRENT_A)  # current mode: limit, and what 100 % means
     current_source: Literal["input", "motor"] = "input"  # STATUS_4 supply A or STATUS motor A
-    command_timeout_s: float = Field(1.0, ge=0)  # the VESC's App Settings > Timeout; 0 = none
-    keepalive_s: float = Field(0.1, ge=0, validate_default=True)  # re-send period; 0 = off
-    timeout_s: float = Field(1.0, gt=0)  # no status frame for this long -> DeviceError
+    command_timeout_s: Seconds = 1.0  # the VESC's App Settings > Timeout; 0 = none
+    keepalive_s: Seconds = Field(0.1, validate_default=True)  # re-send period; 0 = off
+    timeout_s: PositiveSeconds = 1.0  # no status frame for this long -> DeviceError
     poll_fault: bool = True  # poll the fault code with every keep-alive
 
     @field_validator("keepalive_s")

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rigtool.errors import UsageError
+from rigtool.files import MAX_TABLE_BYTES, read_regular_bytes
 
 CANDIDATE_DELIMITERS = (",", ";", "\t")
 
@@ -38,14 +39,11 @@ def sniff_delimiter(line: str, decimal: str) -> str:
 def read_table(path: Path, *, delimiter: str | None = None, decimal: str = ".",
                header_row: int | None = None) -> RawTable:
     """Parse `path`; the header is line `header_row` or the first non-blank line."""
+    raw = read_regular_bytes(path, MAX_TABLE_BYTES)  # a FIFO or device is refused, not read
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise UsageError(f"{path}: file not found") from None
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        text = path.read_text(encoding="latin-1")
-    except OSError as exc:
-        raise UsageError(f"{path}: cannot read: {exc}") from None
+        text = raw.decode("latin-1")
     lines = text.splitlines()
     if header_row is None:
         header_row = next((i + 1 for i, s in enumerate(lines) if s.strip()), 0)
