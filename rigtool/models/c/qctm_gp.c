@@ -535,27 +535,17 @@ static int read_npy(const char *path, size_t n, double **out, int *missing, char
         set_err(err, errlen, "%s: no shape in the .npy header", path);
         goto fail;
     }
-    for (q++;;) {
+    for (q++; *q == ' '; q++)
+        ;
+    while (*q != ')') { /* "n, n" with an optional trailing comma */
         char *e;
-        unsigned long v;
-        while (*q == ' ')
-            q++;
-        if (*q == ')')
-            break;
         if (*q < '0' || *q > '9' || nd == 2)
-            goto bad_shape;
-        v = strtoul(q, &e, 10);
-        dims[nd++] = (size_t)v;
-        q = e;
-        while (*q == ' ')
-            q++;
-        if (*q == ',')
-            q++;
-        else if (*q != ')')
-            goto bad_shape;
+            break;
+        dims[nd++] = (size_t)strtoul(q, &e, 10);
+        for (q = e; *q == ' ' || *q == ','; q++)
+            ;
     }
-    if (nd != 2 || dims[0] != n || dims[1] != n) {
-    bad_shape:
+    if (*q != ')' || nd != 2 || dims[0] != n || dims[1] != n) {
         set_err(err, errlen, "%s: shape must be (%lu, %lu), the number of gp.x_train rows",
                 path, (unsigned long)n, (unsigned long)n);
         goto fail;
@@ -964,7 +954,7 @@ qctm_model *qctm_load(const char *path, char *err, size_t errlen)
     } else {
         dlen = plen + (plen > 0 && path[plen - 1] != '/' ? 1 : 0);
     }
-    json_path = malloc(dlen + 32);
+    json_path = malloc(plen + 32);
     if (json_path == NULL) {
         set_err(err, errlen, "out of memory");
         return NULL;
