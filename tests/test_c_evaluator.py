@@ -1,0 +1,280 @@
+"""The reference C evaluator (rigtool/models/c) against rigtool.models on the same block means.
+
+Agreement: |C - Python| <= 1e-9 N + 1e-12 |Python| for thrust, lo95 and hi95 (the sums over
+training rows run in a different order than numpy's BLAS), identical flags and NaNs.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import rigtool.models
+from rigtool.analysis.blocks import block_means
+from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation
+from rigtool.analysis.dataset import load_run
+from rigtool.analysis.gp import GpParams, fit_exact, fit_hetero
+from rigtool.analysis.qctm_export import model_document
+from rigtool.cavitation_artefacts import write_cavitation_artefacts
+from rigtool.cli import main
+from rigtool.models import (
+    CLAMPED,
+    CURRENT_FAULT,
+    MODEL_FILE,
+    OUT_OF_DOMAIN,
+    VARIANCE_FILE,
+    Betm,
+    Bounds,
+    Domain,
+    gp_features,
+    load_model,
+)
+from rigtool.store import Store
+
+CC = shutil.which("cc") or shutil.which("gcc")
+pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler")
+C_DIR = Path(rigtool.models.__file__).parent / "c"
+ATOL, RTOL = 1e-9, 1e-12
+
+BASE = """rigtool_protocol: 1
+name: mini-baseline
+simulator: {profile: can-bldc, seed: 7}
+metadata: {thruster_id: bldc-350w}
+command: {unit: percent, range: {start: -100, stop: 100, step: 20}, order: up}
+depth: {unit: m, values: [1.0], mode: preset}
+timing: {settle: {seconds: 1.0}, acquire: {samples: 600, rate_hz: 500}, rest_s: 0.2,
+         tare: per_depth, tare_s: 0.5}
+limits: {max_thrust_n: 90, max_current_a: 12, max_speed_rpm: 2000, slew_per_s: 200}
+"""
+CAV = """rigtool_protocol: 1
+name: mini-cavitation
+simulator: {profile: can-bldc, seed: 4}
+metadata: {thruster_id: bldc-350w}
+command: {unit: percent, values: [69, 90], order: up}
+depth: {unit: cm, values: [20, 40], mode: manual}
+timing: {settle: {seconds: 1.0}, acquire: {seconds: 8, rate_hz: 250}, rest_s: 1.0,
+         tare: per_depth}
+limits: {max_thrust_n: 90, max_current_a: 12, max_speed_rpm: 2000, slew_per_s: 200}
+"""
+PARAMS = CavitationParams(budget=120, gp=GpParams(hyper_n=120, n_restarts=0))
+BETM = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,
+            sigma_n=0.1, sigma_i=1.0)
+BETM_LEVELS = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,
+                   sigma_n=0.1, sigma_i=1.0, u0=0.5, sigma0=50.0, level_n=(2.0, 10.0, 30.0),
+                   sigma_n_level=(0.05, 0.1, 0.4), sigma_i_level=(2.0, 1.0, 0.6))
+
+
+@pytest.fixture(scope="module")
+def qctm_eval(tmp_path_factory) -> Path:
+    """The command-line program, built with the line documented in qctm_gp.c."""
+    exe = tmp_path_factory.mktemp("cbuild") / "qctm_eval"
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-o", str(exe),
+                    str(C_DIR / "qctm_gp.c"), str(C_DIR / "qctm_eval_main.c"), "-lm"],
+                   check=True, capture_output=True, text=True)
+    return exe
+
+
+def _sweep(tmp: Path, text: str, name: str, seed: int) -> str:
+    path = tmp / name
+    path.write_text(text)
+    assert main(["sweep", str(path), "--sim", "--seed", str(seed), "--db", str(tmp / "db.sqlite")]) == 0
+    return Store(tmp / "db.sqlite").runs(limit=1)[0]["id"]
+
+
+@pytest.fixture(scope="module")
+def twin(tmp_path_factory) -> tuple[Path, dict, Betm]:
+    """A twin-trained model folder, the recorded block means of a held-out run, its BETM."""
+    tmp = tmp_path_factory.mktemp("ctwin")
+    base = _sweep(tmp, BASE, "base.yaml", 7)
+    train = _sweep(tmp, CAV, "cav.yaml", 31)
+    test = _sweep(tmp, CAV, "cav.yaml", 32)
+    store = Store(tmp / "db.sqlite")
+    res = calibrate_cavitation(store, train, base, None, PARAMS)
+    write_cavitation_artefacts(res, tmp / "out", created_utc="2026-01-01T00:00:00+00:00")
+    b = block_means(load_run(store, test), PARAMS.train_block_s)
+    rec = {"speed": b.speed_rpm, "current": b.current_a, "depth": b.depth_m,
+           "segment": b.point.astype(int), "train": res.training.x}
+    return tmp / "out" / train, rec, res.betm
+
+
+def _run_c(exe: Path, folder: Path, n, i, h, seg) -> np.ndarray:
+    """(thrust_n, lo95, hi95, flags) rows from the C program."""
+    lines = [f"{float(a)!r},{float(b)!r},{float(c)!r},{s}" for a, b, c, s in zip(n, i, h, seg, strict=True)]
+    out = subprocess.run([str(exe), str(folder)], input="speed_rpm,current_a,depth_m,segment\n"
+                         + "\n".join(lines) + "\n", capture_output=True, text=True, check=True)
+    rows = [[float(v) for v in ln.split(",")] for ln in out.stdout.splitlines()]
+    return np.array(rows).reshape(-1, 4)
+
+
+def _agree(exe: Path, folder: Path, n, i, h, seg) -> tuple[float, np.ndarray]:
+    """Assert C and load_model(folder).evaluate agree; return the max abs difference, flags."""
+    c = _run_c(exe, folder, n, i, h, seg)
+    p = load_model(folder).evaluate(n, i, h, np.asarray(seg))
+    assert c.shape == (len(p.thrust_n), 4)
+    worst = 0.0
+    for col, ref in enumerate((p.thrust_n, p.lo95, p.hi95)):
+        np.testing.assert_array_equal(np.isnan(c[:, col]), np.isnan(ref))
+        ok = ~np.isnan(ref)
+        diff = np.abs(c[ok, col] - ref[ok])
+        assert np.all(diff <= ATOL + RTOL * np.abs(ref[ok])), (col, diff.max())
+        worst = max(worst, float(diff.max(initial=0.0)))
+    np.testing.assert_array_equal(c[:, 3].astype(int), p.flags)
+    return worst, p.flags
+
+
+def _mixed(rec: dict, betm: Betm) -> tuple[np.ndarray, ...]:
+    """Recorded blocks (several segments) with faults and out-of-range inputs spliced in,
+    then the training rows, each as its own segment."""
+    n, i, h = (np.array(rec[k], dtype=float) for k in ("speed", "current", "depth"))
+    seg = list(rec["segment"])
+    i[[3, 4]] = 0.0  # dropout, two blocks
+    i[9] = 0.5 * betm.i_0  # below idle
+    i[14] = np.nan  # no current reading
+    i[17] = np.inf
+    i[21] = 3.0 * (betm.c_n * n[21] ** 3 + betm.i_0)  # speed and current disagree
+    n[25] *= 1.4  # faster than any training block, current to match
+    i[25] = betm.c_n * n[25] ** 3 + betm.i_0
+    h[27] = 2.0  # deeper than the training runs
+    n[30], i[30] = -n[30], i[30]  # reverse
+    n[33] = np.nan
+    h[35] = np.nan
+    n[38] = 0.0
+    x = rec["train"]
+    return (np.r_[n, x[:, 0]], np.r_[i, x[:, 1]], np.r_[h, x[:, 2]],
+            np.r_[seg, 1000 + np.arange(len(x))])
+
+
+def test_twin_model_agrees_with_python(qctm_eval, twin):
+    folder, rec, betm = twin
+    worst, flags = _agree(qctm_eval, folder, *_mixed(rec, betm))
+    assert worst < ATOL
+    assert all(np.any(flags & bit) for bit in (OUT_OF_DOMAIN, CURRENT_FAULT))
+    assert np.sum(flags == 0) > len(flags) // 2  # mostly ordinary blocks
+
+
+def test_twin_model_without_kinv_uses_the_prior_variance(qctm_eval, twin, tmp_path):
+    folder, rec, betm = twin
+    shutil.copy(folder / MODEL_FILE, tmp_path / MODEL_FILE)
+    inputs = _mixed(rec, betm)
+    _agree(qctm_eval, tmp_path, *inputs)
+    post, prior = _run_c(qctm_eval, folder, *inputs), _run_c(qctm_eval, tmp_path, *inputs)
+    ok = ~np.isnan(post[:, 0])
+    assert np.all(prior[ok, 2] - prior[ok, 1] >= post[ok, 2] - post[ok, 1] - 1e-9)
+    assert np.any(prior[ok, 2] - prior[ok, 1] > post[ok, 2] - post[ok, 1] + 1e-6)
+
+
+def _gp_data(n: int, seed: int, betm: Betm = BETM) -> tuple[np.ndarray, ...]:
+    """Block means of 5 "points", GP features (window 3), y and w; noisier when ventilated."""
+    rng = np.random.default_rng(seed)
+    seg = np.repeat(np.arange(5), n // 5 + 1)[:n]
+    speed = np.array([700.0, 1200.0, 1600.0, 1200.0, 1600.0])[seg] + rng.normal(0, 2, n)
+    drop = np.repeat(np.where(rng.random(n // 10 + 1) < 0.4,
+                              rng.uniform(0.25, 0.75, n // 10 + 1), 0.0), 10)[:n]
+    current = (betm.c_n * speed**3 + betm.i_0) * (1 - 0.08 * drop) + rng.normal(0, 0.01, n)
+    depth = np.array([0.2, 0.3, 0.4, 0.2, 0.3])[seg]
+    x = gp_features(betm, speed, current, depth, seg, 3)
+    y = -drop * betm.speed_estimate(speed) + rng.normal(0, 0.1, n) * np.where(drop > 0, 10, 1)
+    return speed, current, depth, seg, x, y, np.where(rng.random(n) < 0.1, 0.3, 1.0)
+
+
+def _synthetic(folder: Path, case: str) -> Betm:
+    """Write a synthetic model: "hetero" (centred window, no bounds: above_n is Infinity in
+    the JSON, no domain) or "exact" (causal, BETM level tables, bounds and domain)."""
+    betm = BETM_LEVELS if case == "exact" else BETM
+    _, _, _, _, x, y, w = _gp_data(100, 3, betm)
+    p = GpParams(hyper_n=100, n_restarts=0)
+    if case == "exact":
+        gp = fit_exact(x, y, w, p)
+        domain = Domain({"speed_rpm": (650.0, 1650.0), "current_a": (0.5, 5.5),
+                         "depth_m": (0.15, 0.45), "shortfall_thrust_n": (-1.0, 30.0)}, 1.5)
+        doc = model_document(betm, gp, {}, window=5, lead=0, bounds=Bounds((-0.2, 0.3), 2.0),
+                             domain=domain)
+    else:
+        gp = fit_hetero(x, y, w, np.floor(np.arange(y.size) * 0.1) % 2, p)
+        doc = model_document(betm, gp, {}, window=3)
+    (folder / MODEL_FILE).write_text(json.dumps(doc))
+    np.save(folder / VARIANCE_FILE, gp.k_inv)
+    return betm
+
+
+def _as_version_2(doc: dict) -> dict:
+    """A format-2 file: plain beta z, centred window, no bounds, domain or flags."""
+    doc["format_version"] = 2
+    for key in ("bounds", "domain", "flags"):
+        del doc[key]
+    del doc["features"]["lead_blocks"]
+    for key in ("gate_z0", "gate_s"):
+        del doc["gp"][key]
+    return doc
+
+
+@pytest.fixture(scope="module")
+def hetero_files(tmp_path_factory) -> tuple[str, bytes]:
+    """Text of a synthetic model file and its posterior-variance file, fitted once."""
+    folder = tmp_path_factory.mktemp("chetero")
+    _synthetic(folder, "hetero")
+    return (folder / MODEL_FILE).read_text(), (folder / VARIANCE_FILE).read_bytes()
+
+
+@pytest.mark.parametrize("case", ["hetero", "exact", "v2"])
+def test_synthetic_models_agree_with_python(qctm_eval, hetero_files, tmp_path, case):
+    if case == "exact":
+        betm = _synthetic(tmp_path, case)
+    else:  # the module's hetero model, as it is or as a version-2 file
+        doc = json.loads(hetero_files[0])
+        (tmp_path / MODEL_FILE).write_text(json.dumps(_as_version_2(doc) if case == "v2" else doc))
+        (tmp_path / VARIANCE_FILE).write_bytes(hetero_files[1])
+        betm = BETM
+    speed, current, depth, seg, *_ = _gp_data(80, 4, betm)
+    rec = {"speed": speed, "current": current, "depth": depth, "segment": seg,
+           "train": np.column_stack(_gp_data(20, 5, betm)[:3])}
+    n, i, h, s = _mixed(rec, betm)
+    n[[40, 41]] = [150.0, -300.0]  # below the first BETM level knot
+    worst, flags = _agree(qctm_eval, tmp_path, n, i, h, s)
+    assert worst < ATOL and np.any(flags & CURRENT_FAULT)
+    if case == "exact":
+        assert np.any(flags & CLAMPED) and np.any(flags & OUT_OF_DOMAIN)
+    (tmp_path / VARIANCE_FILE).unlink()
+    _agree(qctm_eval, tmp_path, n, i, h, s)
+
+
+BAD_DOCS = {
+    "empty": lambda t: "",
+    "truncated": lambda t: t[: len(t) // 2],
+    "trailing": lambda t: t + " x",
+    "nested": lambda t: "[" * 100000,
+    "bad number": lambda t: t.replace('"y_std": ', '"y_std": 1.', 1),
+    "bad escape": lambda t: t.replace('"rigtool-qctm-gp"', '"rigtool\\q"', 1),
+    "not an object": lambda t: "[1, 2, 3]",
+    "version 1": lambda t: t.replace('"format_version": 4', '"format_version": 1', 1),
+    "version 5": lambda t: t.replace('"format_version": 4', '"format_version": 5', 1),
+    "x_train type": lambda t: t.replace('"x_train": [', '"x_train": "no", "x": [', 1),
+    "unknown betm field": lambda t: t.replace('"cp_fwd"', '"cp_sideways": 1, "cp_fwd"', 1),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_DOCS))
+def test_malformed_model_exits_with_a_message(qctm_eval, hetero_files, tmp_path, name):
+    (tmp_path / MODEL_FILE).write_text(BAD_DOCS[name](hetero_files[0]))
+    out = subprocess.run([str(qctm_eval), str(tmp_path)], input="1000,1,0.3,0\n",
+                         capture_output=True, text=True)
+    assert out.returncode == 1 and out.stdout == ""
+    assert out.stderr.startswith("qctm_eval: ") and len(out.stderr.splitlines()) == 1
+
+
+def test_bad_kinv_and_bad_input_exit_with_a_message(qctm_eval, hetero_files, tmp_path):
+    text, good = hetero_files
+    (tmp_path / MODEL_FILE).write_text(text)
+    (tmp_path / VARIANCE_FILE).write_bytes(good[:200])
+    out = subprocess.run([str(qctm_eval), str(tmp_path)], input="", capture_output=True,
+                         text=True)
+    assert out.returncode == 1 and VARIANCE_FILE in out.stderr
+    (tmp_path / VARIANCE_FILE).write_bytes(good)
+    out = subprocess.run([str(qctm_eval), str(tmp_path / MODEL_FILE)],
+                         input="1000,1,0.3,0\n1000,abc,0.3,0\n", capture_output=True, text=True)
+    assert out.returncode == 2 and "line 2" in out.stderr and out.stdout == ""
