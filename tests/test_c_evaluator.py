@@ -251,8 +251,8 @@ BAD_DOCS = {
     "bad number": lambda t: t.replace('"y_std": ', '"y_std": 1.', 1),
     "bad escape": lambda t: t.replace('"rigtool-qctm-gp"', '"rigtool\\q"', 1),
     "not an object": lambda t: "[1, 2, 3]",
-    "version 1": lambda t: t.replace('"format_version": 4', '"format_version": 1', 1),
-    "version 5": lambda t: t.replace('"format_version": 4', '"format_version": 5', 1),
+    "version 1": lambda t: t.replace('"format_version": 5', '"format_version": 1', 1),
+    "version 6": lambda t: t.replace('"format_version": 5', '"format_version": 6', 1),
     "x_train type": lambda t: t.replace('"x_train": [', '"x_train": "no", "x": [', 1),
     "unknown betm field": lambda t: t.replace('"cp_fwd"', '"cp_sideways": 1, "cp_fwd"', 1),
 }

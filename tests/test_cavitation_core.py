@@ -35,6 +35,7 @@ from rigtool.models import (
     load_model,
     window_mean,
 )
+from rigtool.models.domain import CLAMPED
 from rigtool.models.qctm import gate
 
 BETM = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,
@@ -339,3 +340,34 @@ def test_noise_bias_covers_quiet_and_ventilating_rows_apart():
     vent = gate(xt[:, 1], noise.gate_z0, noise.gate_s) >= 0.5
     for group in (vent, ~vent):
         assert group.sum() > 100 and 0.85 <= inside[group].mean() <= 0.995
+
+
+def _synthetic_model(tmp_path, **doc_changes):
+    _, _, _, seg, x, y, w = _gp_data()
+    gp = fit_hetero(x, y, w, seg % 2, GpParams(hyper_n=150, n_restarts=0), seg)
+    doc = model_document(BETM, gp, {}, window=3, block_s=0.2)
+    doc.update(doc_changes)
+    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
+    return load_model(tmp_path), gp
+
+
+def test_edge_inputs_of_the_run_time_model(tmp_path):
+    """An infinite above_n survives JSON (as null); an empty domain flags nothing; a block
+    without speed is NaN, not 'clamped', and stays out of its neighbours' windows."""
+    model, _ = _synthetic_model(tmp_path, bounds={"shortfall": [-0.2, 0.3], "above_n": None},
+                                domain={"ranges": {}, "max_distance": 1e9})
+    assert model.bounds.above_n == np.inf
+    n = np.array([1200.0, np.nan, 1200.0, 1200.0])
+    i = BETM.c_n * np.nan_to_num(n, nan=1200.0) ** 3 + BETM.i_0
+    p = model.evaluate(n, i, np.full(4, 0.3), np.zeros(4))
+    assert np.isnan(p.thrust_n[1]) and not p.flags[1] & CLAMPED
+    assert np.all(np.isfinite(p.thrust_n[[0, 2, 3]])) and not np.any(p.flags[[0, 2, 3]] & 1)
+    np.testing.assert_allclose(model.features(n, i, 0.3)[[0, 2], 1], 0.0, atol=1e-9)
+
+
+def test_a_variance_file_of_another_fit_is_refused(tmp_path):
+    _synthetic_model(tmp_path)
+    np.save(tmp_path / VARIANCE_FILE, np.eye(3))
+    with pytest.raises(ValueError, match="another fit"):
+        load_model(tmp_path)

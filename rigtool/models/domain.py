@@ -31,14 +31,16 @@ class Bounds:
     above_n: float = float("inf")  # inf in files older than format 4: no upper clamp
 
     def to_dict(self) -> dict:
-        return {"shortfall": list(self.shortfall), "above_n": self.above_n}
+        above = self.above_n if np.isfinite(self.above_n) else None
+        return {"shortfall": list(self.shortfall), "above_n": above}
 
     @classmethod
     def from_dict(cls, d: dict | None) -> Bounds:
         if not d:
             return cls()
         lo, hi = d.get("shortfall", DEFAULT_SHORTFALL)
-        return cls((float(lo), float(hi)), float(d.get("above_n", float("inf"))))
+        above = d.get("above_n")  # null (JSON has no inf): no upper clamp
+        return cls((float(lo), float(hi)), float("inf") if above is None else float(above))
 
 
 @dataclass(frozen=True)
@@ -51,12 +53,12 @@ class Domain:
 
     def outside(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """True where any input lies outside its range (inputs without a range pass)."""
-        out = None
+        size = len(np.atleast_1d(next(iter(values.values())))) if values else 0
+        out = np.zeros(size, bool)
         for name, (lo, hi) in self.ranges.items():
             v = np.asarray(values[name], dtype=float)
-            bad = ~((v >= lo) & (v <= hi))
-            out = bad if out is None else out | bad
-        return np.zeros(0, bool) if out is None else out
+            out |= ~((v >= lo) & (v <= hi))
+        return out
 
     def to_dict(self) -> dict:
         return {"inputs": list(self.ranges), "ranges": {k: list(v) for k, v in self.ranges.items()},

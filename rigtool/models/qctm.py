@@ -44,7 +44,7 @@ from rigtool.models.domain import (
 MODEL_FILE = "qctm_gp.json"
 VARIANCE_FILE = "qctm_gp_kinv.npy"
 FORMAT = "rigtool-qctm-gp"
-FORMAT_VERSION = 4  # 4: bounds and domain; 3: gated mean term, lead_blocks; 2: plain beta z
+FORMAT_VERSION = 5  # 5: noise bias per regime; 4: bounds, domain; 3: gate, lead_blocks; 2: beta z
 Z95 = 1.959963984540054
 SQRT5 = 5.0**0.5
 LOG_CHI2_BIAS = 1.2703628454614782  # -E[log chi^2_1]: exp(E[log e^2] + this) = var(e), e Gaussian
@@ -228,8 +228,9 @@ class ThrustModel:
                  segment: np.ndarray | None = None) -> np.ndarray:
         """GP inputs (n, z, h) of consecutive block means; current faults are left out of the
         shortfall windows (see gp_features and `current_fault`)."""
-        valid = ~self.current_fault(speed_rpm, current_a)
-        return gp_features(self.betm, speed_rpm, current_a, depth_m, segment, self.window,
+        n = np.atleast_1d(np.asarray(speed_rpm, float))
+        valid = ~self.current_fault(n, current_a) & np.isfinite(n)
+        return gp_features(self.betm, n, current_a, depth_m, segment, self.window,
                            self.lead, valid)
 
     def current_fault(self, speed_rpm: np.ndarray, current_a: np.ndarray) -> np.ndarray:
@@ -274,7 +275,9 @@ class ThrustModel:
                                       np.atleast_1d(np.asarray(current_a, float)),
                                       np.atleast_1d(np.asarray(depth_m, float)))
         fault = self.current_fault(n, i)
-        x = gp_features(self.betm, n, i, h, segment, self.window, self.lead, ~fault)
+        # a block without a speed reading has no shortfall either: not in any window
+        x = gp_features(self.betm, n, i, h, segment, self.window, self.lead,
+                        ~fault & np.isfinite(n))
         good = np.all(np.isfinite(x), axis=1)
         x_safe = np.where(good[:, None], x, self.x_mean)
         est = self.betm.fuse(n, np.where(fault, np.nan, i))
@@ -282,10 +285,10 @@ class ThrustModel:
         raw = est.thrust_n + mean
         # physics: between 0 and f_BETM + above_n, in the direction the propeller turns
         up = np.sign(est.f_n) >= 0
-        lo_b = np.where(up, 0.0, est.thrust_n - self.bounds.above_n)
-        hi_b = np.where(up, est.thrust_n + self.bounds.above_n, 0.0)
+        lo_b = np.where(up, 0.0, np.minimum(0.0, est.thrust_n - self.bounds.above_n))
+        hi_b = np.where(up, np.maximum(0.0, est.thrust_n + self.bounds.above_n), 0.0)
         thrust = np.clip(raw, lo_b, hi_b)
-        flags = np.where(thrust != raw, CLAMPED, 0)
+        flags = np.where(np.isfinite(raw) & (thrust != raw), CLAMPED, 0)
         lo, hi = thrust - Z95 * std, thrust + Z95 * std
         # outside the training domain: widen to the physical prior [0, f_BETM] +- prior noise
         distance = np.full(len(n), np.inf)
@@ -353,6 +356,10 @@ def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustMod
     b = doc["betm"]
     betm = Betm(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in b.items()})
     g = doc["gp"]
+    n_train = len(g["x_train"])
+    if k_inv is not None and np.shape(k_inv) != (n_train, n_train):
+        raise ValueError(f"the posterior-variance matrix is {np.shape(k_inv)}, the model has "
+                         f"{n_train} training rows: it belongs to another fit")
     return ThrustModel(
         betm=betm, x_mean=np.array(g["x_mean"]), x_scale=np.array(g["x_scale"]),
         length_scales=np.array(g["length_scales"]), signal_var=float(g["signal_var"]),

@@ -608,6 +608,9 @@ struct qctm_model {
     int has_noise;
     kernel_sum noise;
     double noise_signal_var, log_mean, log_bias;
+    /* format 5: bias log_bias + (log_bias_event - log_bias) gate(z) with the noise's own gate */
+    int has_bias_event;
+    double log_bias_event, noise_gate_z0, noise_gate_s;
     /* bounds and domain (models/domain.py) */
     double short_lo, short_hi, above_n;
     int has_domain, has_range[4];
@@ -830,16 +833,20 @@ static int load_noise(loader *L, qctm_model *m, const jval *doc)
         return 0;
     if (nz->type != J_OBJ)
         return lfail(L, "qctm_gp.json: %s must be an object or null", "noise");
-    /* a per-event noise bias (a later rigtool) would change the intervals: refuse it */
-    ev = jget(nz, "log_bias_event");
-    if (ev != NULL && ev->type != J_NULL)
-        return lfail(L, "qctm_gp.json: %s is not supported by this evaluator",
-                     "noise.log_bias_event");
     m->has_noise = 1;
     if (get_num(L, nz, "signal_var", NAN, &m->noise_signal_var)
         || get_num(L, nz, "log_mean", NAN, &m->log_mean)
-        || get_num(L, nz, "log_bias", 1.2703628454614782, &m->log_bias))
+        || get_num(L, nz, "log_bias", 1.2703628454614782, &m->log_bias)
+        || get_num(L, nz, "gate_z0", 0.0, &m->noise_gate_z0)
+        || get_num(L, nz, "gate_s", 0.0, &m->noise_gate_s))
         return -1;
+    /* a separate bias where the shortfall says "ventilating" (format 5; null: one bias) */
+    ev = jget(nz, "log_bias_event");
+    if (ev != NULL && ev->type != J_NULL) {
+        m->has_bias_event = 1;
+        if (get_num(L, nz, "log_bias_event", NAN, &m->log_bias_event))
+            return -1;
+    }
     return get_kernel(L, nz, "noise", "alpha", &m->noise);
 }
 
@@ -861,7 +868,8 @@ static int load_limits(loader *L, qctm_model *m, const jval *doc)
             m->short_lo = v->items[0].num;
             m->short_hi = v->items[1].num;
         }
-        if (get_num(L, b, "above_n", INFINITY, &m->above_n) != 0)
+        v = jget(b, "above_n"); /* null: no upper clamp (JSON has no infinity) */
+        if (v != NULL && v->type != J_NULL && get_num(L, b, "above_n", INFINITY, &m->above_n))
             return -1;
     }
     if (d == NULL || d->type == J_NULL || (d->type == J_OBJ && d->len == 0))
@@ -907,8 +915,8 @@ static int load_document(loader *L, qctm_model *m, const jval *doc)
     if (version < 2)
         return lfail(L, "qctm_gp.json: %s", "a version-1 model on raw (n, I, h) inputs: rerun "
                      "rigtool calibrate to refit it");
-    if (version > 4)
-        return lfail(L, "qctm_gp.json: %s", "format version above 4: this evaluator reads 2-4");
+    if (version > 5)
+        return lfail(L, "qctm_gp.json: %s", "format version above 5: this evaluator reads 2-5");
     m->version = (int)version;
     return load_betm(L, m, jget(doc, "betm")) || load_features(L, m, doc)
            || load_gp(L, m, doc) || load_noise(L, m, doc) || load_limits(L, m, doc);
@@ -1152,15 +1160,21 @@ static void standardise(const kernel_sum *ks, const double x[3], double xs[3])
         xs[k] = (x[k] - ks->x_mean[k]) / ks->x_scale[k];
 }
 
-/* Noise variance of a new measurement (N^2): exp(log_mean + log_bias + sum_j k'_j alpha_j) */
+/* Noise variance of a new measurement (N^2): exp(log_mean + bias(z) + sum_j k'_j alpha_j),
+ * bias(z) = log_bias + (log_bias_event - log_bias) / (1 + exp(-(|z| - gate_z0) / gate_s))
+ * with the noise's own gate (gate_s <= 0: gate 0), or log_bias when there is no event bias. */
 static double noise_var_n2(const qctm_model *m, const double x[3])
 {
-    double xs[3], sum = 0.0;
+    double xs[3], sum = 0.0, bias = m->log_bias;
     size_t j;
     standardise(&m->noise, x, xs);
     for (j = 0; j < m->noise.n; j++)
         sum += m->noise_signal_var * matern(&m->noise, xs, j) * m->noise.w[j];
-    return exp(m->log_mean + m->log_bias + sum);
+    if (m->has_bias_event && m->noise_gate_s > 0.0) {
+        double u = np_clip((fabs(x[1]) - m->noise_gate_z0) / m->noise_gate_s, -700.0, 700.0);
+        bias += (m->log_bias_event - m->log_bias) / (1.0 + exp(-u));
+    }
+    return exp(m->log_mean + bias + sum);
 }
 
 /* ThrustModel.correction: GP mean of f_measured - f_BETM and the std of a new measurement.
@@ -1262,10 +1276,10 @@ int qctm_evaluate(const qctm_model *m, size_t count, const double *speed_rpm,
     double *vals = malloc((count + 1) * sizeof *vals), *c = malloc((count + 1) * sizeof *c);
     double *shortw = malloc((count + 1) * sizeof *shortw), *k = malloc(m->gp.n * sizeof *k);
     long long *cnt = malloc((count + 1) * sizeof *cnt);
-    int *ok = malloc((count + 1) * sizeof *ok);
+    int *ok = malloc((count + 1) * sizeof *ok), *wok = malloc((count + 1) * sizeof *wok);
     size_t t, a;
     int rc = 0;
-    if (!vals || !c || !shortw || !k || !cnt || !ok) {
+    if (!vals || !c || !shortw || !k || !cnt || !ok || !wok) {
         set_err(err, errlen, "out of memory for %lu blocks", (unsigned long)count);
         rc = -1;
         goto done;
@@ -1274,14 +1288,16 @@ int qctm_evaluate(const qctm_model *m, size_t count, const double *speed_rpm,
     for (t = 0; t < count; t++) {
         double s = shortfall(m, speed_rpm[t], current_a[t]);
         ok[t] = isfinite(current_a[t]) && s >= m->short_lo && s <= m->short_hi;
-        vals[t] = ok[t] ? s : 0.0;
+        /* a block without a speed reading has no shortfall either: not in any window */
+        vals[t] = ok[t] && isfinite(speed_rpm[t]) ? s : 0.0;
+        wok[t] = ok[t] && isfinite(speed_rpm[t]);
     }
     /* shortfall window within each run of equal segment labels, faults left out */
     for (a = 0; a < count;) {
         size_t b = a + 1;
         while (b < count && (segment == NULL || segment[b] == segment[a]))
             b++;
-        window_mean(m, vals, ok, a, b, c, cnt, shortw);
+        window_mean(m, vals, wok, a, b, c, cnt, shortw);
         a = b;
     }
     for (t = 0; t < count; t++) {
@@ -1299,10 +1315,10 @@ int qctm_evaluate(const qctm_model *m, size_t count, const double *speed_rpm,
         correction(m, xsafe, k, &mean, &std);
         raw = f_b + mean;
         /* physics: between 0 and f_BETM + above_n, in the direction the propeller turns */
-        lo_b = f_n >= 0 ? 0.0 : f_b - m->above_n; /* sign(f_n) >= 0; false for NaN */
-        hi_b = f_n >= 0 ? f_b + m->above_n : 0.0;
+        lo_b = f_n >= 0 ? 0.0 : np_min(0.0, f_b - m->above_n); /* false for NaN: reverse */
+        hi_b = f_n >= 0 ? np_max(0.0, f_b + m->above_n) : 0.0;
         th = np_clip(raw, lo_b, hi_b);
-        if (th != raw) /* also for NaN, as numpy */
+        if (isfinite(raw) && th != raw)
             fl |= QCTM_CLAMPED;
         lo = th - QCTM_Z95 * std;
         hi = th + QCTM_Z95 * std;
@@ -1350,5 +1366,6 @@ done:
     free(k);
     free(cnt);
     free(ok);
+    free(wok);
     return rc;
 }
