@@ -26,6 +26,7 @@ import numpy as np
 import yaml
 
 from rigtool.analysis.cavitation import CavitationParams, evaluate_on_run, thrust_model, train_model
+from rigtool.models import OUT_OF_DOMAIN
 from rigtool.store import Store
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -100,7 +101,8 @@ def main() -> None:
           f"held-out seeds {test_seeds}, grid seeds {grid_seeds} (depths 25/45 cm, 30/55/80 %)")
     header = (f"{'base':>5} {'train':>9} {'fit s':>6} | {'p95 ev':>6} {'p95 out':>7} "
               f"{'cov ev':>6} {'cov out':>7} {'cov all':>7} | {'grid p95 ev':>11} "
-              f"{'grid p95 out':>12} {'grid cov':>8} | scale  length scales (n, z, h)")
+              f"{'grid p95 out':>12} {'grid cov':>8} | scale  length scales (n, z, h) | "
+              "out of domain: held-out, grid")
     print(header)
     rows = []
     for base_seed, train_seeds in combos:
@@ -109,13 +111,23 @@ def main() -> None:
         t0 = time.perf_counter()
         betm, gp, training = train_model(store, train, base, p)
         fit_s = time.perf_counter() - t0
-        predict = thrust_model(betm, gp, training, p).predict
+        model = thrust_model(betm, gp, training, p)
+        flags: list[np.ndarray] = []
+
+        def predict(n, i, h, segment=None, model=model, flags=flags):  # noqa: ANN001, ANN202
+            out = model.evaluate(n, i, h, segment)
+            flags.append(out.flags)
+            return out.thrust_n, out.lo95, out.hi95
+
         held = pooled([evaluate_on_run(store, r, predict, betm, p) for r in tests])
+        held_ood = _ood(flags)
+        flags.clear()
         gridres = pooled([evaluate_on_run(store, r, predict, betm, p) for r in grids])
         row = (base_seed, train_seeds, fit_s, held, gridres)
         rows.append(row)
         print(_line(*row) + f" | {gp.signal_scale:g}  "
-              + " ".join(f"{v:.3g}" for v in gp.hyper.length_scales), flush=True)
+              + " ".join(f"{v:.3g}" for v in gp.hyper.length_scales)
+              + f" | {held_ood:.1%} {_ood(flags):.1%}", flush=True)
     print("worst over combinations:")
     worst = {k: max(r[3][k]["p95"] for r in rows) for k in ("event", "outside")}
     cover = {k: (min(r[3][k]["cover"] for r in rows), max(r[3][k]["cover"] for r in rows))
@@ -133,6 +145,12 @@ def _line(base_seed: int, train_seeds: tuple, fit_s: float, held: dict, grid: di
             f"{held['outside']['p95']:7.2f} {held['event']['cover']:6.1%} "
             f"{held['outside']['cover']:7.1%} {held['all']['cover']:7.1%} | "
             f"{g['event']['p95']:11.2f} {g['outside']['p95']:12.2f} {g['all']['cover']:8.1%}")
+
+
+def _ood(flags: list[np.ndarray]) -> float:
+    """Fraction of predicted blocks flagged out of the model's domain."""
+    f = np.concatenate(flags) if flags else np.zeros(0, int)
+    return float(np.mean(f & OUT_OF_DOMAIN)) if f.size else float("nan")
 
 
 def _runs(db: Path) -> list[dict]:
