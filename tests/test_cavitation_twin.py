@@ -145,12 +145,14 @@ def test_held_out_run_gp_beats_betm_alone(twin):
     assert 0.7 <= ev.coverage95 <= 1.0
 
 
-def test_report_command_has_the_cavitation_section(twin):
+def test_report_command_has_the_cavitation_section(twin, capsys):
     tmp, store, _, train, _, _ = twin
     before = store.events(train, "ventilation")
     assert main(["report", train, "--db", str(tmp / "db.sqlite"), "--out", str(tmp / "rep"),
                  "--causal"]) == 0
-    assert 'id="cavitation"' in (tmp / "rep" / train / "report.html").read_text()
+    assert "causal (past-only) shortfall window does not meet" in capsys.readouterr().err
+    html = (tmp / "rep" / train / "report.html").read_text()
+    assert 'id="cavitation"' in html and "causal (past-only) shortfall window" in html
     assert store.events(train, "ventilation") == before  # only calibrate writes events
 
 
