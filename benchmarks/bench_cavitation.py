@@ -9,7 +9,7 @@ would export (`rigtool.models.ThrustModel`), tested on 8 held-out luo2020-cavita
 on runs of a depth/command grid outside the protocol. The table reports every combination and
 the worst one; coverage is split into during events and outside them.
 
-Two disjoint seed sets: `dev` (used while developing the method) and `final` (kept untouched
+Disjoint seed sets: `dev` and `dev2` (used while developing the method) and `final` (kept untouched
 for the reported figures). Never tune on `final`.
 """
 
@@ -34,6 +34,8 @@ SETS = {
     # (base seed, training seeds) per combination; held-out test seeds; grid seeds
     "dev": ([(101, (111, 112)), (102, (113, 114)), (103, (115, 116)), (104, (117, 118))],
             list(range(121, 129)), [131, 132]),
+    "dev2": ([(401, (411, 412)), (402, (413, 414)), (403, (415, 416)), (404, (417, 418))],
+             list(range(421, 429)), [431, 432]),
     "final": ([(301, (311, 312)), (302, (313, 314)), (303, (315, 316)), (304, (317, 318))],
               list(range(321, 329)), [331, 332]),
 }
@@ -79,6 +81,7 @@ def main() -> None:
     ap.add_argument("--combos", type=int, default=4, help="use the first N combinations")
     ap.add_argument("--budget", type=int, default=2000)
     ap.add_argument("--db", help="reuse this database (runs are recorded once per seed)")
+    ap.add_argument("--verbose", action="store_true", help="print every held-out run's classes")
     ap.add_argument("--causal", action="store_true",
                     help="shortfall window of past blocks only (what a controller can compute)")
     args = ap.parse_args()
@@ -119,7 +122,12 @@ def main() -> None:
             flags.append(out.flags)
             return out.thrust_n, out.lo95, out.hi95
 
-        held = pooled([evaluate_on_run(store, r, predict, betm, p) for r in tests])
+        evals = [evaluate_on_run(store, r, predict, betm, p) for r in tests]
+        held = pooled(evals)
+        for r, ev in zip(tests, evals, strict=True) if args.verbose else ():
+            print("    " + r + "  " + "  ".join(
+                f"{c.name} p95 {c.p95_abs_n:.2f} max {c.max_abs_n:.2f} ({c.max_at}) cov "
+                f"{c.coverage95:.1%}" for c in ev.classes if c.name in ("event", "outside")))
         held_ood = _ood(flags)
         flags.clear()
         gridres = pooled([evaluate_on_run(store, r, predict, betm, p) for r in grids])
