@@ -9,7 +9,7 @@ would export (`rigtool.models.ThrustModel`), tested on 8 held-out luo2020-cavita
 on runs of a depth/command grid outside the protocol. The table reports every combination and
 the worst one; coverage is split into during events and outside them.
 
-Disjoint seed sets: `dev` and `dev2` (used while developing the method) and `final` (kept untouched
+Disjoint seed sets: `dev`, `dev2` and `dev3` (used while developing the method) and `final` (kept untouched
 for the reported figures). Never tune on `final`.
 """
 
@@ -36,6 +36,8 @@ SETS = {
             list(range(121, 129)), [131, 132]),
     "dev2": ([(401, (411, 412)), (402, (413, 414)), (403, (415, 416)), (404, (417, 418))],
              list(range(421, 429)), [431, 432]),
+    "dev3": ([(501, (511, 512)), (502, (513, 514)), (503, (515, 516)), (504, (517, 518)),
+              (505, (519, 520)), (506, (521, 522))], list(range(531, 539)), [541, 542]),
     "final": ([(301, (311, 312)), (302, (313, 314)), (303, (315, 316)), (304, (317, 318))],
               list(range(321, 329)), [331, 332]),
 }

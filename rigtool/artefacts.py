@@ -19,6 +19,7 @@ import numpy as np
 
 from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.fits import Coefficient
+from rigtool.outpaths import run_folder
 from rigtool.store import utc_now
 
 FORMAT = "rigtool-calibration"
@@ -41,7 +42,7 @@ def write_artefacts(cal: Calibration, out_dir: str | Path,
     byte-identical files on a rerun. It defaults to now.
     """
     created = created_utc or utc_now()
-    target = Path(out_dir) / cal.run_id
+    target = run_folder(out_dir, cal.run_id)
     target.mkdir(parents=True, exist_ok=True)
     head = [f"rigtool {cal.tool_version} calibration of run {cal.run_id}, created {created}",
             f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
@@ -253,7 +254,7 @@ def _fmt(v: object) -> str:
 
 def _csv(comments: Sequence[str], columns: Sequence[tuple[str, str, str]],
          rows: Iterable[Sequence[object]]) -> str:
-    lines = [f"# {c}" for c in comments]
+    lines = [f"# {line}" for c in comments for line in (str(c).splitlines() or [""])]
     lines += [f"# {name}{f' [{unit}]' if unit else ''}: {text}" for name, unit, text in columns]
     lines.append(",".join(name for name, _, _ in columns))
     lines += [",".join(_fmt(v) for v in row) for row in rows]

@@ -16,6 +16,7 @@ MAX_SAMPLES_PER_POINT = 10_000_000  # samples acquired (and stored) per point
 MAX_COMMAND_VALUES = 100_000  # commands in one sweep direction
 MAX_POINTS = 100_000  # points in the whole plan (the plan is stored with the run)
 MAX_DURATION_S = 86_400.0  # any single duration in a file: one day
+MIN_WINDOW_S = 1e-3  # settling windows: shorter ones hold no samples at any sane rate
 MAX_RUN_S = 30 * 86_400.0  # estimated length of a whole run: 30 days
 MAX_DEBOUNCE_SAMPLES = 1_000_000
 MAX_COMMAND = 1e10  # |command| in any unit (STM32 compare values reach 2**32 - 1)

@@ -18,6 +18,7 @@ import rigtool
 from rigtool.analysis.cavitation import CavitationResult
 from rigtool.analysis.qctm_export import model_document
 from rigtool.models import MODEL_FILE, VARIANCE_FILE
+from rigtool.outpaths import run_folder
 from rigtool.store import utc_now
 
 SUMMARY_FILE = "cavitation.json"
@@ -124,7 +125,7 @@ def write_cavitation_artefacts(res: CavitationResult, out_dir: str | Path,
                                created_utc: str | None = None) -> list[Path]:
     """Write the quasi-cavitation files into `out_dir`/<run-id>/ and return their paths."""
     created = created_utc or utc_now()
-    target = Path(out_dir) / res.run_id
+    target = run_folder(out_dir, res.run_id)
     target.mkdir(parents=True, exist_ok=True)
     paths = []
     summary = json.dumps(summary_document(res, created), indent=2, sort_keys=True,

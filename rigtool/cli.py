@@ -13,9 +13,11 @@ from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.table import Column, Table
+from rich.text import Text
 
 from rigtool import __version__
 from rigtool.errors import RigtoolError, UsageError
+from rigtool.outpaths import run_folder
 from rigtool.plan import estimate_duration_s
 from rigtool.progress import UNIT_LABEL, default_reporter
 from rigtool.store import DB_ENV, Store, resolve_db_path
@@ -25,8 +27,11 @@ if TYPE_CHECKING:
     from rigtool.analysis.cavitation import CavitationResult, CavitationStage
 
 # Pipes and logs get wide tables instead of rich's 80-column default.
-out = Console(highlight=False, soft_wrap=True, width=None if sys.stdout.isatty() else 160)
-err = Console(stderr=True, highlight=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
+# markup off: run names, reasons and file contents are printed literally, never as Rich markup
+out = Console(highlight=False, markup=False, soft_wrap=True,
+              width=None if sys.stdout.isatty() else 160)
+err = Console(stderr=True, highlight=False, markup=False, soft_wrap=True,
+              width=None if sys.stderr.isatty() else 160)
 
 
 MAX_PRINTED_ERRORS = 200  # unreadable cells of one imported file listed on stderr
@@ -107,7 +112,7 @@ def _print_plan(setup, neutral: float) -> None:
     unit = UNIT_LABEL.get(p.command.unit, p.command.unit)
     depths = sorted(set(p.depth.depths_m()))
     timing = p.timing
-    out.print(f"[bold]{p.name}[/]: {n} points on rig {setup.rig.name!r}")
+    out.print(Text.assemble((p.name, "bold"), f": {n} points on rig {setup.rig.name!r}"))
     out.print(f"  commands: {p.command.n_values()} values in {unit}, order "
               f"{p.command.order}, {p.command.repeats} repeat(s)")
     out.print(f"  depths: {', '.join(f'{d:g} m' for d in depths)} ({p.depth.mode}, loop {p.depth.loop})")
@@ -127,7 +132,7 @@ def _print_plan(setup, neutral: float) -> None:
 
 
 def cmd_runs(args: argparse.Namespace) -> int:
-    store = Store(resolve_db_path(args.db), create=False)
+    store = Store(resolve_db_path(args.db), read_only=True)
     rows = store.runs(limit=args.limit)
     if not rows:
         out.print(f"no runs in {store.path}")
@@ -142,12 +147,13 @@ def cmd_runs(args: argparse.Namespace) -> int:
 
 
 def cmd_show(args: argparse.Namespace) -> int:
-    store = Store(resolve_db_path(args.db), create=False)
+    store = Store(resolve_db_path(args.db), read_only=True)
     run_id = store.resolve_run_id(args.run)
     run = store.run(run_id)
     steps = store.steps(run_id)
-    out.print(f"[bold]run {run_id}[/]  {run['name']}  status [bold]{run['status']}[/]"
-              + (f" ({run['stop_reason']})" if run["stop_reason"] else ""))
+    out.print(Text.assemble((f"run {run_id}", "bold"), f"  {run['name']}  status ",
+                            (run["status"], "bold"),
+                            f" ({run['stop_reason']})" if run["stop_reason"] else ""))
     out.print(f"  created {run['created_utc']}, finished {run['finished_utc'] or '-'}, "
               f"host {run['host']}, rigtool {run['tool_version']}, seed {run['seed']}")
     out.print(f"  rig: {run['rig'].get('name')}  protocol: {run['protocol_path']}")
@@ -171,7 +177,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     if counts:
         out.print("  events: " + ", ".join(f"{k} x{v}" for k, v in sorted(counts.items())))
     for line in _counters_lines(store.transport_counters(run_id), len(steps)):
-        out.print(line, markup=False)
+        out.print(line)
     return 0
 
 
@@ -207,7 +213,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     from rigtool.export import export_run
 
-    store = Store(resolve_db_path(args.db), create=False)
+    store = Store(resolve_db_path(args.db), read_only=True)
     run_id = store.resolve_run_id(args.run)
     for path in export_run(store, run_id, Path(args.out), args.format):
         out.print(str(path))
@@ -282,10 +288,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
             os.replace(tmp, args.rig_out)
             err.print(f"rig file written to {args.rig_out}")
         for warning in server.exposure():
-            err.print(f"warning: {warning}", markup=False)
+            err.print(f"warning: {warning}")
         out.print(f"# rigtool sim --profile {args.profile}: use this rig file "
                   "(rigtool sweep PROTOCOL --rig FILE); Ctrl-C stops the simulator")
-        out.print(text, markup=False)
+        out.print(text)
         sys.stdout.flush()
         stop.wait()
     finally:
@@ -311,7 +317,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     cal = calibrate_run(store, run_id)
     created = utc_now()
     paths = write_artefacts(cal, Path(args.out), created_utc=created)
-    folder = Path(args.out) / run_id
+    folder = run_folder(args.out, run_id)
     store.add_calibration(run_id, str(folder), calibration_document(cal, created), __version__)
     table = Table("quantity", "value", "95 % interval", "unit", "note",
                   title=f"calibration of run {run_id} ({cal.run_name})")
@@ -361,23 +367,22 @@ def _print_warnings(store: Store, run_id: str, cal: Calibration | None, notes: l
     from rigtool.run_warnings import stored_run_warnings
 
     for warning in stored_run_warnings(store, run_id, cal, notes):
-        err.print(f"warning: {warning}", markup=False)
+        err.print(f"warning: {warning}")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from rigtool.analysis.calibrate import calibrate_run
     from rigtool.analysis.cavitation import cavitation_stage
     from rigtool.report import write_report
 
-    store = Store(resolve_db_path(args.db), create=False)
+    store = Store(resolve_db_path(args.db), read_only=True)
     run_id = store.resolve_run_id(args.run)
     stage = cavitation_stage(store, run_id, args.base)
     cal = calibrate_run(store, run_id) if store.steps(run_id) else None
     cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=False)
     _print_warnings(store, run_id, cal, notes)
-    path = write_report(store, run_id, Path(args.out) / run_id, cal, cavitation=cav,
+    path = write_report(store, run_id, run_folder(args.out, run_id), cal, cavitation=cav,
                         extra_warnings=notes)
     out.print(str(path))
     return 0
@@ -400,13 +405,13 @@ def cmd_import(args: argparse.Namespace) -> int:
         result = import_file(store, path, mapping, name=name, thruster_id=args.thruster_id,
                              depth_m=args.depth, strict=args.strict)
         for line in result.errors[:MAX_PRINTED_ERRORS]:
-            err.print(line, markup=False)
+            err.print(line)
         if len(result.errors) > MAX_PRINTED_ERRORS:
             err.print(f"... and {len(result.errors) - MAX_PRINTED_ERRORS} more unreadable "
-                      "cell(s)", markup=False)
+                      "cell(s)")
         for warning in result.warnings:
-            err.print(f"warning: {warning}", markup=False)
-        out.print(result.summary(), markup=False)
+            err.print(f"warning: {warning}")
+        out.print(result.summary())
     return 0
 
 
@@ -416,7 +421,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from rigtool.compare import compare_runs, write_corrections
     from rigtool.report.compare_html import write_compare_report
 
-    store = Store(resolve_db_path(args.db), create=False)
+    store = Store(resolve_db_path(args.db), read_only=True)
     run_ids = [store.resolve_run_id(r) for r in args.runs]
     reference = store.resolve_run_id(args.reference) if args.reference else None
     result = compare_runs(store, run_ids, reference, floor_frac=args.floor_frac)
@@ -430,7 +435,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                       f"{100 * c.max_dev_before:.2f} %", f"{100 * c.max_dev_after:.2f} %")
     out.print(table)
     for warning in result.warnings:
-        err.print(f"warning: {warning}", markup=False)
+        err.print(f"warning: {warning}")
     out.print(f"spread between thrusters: {100 * result.spread_before:.2f} % before, "
               f"{100 * result.spread_after:.2f} % after correction")
     out.print("written: " + ", ".join(str(p) for p in paths))
@@ -566,10 +571,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.func(args)
     except RigtoolError as exc:
-        err.print(f"rigtool: error: {exc}", markup=False)
+        err.print(f"rigtool: error: {exc}")
         return exc.exit_status
     except OSError as exc:  # a path or port the user gave that the system refuses
-        err.print(f"rigtool: error: {exc}", markup=False)
+        err.print(f"rigtool: error: {exc}")
         return 1
     except KeyboardInterrupt:
         err.print("rigtool: interrupted")

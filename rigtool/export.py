@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from rigtool.errors import UsageError
+from rigtool.outpaths import inside
 from rigtool.store import SAMPLE_COLUMNS, Store
 
 POINT_COLUMNS = (
@@ -50,13 +51,14 @@ def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> li
         raise UsageError(f"unknown export format {fmt!r}; choose {' or '.join(FORMATS)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    for table, (columns, sql, args) in _queries(run_id).items():
-        path = out_dir / f"{run_id}-{table}.{fmt}"
-        if fmt == "csv":
-            _write_csv(path, columns, _batches(store, sql, args))
-        else:
-            _write_parquet(path, columns, _batches(store, sql, args))
-        written.append(path)
+    with store.snapshot():  # points, samples and events of one moment, even mid-sweep
+        for table, (columns, sql, args) in _queries(run_id).items():
+            path = inside(out_dir, f"{run_id}-{table}.{fmt}")
+            if fmt == "csv":
+                _write_csv(path, columns, _batches(store, sql, args))
+            else:
+                _write_parquet(path, columns, _batches(store, sql, args))
+            written.append(path)
     return written
 
 

@@ -15,6 +15,7 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
+from rich.text import Text
 
 from rigtool.plan import PlanStep
 
@@ -33,7 +34,7 @@ class RichReporter:
     wants_live = True  # the engine computes live thrust only for reporters that show it
 
     def __init__(self, console: Console | None = None) -> None:
-        self.console = console or Console(stderr=True)
+        self.console = console or Console(stderr=True, markup=False)
         self._progress: Progress | None = None
         self._task = None
         self._unit = ""
@@ -41,8 +42,9 @@ class RichReporter:
 
     def start(self, run_id: str, n_steps: int, unit: str, done: int = 0) -> None:
         self._unit = unit
-        self.console.print(f"run [bold]{run_id}[/]: {n_steps} points "
-                           "(Ctrl-C finishes the current point and stops; twice stops now)")
+        self.console.print(Text.assemble(
+            "run ", (run_id, "bold"), f": {n_steps} points "
+            "(Ctrl-C finishes the current point and stops; twice stops now)"))
         self._progress = Progress(
             TextColumn("[progress.description]{task.description}"), BarColumn(),
             MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
@@ -63,7 +65,7 @@ class RichReporter:
                                   description=_live_text(step, self._unit, thrust_n))
 
     def note(self, text: str) -> None:
-        self.console.print(text)
+        self.console.print(text, markup=False)
 
     def finish(self) -> None:
         if self._progress is not None:

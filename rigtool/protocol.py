@@ -27,6 +27,7 @@ from rigtool.bounds import (
     MAX_SPEED_RPM,
     MAX_THRUST_N,
     MIN_RATE_HZ,
+    MIN_WINDOW_S,
     Command,
     PositiveSeconds,
     Scale,
@@ -127,7 +128,8 @@ class DepthAxis(_Strict):
 class SteadySettle(_Strict):
     """Settle until the thrust mean of two consecutive windows differs by < tolerance."""
 
-    window_s: PositiveSeconds = 0.5
+    window_s: Annotated[float, Field(ge=MIN_WINDOW_S, le=MAX_DURATION_S,
+                                     allow_inf_nan=False)] = 0.5
     tolerance_n: Annotated[float, Field(gt=0, le=MAX_THRUST_N, allow_inf_nan=False)] = 0.1
     min_s: Seconds = 0.0
     timeout_s: PositiveSeconds = 10.0

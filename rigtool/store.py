@@ -7,14 +7,16 @@ belong to in one transaction, so a crash never leaves half a point.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
+import logging
 import os
 import secrets
 import socket
 import sqlite3
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -25,6 +27,8 @@ import sqlite_utils
 
 from rigtool.errors import StoreError, UsageError
 from rigtool.spool import SampleSpool
+
+log = logging.getLogger(__name__)
 
 DB_ENV = "RIGTOOL_DB"
 DEFAULT_DB = "rigtool.sqlite"
@@ -201,22 +205,61 @@ class StepRecord:
 class Store:
     """The run database. One instance is the single writer of a sweep."""
 
-    def __init__(self, path: str | Path, *, create: bool = True, timeout_s: float = 10.0) -> None:
+    def __init__(self, path: str | Path, *, create: bool = True, timeout_s: float = 10.0,
+                 read_only: bool = False) -> None:
+        """Open (or create) the database. `read_only` is for commands that only read: they
+        work on a full disk or a write-protected file, and never migrate or mark runs."""
         self.path = Path(path)
-        if not create and not self.path.exists():
+        self.read_only = read_only
+        if (read_only or not create) and not self.path.exists():
             raise UsageError(f"no run database at {self.path} (use --db or set ${DB_ENV})")
         try:
-            if create:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.conn = sqlite3.connect(str(self.path), timeout=timeout_s, isolation_level=None)
-            self._set_wal(timeout_s)
-            self.conn.execute("PRAGMA synchronous=NORMAL")
+            if read_only:
+                self.conn = self._connect_read_only(timeout_s)
+            else:
+                if create:
+                    self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.conn = sqlite3.connect(str(self.path), timeout=timeout_s, isolation_level=None)
+                self._set_wal(timeout_s)
+                self.conn.execute("PRAGMA synchronous=NORMAL")
             self.conn.execute("PRAGMA foreign_keys=ON")
             self.db = sqlite_utils.Database(self.conn)
-            self._migrate()
-            self._mark_dead_runs_interrupted()
+            if read_only:
+                self._check_readable()
+            else:
+                self._migrate()
         except (sqlite3.DatabaseError, OSError) as exc:
             raise StoreError(f"cannot open run database {self.path}: {exc}") from exc
+        self._mark_dead_runs_interrupted(timeout_s)
+
+    def _connect_read_only(self, timeout_s: float) -> sqlite3.Connection:
+        """A `mode=ro` connection. Where SQLite cannot create the WAL index beside a cleanly
+        closed database (full disk, read-only folder), read the file as immutable: with no
+        -wal file, the main file holds every committed row."""
+        uri = self.path.resolve().as_uri()
+        try:
+            conn = sqlite3.connect(f"{uri}?mode=ro", uri=True, timeout=timeout_s,
+                                   isolation_level=None)
+            conn.execute("SELECT count(*) FROM sqlite_master").fetchone()
+            return conn
+        except sqlite3.OperationalError:
+            wal = self.path.with_name(self.path.name + "-wal")
+            if wal.exists() and wal.stat().st_size > 0:
+                raise
+        return sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True, timeout=timeout_s,
+                               isolation_level=None)
+
+    def _check_readable(self) -> None:
+        """A read-only open cannot migrate: an older schema asks for one writing command."""
+        current = self.version
+        if current > SCHEMA_VERSION:
+            raise StoreError(f"{self.path} has schema version {current}; this rigtool knows up "
+                             f"to {SCHEMA_VERSION}: upgrade rigtool")
+        if current < SCHEMA_VERSION:
+            raise StoreError(
+                f"{self.path} has schema version {current} and needs a one-time upgrade to "
+                f"{SCHEMA_VERSION}, which writes to it: run `rigtool calibrate` or `rigtool "
+                "sweep` on it once, with free disk space and write access")
 
     def _set_wal(self, timeout_s: float) -> None:
         """Switch to WAL, retrying while another process switches the same new file: SQLite
@@ -253,14 +296,53 @@ class Store:
                     MIGRATIONS[current](self.conn)
                     self.conn.execute(f"PRAGMA user_version = {current + 1}")
 
-    def _mark_dead_runs_interrupted(self) -> None:
+    def _mark_dead_runs_interrupted(self, timeout_s: float) -> None:
+        """Mark runs whose sweep process died (same host, pid gone) interrupted.
+
+        Best effort: on a full disk or a write-protected file the runs stay `running` and
+        the next command that can write marks them. A read-only store writes through a
+        second, short-lived connection, only when there is something to mark.
+        """
         host = socket.gethostname()
-        rows = self.conn.execute(
-            "SELECT id, host, pid FROM runs WHERE status = 'running'"
-        ).fetchall()
-        for run_id, run_host, pid in rows:
-            if run_host == host and not _pid_alive(pid):
-                self.finish_run(run_id, "interrupted", "the sweep process ended without closing the run")
+        try:
+            rows = self.conn.execute(
+                "SELECT id, host, pid FROM runs WHERE status = 'running'").fetchall()
+        except sqlite3.DatabaseError:
+            return
+        dead = [run_id for run_id, run_host, pid in rows
+                if run_host == host and not _pid_alive(pid)]
+        if not dead:
+            return
+        conn = self.conn
+        try:
+            if self.read_only:
+                conn = sqlite3.connect(str(self.path), timeout=timeout_s, isolation_level=None)
+            with _Transaction(conn, self.path):
+                for run_id in dead:
+                    conn.execute(
+                        "UPDATE runs SET status = 'interrupted', finished_utc = ?, "
+                        "stop_reason = ? WHERE id = ? AND status = 'running'",
+                        (utc_now(), "the sweep process ended without closing the run", run_id))
+        except (StoreError, sqlite3.DatabaseError, OSError) as exc:
+            log.warning("warning: could not mark %d dead run(s) interrupted in %s (%s); the next command "
+                        "that can write will", len(dead), self.path, exc)
+        finally:
+            if conn is not self.conn:
+                conn.close()
+
+    @contextlib.contextmanager
+    def snapshot(self) -> Iterator[None]:
+        """Read in one transaction: every query inside sees the database as it was at the
+        first, even while a sweep appends points. Nested use joins the outer snapshot."""
+        if self.conn.in_transaction:
+            yield
+            return
+        self.conn.execute("BEGIN")
+        try:
+            yield
+        finally:
+            if self.conn.in_transaction:
+                self.conn.execute("COMMIT")
 
     def transaction(self) -> _Transaction:
         """Context manager: BEGIN IMMEDIATE ... COMMIT, or ROLLBACK on error."""
@@ -461,8 +543,10 @@ class Store:
 
     # -- reading --------------------------------------------------------------------------
     def resolve_run_id(self, ref: str) -> str:
-        """Accept a full id, an unambiguous id prefix, or `last`: the run most recently
-        started or resumed."""
+        """Accept a full id, an unambiguous literal id prefix, or `last`: the run most
+        recently started or resumed. An empty or blank reference matches nothing."""
+        if not ref.strip():
+            raise UsageError(f"empty run id {ref!r}: give a run id, a prefix of one, or `last`")
         if ref == "last":
             row = self.conn.execute(
                 "SELECT id FROM runs ORDER BY started_utc DESC, id DESC LIMIT 1").fetchone()
@@ -470,7 +554,7 @@ class Store:
                 raise UsageError(f"no runs in {self.path} yet: run `rigtool sweep` first")
             return row[0]
         rows = self.conn.execute(
-            "SELECT id FROM runs WHERE id LIKE ? ORDER BY id", (ref + "%",)
+            "SELECT id FROM runs WHERE substr(id, 1, ?) = ? ORDER BY id", (len(ref), ref)
         ).fetchall()
         if not rows:
             raise UsageError(f"no run {ref!r} in {self.path} (see `rigtool runs`)")

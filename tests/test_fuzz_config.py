@@ -61,7 +61,8 @@ def _check(path: Path, loader) -> None:
             assert line.startswith(str(path)), line
 
 
-FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+FUZZ = settings(max_examples=150, deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
 @FUZZ
@@ -231,9 +232,24 @@ def test_numeric_cases_cover_every_driver_and_section():
         assert name in fields, name
 
 
-@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+EXTREMES = (0, -1, 5e-324, 1e-300, -1e-300, 1e300, -math.inf, math.nan, 2**64, 10**400)
+
+
+def test_every_numeric_field_against_every_extreme(tmp_path):
+    """The exhaustive part of the fuzz below: a tiny positive window once divided to inf."""
+    for case in NUMERIC_CASES:
+        for value in EXTREMES:
+            _check_loads_in_range(tmp_path, case, value)
+
+
+@settings(max_examples=400, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.sampled_from(NUMERIC_CASES), MAGNITUDES)
 def test_out_of_range_numbers_load_in_range_or_give_located_errors(tmp_path, case, value):
+    _check_loads_in_range(tmp_path, case, value)
+
+
+def _check_loads_in_range(tmp_path, case, value):
     kind, i, field = case
     data = copy.deepcopy((PROTOCOL_DOCS if kind == "protocol" else RIG_DOCS)[i])
     _set(data, field, value)

@@ -81,7 +81,13 @@ class RunData:
 
 
 def load_run(store: Store, run_id: str) -> RunData:
-    """Read run, steps, samples and events of `run_id` into a RunData."""
+    """Read run, steps, samples and events of `run_id` into a RunData, all from one
+    snapshot of the database (a sweep may still be appending to it)."""
+    with store.snapshot():
+        return _load_run(store, run_id)
+
+
+def _load_run(store: Store, run_id: str) -> RunData:
     run = store.run(run_id)
     step_rows = store.steps(run_id)
     if not step_rows:
