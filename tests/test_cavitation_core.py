@@ -285,7 +285,7 @@ def test_newer_model_format_is_refused(tmp_path):
         load_model(tmp_path)
 
 
-def test_cv_signal_scale_trusts_a_gp_less_on_noise_and_fully_on_signal():
+def test_cv_signal_scale_trusts_a_gp_less_on_noise_and_keeps_it_on_signal():
     from rigtool.analysis.gp import Hyper, cv_signal_scale, fit_noise
 
     rng = np.random.default_rng(3)
@@ -299,7 +299,7 @@ def test_cv_signal_scale_trusts_a_gp_less_on_noise_and_fully_on_signal():
     smooth = np.sin(3 * x[:, 1]) * 5 + rng.normal(0, 0.1, 300)
     noise = fit_noise(x, smooth - np.sin(3 * x[:, 1]) * 5, p)
     assert cv_signal_scale(x, smooth, np.ones(300), fold, Hyper(np.full(3, 1.0), 5.0, 0.0),
-                           noise, p) == 1.0
+                           noise, p) > 0.0  # a GP that predicts what it never saw is kept
 
 
 def test_window_mean_leaves_out_invalid_blocks():
@@ -323,6 +323,45 @@ def test_signal_scale_takes_the_simplest_model_cv_cannot_tell_apart():
     h = fit_exact(x, y, w, p, keep_inverse=False).hyper
     noise = fit_hetero(x, y, w, fold, p).noise
     assert cv_signal_scale(x, y, w, fold, h, noise, p, groups) == min(SIGNAL_SCALES)
+
+
+def test_run_folds_see_what_point_folds_miss():
+    """Two runs whose residuals follow each run's own smooth pattern (events and tares of
+    that run): a check on held-out points of the same runs rewards a GP that learnt them;
+    a check on the other run finds that the mean term alone (factor 0) does as well."""
+    rng = np.random.default_rng(21)
+    n_pts, per = 12, 20
+    grid = np.column_stack([np.repeat(np.linspace(600, 1600, 4), 3), rng.uniform(0, 2, n_pts),
+                            np.tile([0.2, 0.3, 0.4], 4)])
+    x = np.repeat(grid, per, axis=0) + rng.normal(0, [5, 0.05, 0], (n_pts * per, 3))
+    x = np.vstack([x, x])
+    run = np.repeat([0, 1], n_pts * per)
+    phase = np.where(run == 0, 0.0, 2.0)
+    y = 2.0 * np.sin(x[:, 0] / 150 + phase) + rng.normal(0, 0.2, len(x))
+    w = np.ones(len(x))
+    point = np.tile(np.repeat(np.arange(n_pts), per), 2) + n_pts * run
+    p = GpParams(hyper_n=150, n_restarts=0)
+    h = fit_exact(x, y, w, p, keep_inverse=False).hyper
+    by_point = np.tile(np.repeat(np.arange(n_pts) % 2, per), 2)
+    noise = fit_hetero(x, y, w, run, p).noise
+    assert cv_signal_scale(x, y, w, by_point, h, noise, p, point) > 0.0
+    assert cv_signal_scale(x, y, w, run, h, noise, p, point) == 0.0
+
+
+def test_training_folds_hold_out_whole_runs():
+    from rigtool.analysis.cavitation import training_folds
+    from rigtool.analysis.trainset import TrainingSet
+
+    def ts(run_ids):
+        k = len(run_ids)
+        return TrainingSet(x=np.column_stack([np.full(k, 900.0), np.ones(k),
+                                              np.tile([0.2, 0.3], k // 2)]),
+                           xf=np.zeros((k, 3)), y=np.zeros(k), w=np.ones(k), t_s=np.arange(k),
+                           command=np.repeat([40.0, 69.0], k // 2), ventilated=np.zeros(k, bool),
+                           thrust_n=np.zeros(k), betm_n=np.zeros(k), run_id=np.array(run_ids))
+    assert training_folds(ts(["a", "b", "c", "a", "b", "c"])).tolist() == [0, 1, 0, 0, 1, 0]
+    one = training_folds(ts(["a"] * 4))
+    assert sorted(set(one.tolist())) == [0, 1]  # one run: the checkerboard of points
 
 
 def test_noise_bias_covers_quiet_and_ventilating_rows_apart():

@@ -29,7 +29,13 @@ from rigtool.models.qctm import Z95, GatedMean, LogNoise, gate, matern52
 
 NU = 2.5
 MIN_GATE_GAIN = 0.01  # the gate must cut the weighted squared residual by this fraction
-SIGNAL_SCALES = (1.0, 0.3, 0.1, 0.03, 0.01)  # candidate factors on the ML signal variance
+# Smoothness prior: no length scale below one standard deviation of its (standardised) input.
+# Shorter ones let the GP give each command level or event its own offset, which does not
+# carry over to another run (docs/cavitation.md, 'Measured figures').
+MIN_LENGTH_SCALE = 1.0
+CV_TOLERANCE = 0.02  # a GP signal must cut the held-out error by more than 2 % to be kept
+# candidate factors on the ML signal variance; 0 is the mean term alone, the simplest model
+SIGNAL_SCALES = (1.0, 0.3, 0.1, 0.03, 0.01, 0.0)
 
 
 @dataclass(frozen=True)
@@ -69,7 +75,8 @@ def fit_hyper(xs: np.ndarray, yn: np.ndarray, w: np.ndarray, p: GpParams) -> Hyp
     pool = good if good.size >= min(p.hyper_n, 50) else np.arange(yn.size)
     sub = pool if pool.size <= p.hyper_n else np.sort(rng.choice(pool, p.hyper_n, replace=False))
     kernel = (ConstantKernel(1.0, (1e-3, 1e3))
-              * Matern(length_scale=np.ones(xs.shape[1]), length_scale_bounds=(1e-3, 1e3), nu=NU)
+              * Matern(length_scale=np.ones(xs.shape[1]),
+                     length_scale_bounds=(MIN_LENGTH_SCALE, 1e3), nu=NU)
               + WhiteKernel(0.05, (1e-6, 1.0)))
     gpr = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=p.n_restarts,
                                    random_state=p.seed)
@@ -131,7 +138,8 @@ def fit_hyper_fixed_noise(xs: np.ndarray, yn: np.ndarray, alpha: np.ndarray,
     sub = (np.arange(yn.size) if yn.size <= p.hyper_n
            else np.sort(rng.choice(yn.size, p.hyper_n, replace=False)))
     kernel = (ConstantKernel(1.0, (1e-3, 1e3))
-              * Matern(length_scale=np.ones(xs.shape[1]), length_scale_bounds=(1e-3, 1e3), nu=NU))
+              * Matern(length_scale=np.ones(xs.shape[1]),
+                     length_scale_bounds=(MIN_LENGTH_SCALE, 1e3), nu=NU))
     gpr = GaussianProcessRegressor(kernel, alpha=alpha[sub], normalize_y=False,
                                    n_restarts_optimizer=p.n_restarts, random_state=p.seed)
     with warnings.catch_warnings():
@@ -217,10 +225,11 @@ def cv_signal_scale(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarra
                     hyper: Hyper, noise: LogNoise, p: GpParams,
                     groups: np.ndarray | None = None) -> float:
     """The smallest factor in SIGNAL_SCALES on the signal variance whose weighted squared
-    error on held-out folds is within one standard error of the best factor's (1.0 when
-    there is only one fold). The standard error of the difference comes from per-point
-    sums (`groups`; else per fold). Taking the simplest model within the noise of the
-    criterion keeps near-identical inputs from flipping between the two likelihood optima."""
+    error on held-out folds is within one standard error, or CV_TOLERANCE, of the best
+    factor's (1.0 when there is only one fold). The standard error of the difference comes
+    from per-point sums (`groups`; else per fold). Taking the simplest model within the
+    noise of the criterion keeps near-identical inputs from flipping between the two
+    likelihood optima; factor 0 is the mean term alone."""
     if np.unique(fold).size < 2:
         return 1.0
     labels = np.asarray(fold if groups is None else groups)
@@ -236,10 +245,11 @@ def cv_signal_scale(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarra
         per_group.append(np.bincount(g_idx, weights=err))
     sums = np.array(per_group)  # (factors, groups)
     best = int(np.argmin(sums.sum(axis=1)))
+    tolerance = CV_TOLERANCE * float(sums[best].sum())
     for j in sorted(range(len(SIGNAL_SCALES)), key=lambda j: SIGNAL_SCALES[j]):
         d = sums[j] - sums[best]
         se = float(np.sqrt(d.size) * np.std(d, ddof=1)) if d.size > 1 else 0.0
-        if d.sum() <= se:
+        if d.sum() <= max(se, tolerance):
             return SIGNAL_SCALES[j]
     return SIGNAL_SCALES[best]
 
