@@ -62,7 +62,10 @@ timing: {settle: {seconds: 1.0}, acquire: {seconds: 8, rate_hz: 250}, rest_s: 1.
          tare: per_depth}
 limits: {max_thrust_n: 90, max_current_a: 12, max_speed_rpm: 2000, slew_per_s: 200}
 """
-PARAMS = CavitationParams(budget=120, gp=GpParams(hyper_n=120, n_restarts=0))
+# a full GP signal, so the posterior sums of the C evaluator are exercised on a twin model
+# (the default fit keeps none; the synthetic "hetero" model below is such a one)
+PARAMS = CavitationParams(budget=120, gp=GpParams(hyper_n=120, n_restarts=0,
+                                                  signal_scales=(1.0,)))
 BETM = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,
             sigma_n=0.1, sigma_i=1.0)
 BETM_LEVELS = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,

@@ -292,7 +292,7 @@ def test_cv_signal_scale_trusts_a_gp_less_on_noise_and_keeps_it_on_signal():
     x = rng.uniform(-1, 1, (300, 3))
     fold = (x[:, 0] > 0).astype(int)
     hyper = Hyper(np.full(3, 0.3), 5.0, 0.0)  # short and strong: fits whatever it sees
-    p = GpParams(hyper_n=100, n_restarts=0)
+    p = GpParams(hyper_n=100, n_restarts=0, signal_scales=SIGNAL_SCALES)
     noise_y = rng.normal(0, 1.0, 300)
     noise = fit_noise(x, noise_y, p)
     assert cv_signal_scale(x, noise_y, np.ones(300), fold, hyper, noise, p) < 1.0
@@ -319,7 +319,7 @@ def test_signal_scale_takes_the_simplest_model_cv_cannot_tell_apart():
     w = np.ones(240)
     groups = np.repeat(np.arange(8), 30)
     fold = groups % 2
-    p = GpParams(hyper_n=120, n_restarts=0)
+    p = GpParams(hyper_n=120, n_restarts=0, signal_scales=SIGNAL_SCALES)
     h = fit_exact(x, y, w, p, keep_inverse=False).hyper
     noise = fit_hetero(x, y, w, fold, p).noise
     assert cv_signal_scale(x, y, w, fold, h, noise, p, groups) == min(SIGNAL_SCALES)
@@ -340,12 +340,23 @@ def test_run_folds_see_what_point_folds_miss():
     y = 2.0 * np.sin(x[:, 0] / 150 + phase) + rng.normal(0, 0.2, len(x))
     w = np.ones(len(x))
     point = np.tile(np.repeat(np.arange(n_pts), per), 2) + n_pts * run
-    p = GpParams(hyper_n=150, n_restarts=0)
+    p = GpParams(hyper_n=150, n_restarts=0, signal_scales=SIGNAL_SCALES)
     h = fit_exact(x, y, w, p, keep_inverse=False).hyper
     by_point = np.tile(np.repeat(np.arange(n_pts) % 2, per), 2)
     noise = fit_hetero(x, y, w, run, p).noise
     assert cv_signal_scale(x, y, w, by_point, h, noise, p, point) > 0.0
     assert cv_signal_scale(x, y, w, run, h, noise, p, point) == 0.0
+
+
+def test_by_default_the_model_is_the_mean_term_alone():
+    """The default fit keeps no GP signal: its mean is y_mean + g(z) wherever it is asked."""
+    _, _, _, seg, x, y, w = _gp_data(200, seed=4)
+    gp = fit_hetero(x, y, w, seg % 2, GpParams(hyper_n=100, n_restarts=0), seg)
+    assert gp.signal_scale == 0.0 and gp.hyper.signal_var == 0.0
+    far = x + np.array([300.0, 0.0, 0.1])
+    for rows in (x, far):
+        np.testing.assert_allclose(gp.predict(rows)[0], gp.y_mean + gp.mean_term(rows[:, 1]),
+                                   atol=1e-9)
 
 
 def test_training_folds_hold_out_whole_runs():
