@@ -484,6 +484,11 @@ def _evaluate(store: Store, run_id: str, blocks: Blocks, det_blocks: Blocks,
                            "detected events (no ground truth stored)")
 
 
+ONE_RUN_WARNING = ("the model is trained on this one run: on new twin runs, one training of four "
+                   "from a single run missed the accuracy target during events (p95 |error| 4.5 N "
+                   "against 3.5 N, 85 % coverage), where two runs met it (docs/cavitation.md)")
+
+
 def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
                          out_dir: object = None,
                          params: CavitationParams | None = None,
@@ -515,7 +520,7 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     gp = fit_gp(training, p)
 
     evaluation, series = _two_fold(store, run, all_blocks, det_blocks, events, gp, p)
-    warnings = []
+    warnings = [ONE_RUN_WARNING]
     if len(training) < 50:
         warnings.append(f"only {len(training)} training blocks: the GP is poorly constrained")
     bounds, domain = fit_limits(training, p.shortfall_range)
