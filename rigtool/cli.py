@@ -314,6 +314,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     store = Store(resolve_db_path(args.db), create=False)
     run_id = store.resolve_run_id(args.run)
     stage = cavitation_stage(store, run_id, args.base)  # a bad --base stops before any file
+    train_with = _train_with(store, run_id, stage, args.train_with)  # and a bad --train-with
     cal = calibrate_run(store, run_id)
     created = utc_now()
     paths = write_artefacts(cal, Path(args.out), created_utc=created)
@@ -326,7 +327,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         table.add_row(name, _num(value), interval, unit, note)
     out.print(table)
     out.print(f"artefacts: {', '.join(str(p) for p in paths)}")
-    cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=True)
+    cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=True,
+                             train_with=train_with)
     if cav is not None:
         from rigtool.cavitation_artefacts import write_cavitation_artefacts
 
@@ -348,15 +350,27 @@ CAUSAL_WARNING = ("quasi-cavitation: the causal (past-only) shortfall window mis
                   "(docs/cavitation.md)")
 
 
+def _train_with(store: Store, run_id: str, stage: CavitationStage, refs: list[str]) -> list[str]:
+    """Full ids of --train-with runs, checked before anything is written."""
+    from rigtool.analysis.cavitation import training_runs
+
+    if refs and stage.base_run_id is None:
+        raise UsageError(f"--train-with: run {run_id} has no quasi-cavitation model to train "
+                         f"({'; '.join(stage.warnings) or 'no base run'})")
+    return training_runs(store, run_id, refs)
+
+
 def _cavitation(store: Store, run_id: str, stage: CavitationStage, causal: bool, *,
-                store_events: bool) -> tuple[CavitationResult | None, list[str]]:
+                store_events: bool, train_with: Sequence[str] = ()
+                ) -> tuple[CavitationResult | None, list[str]]:
     """The quasi-cavitation result the stage decision asks for (or None), and its warnings."""
     from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation
 
     if stage.base_run_id is None:
         return None, stage.warnings
     cav = calibrate_cavitation(store, run_id, stage.base_run_id,
-                               params=CavitationParams(causal=causal), store_events=store_events)
+                               params=CavitationParams(causal=causal), store_events=store_events,
+                               train_with=train_with)
     notes = [f"quasi-cavitation: {w}" for w in cav.warnings]
     if causal:
         notes.append(CAUSAL_WARNING)
@@ -380,8 +394,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     store = Store(resolve_db_path(args.db), read_only=True)
     run_id = store.resolve_run_id(args.run)
     stage = cavitation_stage(store, run_id, args.base)
+    train_with = _train_with(store, run_id, stage, args.train_with)
     cal = calibrate_run(store, run_id) if store.steps(run_id) else None
-    cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=False)
+    cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=False,
+                             train_with=train_with)
     _print_warnings(store, run_id, cal, notes)
     path = write_report(store, run_id, run_folder(args.out, run_id), cal, cavitation=cav,
                         extra_warnings=notes)
@@ -482,6 +498,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "default: the latest such deep run of the same thruster)")
     p.add_argument("--causal", action="store_true", help="quasi-cavitation model on past "
                    "current only (for a controller; default: a centred 1 s window)")
+    p.add_argument("--train-with", metavar="RUN", action="append", default=[],
+                   help="also train the quasi-cavitation model on this shallow run of the same "
+                   "thruster (repeatable; two runs or more are recommended)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_calibrate)
 
@@ -491,6 +510,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--base", metavar="RUN_ID", help="deep run giving the BETM coefficients of a "
                    "shallow run's quasi-cavitation section (default: as for calibrate)")
     p.add_argument("--causal", action="store_true", help="as for calibrate")
+    p.add_argument("--train-with", metavar="RUN", action="append", default=[],
+                   help="as for calibrate")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_report)
 

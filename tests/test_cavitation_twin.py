@@ -242,3 +242,21 @@ def test_models_import_numpy_alone():
             "('rigtool.analysis', 'rigtool.store'))); print(bad)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_calibrate_trains_the_model_on_several_runs(twin, capsys):
+    """`--train-with` adds runs to the training set (what met the targets on new runs); the
+    exported model names them, and the one-run warning goes away."""
+    tmp, _, base, train, test, _ = twin
+    db, out = str(tmp / "db.sqlite"), tmp / "multi"
+    assert main(["calibrate", train, "--train-with", test, "--db", db, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "trained on this one run" not in err
+    doc = json.loads((out / train / "qctm_gp.json").read_text())
+    assert sorted(doc["run_ids"]) == sorted([train, test])
+    for bad, why in ((train, "being calibrated"), (base, "shallower"), ("nope", "no run")):
+        assert main(["calibrate", train, "--train-with", bad, "--db", db, "--out",
+                     str(tmp / "bad")]) == 2
+        err = capsys.readouterr().err
+        assert why in err and "Traceback" not in err
+    assert not (tmp / "bad").exists()  # refused before any file

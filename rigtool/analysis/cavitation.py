@@ -11,7 +11,7 @@ with the main fit's hyperparameters; held-out runs use `evaluate_on_run`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -492,9 +492,12 @@ ONE_RUN_WARNING = ("the model is trained on this one run: on new twin runs, one 
 def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
                          out_dir: object = None,
                          params: CavitationParams | None = None,
-                         store_events: bool = True) -> CavitationResult:
+                         store_events: bool = True,
+                         train_with: Sequence[str] = ()) -> CavitationResult:
     """Full quasi-cavitation analysis of `run_id`; stores its "ventilation" events unless
-    `store_events` is False (the report reads, `calibrate` writes).
+    `store_events` is False (the report reads, `calibrate` writes). The model is trained on
+    `run_id` and the runs `train_with` (full ids, see `training_runs`): with two runs or
+    more, held-out twin runs met the accuracy targets; with one, not always.
 
     UsageError when the analysis does not apply or no base run is usable (`cavitation_stage`).
 
@@ -516,17 +519,43 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
 
     all_blocks, scale = training_blocks(run, betm, events, p)
     all_blocks.provenance.update({"block_s": p.train_block_s, "huber_scale_n": scale})
-    training = select(all_blocks, p.budget)
+    pool = all_blocks
+    if train_with:
+        from rigtool.analysis.trainset import concat
+
+        pool = concat([all_blocks, *(_training_set(store, rid, betm, p) for rid in train_with)])
+    training = select(pool, p.budget)
     gp = fit_gp(training, p)
 
     evaluation, series = _two_fold(store, run, all_blocks, det_blocks, events, gp, p)
-    warnings = [ONE_RUN_WARNING]
+    warnings = [] if train_with else [ONE_RUN_WARNING]
     if len(training) < 50:
         warnings.append(f"only {len(training)} training blocks: the GP is poorly constrained")
     bounds, domain = fit_limits(training, p.shortfall_range)
     return CavitationResult(run_id, base_id, p, betm, deep_blocks, deep_samples, records, table,
                             training, len(all_blocks), gp, evaluation, series, warnings,
                             bounds=bounds, domain=domain)
+
+
+def training_runs(store: Store, run_id: str, refs: Sequence[str]) -> list[str]:
+    """Full ids of the extra training runs `refs` for `run_id`'s model; UsageError for one
+    that is `run_id` itself, repeated, or not a shallow run with speed and current feedback."""
+    ids = []
+    for ref in refs:
+        rid = store.resolve_run_id(ref)
+        problem = ("it is the run being calibrated" if rid == run_id else
+                   "it is given twice" if rid in ids else cavitation_applicable(store, rid))
+        if problem:
+            raise UsageError(f"--train-with {ref}: {problem}")
+        ids.append(rid)
+    return ids
+
+
+def _training_set(store: Store, run_id: str, betm: Betm, p: CavitationParams) -> TrainingSet:
+    """All training blocks of another run, events found with the same BETM."""
+    run = load_run(store, run_id)
+    events, _ = find_events(run, betm, p)
+    return training_blocks(run, betm, events, p)[0]
 
 
 def _two_fold(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: Blocks,
@@ -575,13 +604,7 @@ def train_model(store: Store, run_ids: list[str], base_run_id: str,
 
     p = params or CavitationParams()
     betm, _, _ = build_betm(load_run(store, base_run_id), p)
-    sets = []
-    for rid in run_ids:
-        run = load_run(store, rid)
-        events, _ = find_events(run, betm, p)
-        ts, _ = training_blocks(run, betm, events, p)
-        sets.append(ts)
-    training = select(concat(sets), p.budget)
+    training = select(concat([_training_set(store, rid, betm, p) for rid in run_ids]), p.budget)
     gp = fit_gp(training, p)
     return betm, gp, training
 
