@@ -486,7 +486,8 @@ def _evaluate(store: Store, run_id: str, blocks: Blocks, det_blocks: Blocks,
 
 ONE_RUN_WARNING = ("the model is trained on this one run: on new twin runs, one training of four "
                    "from a single run missed the accuracy target during events (p95 |error| 4.5 N "
-                   "against 3.5 N, 85 % coverage), where two runs met it (docs/cavitation.md)")
+                   "against 3.5 N, 85 % coverage), where two runs met it: add runs with "
+                   "`calibrate --train-with RUN` (docs/cavitation.md)")
 
 
 def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
