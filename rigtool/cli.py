@@ -17,14 +17,13 @@ from rich.text import Text
 
 from rigtool import __version__
 from rigtool.errors import RigtoolError, UsageError
-from rigtool.outpaths import run_folder
 from rigtool.plan import estimate_duration_s
-from rigtool.progress import UNIT_LABEL, default_reporter
+from rigtool.progress import default_reporter
 from rigtool.store import DB_ENV, Store, resolve_db_path
+from rigtool.units import unit_label
 
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration
-    from rigtool.analysis.cavitation import CavitationResult, CavitationStage
 
 # Pipes and logs get wide tables instead of rich's 80-column default.
 # markup off: run names, reasons and file contents are printed literally, never as Rich markup
@@ -109,7 +108,7 @@ def _print_plan(setup, neutral: float) -> None:
 
     p = setup.protocol
     n = p.n_points()
-    unit = UNIT_LABEL.get(p.command.unit, p.command.unit)
+    unit = unit_label(p.command.unit)
     depths = sorted(set(p.depth.depths_m()))
     timing = p.timing
     out.print(Text.assemble((p.name, "bold"), f": {n} points on rig {setup.rig.name!r}"))
@@ -132,53 +131,53 @@ def _print_plan(setup, neutral: float) -> None:
 
 
 def cmd_runs(args: argparse.Namespace) -> int:
-    store = Store(resolve_db_path(args.db), read_only=True)
-    rows = store.runs(limit=args.limit)
-    if not rows:
-        out.print(f"no runs in {store.path}")
+    with Store(resolve_db_path(args.db), read_only=True) as store:
+        rows = store.runs(limit=args.limit)
+        if not rows:
+            out.print(f"no runs in {store.path}")
+            return 0
+        table = Table("name", "status", "created (UTC)", "points", "unit")
+        table.columns.insert(0, Column("run id", no_wrap=True))
+        for r in rows:
+            table.add_row(r["id"], r["name"], r["status"], r["created_utc"][:16].replace("T", " "),
+                          f"{r['n_steps']}/{r['n_planned']}", r["command_unit"])
+        out.print(table)
         return 0
-    table = Table("name", "status", "created (UTC)", "points", "unit")
-    table.columns.insert(0, Column("run id", no_wrap=True))
-    for r in rows:
-        table.add_row(r["id"], r["name"], r["status"], r["created_utc"][:16].replace("T", " "),
-                      f"{r['n_steps']}/{r['n_planned']}", r["command_unit"])
-    out.print(table)
-    return 0
 
 
 def cmd_show(args: argparse.Namespace) -> int:
-    store = Store(resolve_db_path(args.db), read_only=True)
-    run_id = store.resolve_run_id(args.run)
-    run = store.run(run_id)
-    steps = store.steps(run_id)
-    out.print(Text.assemble((f"run {run_id}", "bold"), f"  {run['name']}  status ",
-                            (run["status"], "bold"),
-                            f" ({run['stop_reason']})" if run["stop_reason"] else ""))
-    out.print(f"  created {run['created_utc']}, finished {run['finished_utc'] or '-'}, "
-              f"host {run['host']}, rigtool {run['tool_version']}, seed {run['seed']}")
-    out.print(f"  rig: {run['rig'].get('name')}  protocol: {run['protocol_path']}")
-    if run["actuator"]:
-        out.print("  actuator: " + _actuator_text(run["actuator"]))
-    meta = {k: v for k, v in run["metadata"].items() if v not in (None, {}, "")}
-    if meta:
-        out.print("  metadata: " + ", ".join(f"{k}={v}" for k, v in meta.items()))
-    out.print(f"  points: {len(steps)}/{run['n_planned']}, samples: {sum(s['n'] for s in steps):,}")
-    unit = UNIT_LABEL.get(run["command_unit"], run["command_unit"])
-    table = Table("depth (m)", "points", f"command ({unit})", "thrust mean (N)", "speed (r/min)",
-                  "current (A)", title="per-depth summary")
-    for depth in sorted({s["depth_m"] for s in steps}):
-        ds = [s for s in steps if s["depth_m"] == depth]
-        table.add_row(f"{depth:g}", str(len(ds)), _span(ds, "command"), _span(ds, "thrust_n_mean"),
-                      _span(ds, "speed_rpm_mean"), _span(ds, "current_a_mean"))
-    out.print(table)
-    counts: dict[str, int] = {}
-    for ev in store.events(run_id):
-        counts[ev["kind"]] = counts.get(ev["kind"], 0) + 1
-    if counts:
-        out.print("  events: " + ", ".join(f"{k} x{v}" for k, v in sorted(counts.items())))
-    for line in _counters_lines(store.transport_counters(run_id), len(steps)):
-        out.print(line)
-    return 0
+    with Store(resolve_db_path(args.db), read_only=True) as store:
+        run_id = store.resolve_run_id(args.run)
+        run = store.run(run_id)
+        steps = store.steps(run_id)
+        out.print(Text.assemble((f"run {run_id}", "bold"), f"  {run['name']}  status ",
+                                (run["status"], "bold"),
+                                f" ({run['stop_reason']})" if run["stop_reason"] else ""))
+        out.print(f"  created {run['created_utc']}, finished {run['finished_utc'] or '-'}, "
+                  f"host {run['host']}, rigtool {run['tool_version']}, seed {run['seed']}")
+        out.print(f"  rig: {run['rig'].get('name')}  protocol: {run['protocol_path']}")
+        if run["actuator"]:
+            out.print("  actuator: " + _actuator_text(run["actuator"]))
+        meta = {k: v for k, v in run["metadata"].items() if v not in (None, {}, "")}
+        if meta:
+            out.print("  metadata: " + ", ".join(f"{k}={v}" for k, v in meta.items()))
+        out.print(f"  points: {len(steps)}/{run['n_planned']}, samples: {sum(s['n'] for s in steps):,}")
+        unit = unit_label(run["command_unit"])
+        table = Table("depth (m)", "points", f"command ({unit})", "thrust mean (N)", "speed (r/min)",
+                      "current (A)", title="per-depth summary")
+        for depth in sorted({s["depth_m"] for s in steps}):
+            ds = [s for s in steps if s["depth_m"] == depth]
+            table.add_row(f"{depth:g}", str(len(ds)), _span(ds, "command"), _span(ds, "thrust_n_mean"),
+                          _span(ds, "speed_rpm_mean"), _span(ds, "current_a_mean"))
+        out.print(table)
+        counts: dict[str, int] = {}
+        for ev in store.events(run_id):
+            counts[ev["kind"]] = counts.get(ev["kind"], 0) + 1
+        if counts:
+            out.print("  events: " + ", ".join(f"{k} x{v}" for k, v in sorted(counts.items())))
+        for line in _counters_lines(store.transport_counters(run_id), len(steps)):
+            out.print(line)
+        return 0
 
 
 def _counters_lines(summary: dict, n_points: int) -> list[str]:
@@ -197,7 +196,7 @@ def _counters_lines(summary: dict, n_points: int) -> list[str]:
 
 def _actuator_text(actuator: dict) -> str:
     """Neutral, range and feedback of a stored actuator record, for `show`."""
-    unit = UNIT_LABEL.get(actuator["command_unit"], actuator["command_unit"])
+    unit = unit_label(actuator["command_unit"])
     feedback = ", ".join(actuator.get("feedback") or ()) or "none"
     return (f"neutral {actuator['neutral']:g} {unit}, range {actuator['command_min']:g} .. "
             f"{actuator['command_max']:g} {unit}, feedback {feedback}")
@@ -209,14 +208,40 @@ def _span(rows: list[dict], key: str) -> str:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from rigtool.export import export_all, export_run
 
-    from rigtool.export import export_run
+    if (args.run is None) == (args.all is None):
+        raise UsageError("give a run to export, or --all DIR for every run")
+    with Store(resolve_db_path(args.db), read_only=True) as store:
+        if args.all is not None:
+            if args.format == "csv":
+                raise UsageError("--all writes a Parquet dataset: drop --format csv")
+            paths = export_all(store, Path(args.all))
+            out.print(f"{len(paths)} files in {args.all} (docs/sql.md shows how to query them)")
+            return 0
+        run_id = store.resolve_run_id(args.run)
+        for path in export_run(store, run_id, Path(args.out), args.format or "csv"):
+            out.print(str(path))
+    return 0
 
-    store = Store(resolve_db_path(args.db), read_only=True)
-    run_id = store.resolve_run_id(args.run)
-    for path in export_run(store, run_id, Path(args.out), args.format):
-        out.print(str(path))
+
+def cmd_merge(args: argparse.Namespace) -> int:
+    target = Path(args.output)
+    sources = [Path(s) for s in args.stores]
+    for src in sources:
+        if not src.is_file():
+            raise UsageError(f"no run database at {src}")
+        if target.exists() and src.resolve() == target.resolve():
+            raise UsageError(f"{src} is the output: give another -o")
+    with Store(target) as store:
+        for src in sources:
+            with Store(src, read_only=True) as source:
+                report = store.merge_from(source)
+            out.print(f"{src}: {len(report['added'])} run(s) added, {len(report['skipped'])} "
+                      "already present")
+            for run_id in report["running"]:
+                err.print(f"warning: {src}: run {run_id} is still running: not merged "
+                          "(merge again when it has ended)")
     return 0
 
 
@@ -304,77 +329,25 @@ def _num(v: float) -> str:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from rigtool import workflows
 
-    from rigtool.analysis.calibrate import calibrate_run
-    from rigtool.analysis.cavitation import cavitation_stage
-    from rigtool.artefacts import calibration_document, write_artefacts
-    from rigtool.store import utc_now
-
-    store = Store(resolve_db_path(args.db), create=False)
-    run_id = store.resolve_run_id(args.run)
-    stage = cavitation_stage(store, run_id, args.base)  # a bad --base stops before any file
-    train_with = _train_with(store, run_id, stage, args.train_with)  # and a bad --train-with
-    cal = calibrate_run(store, run_id)
-    created = utc_now()
-    paths = write_artefacts(cal, Path(args.out), created_utc=created)
-    folder = run_folder(args.out, run_id)
-    store.add_calibration(run_id, str(folder), calibration_document(cal, created), __version__)
-    table = Table("quantity", "value", "95 % interval", "unit", "note",
-                  title=f"calibration of run {run_id} ({cal.run_name})")
-    for name, value, lo, hi, unit, note in cal.summary_rows():
-        interval = f"{_num(lo)} .. {_num(hi)}" if lo == lo or hi == hi else ""
-        table.add_row(name, _num(value), interval, unit, note)
-    out.print(table)
-    out.print(f"artefacts: {', '.join(str(p) for p in paths)}")
-    cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=True,
-                             train_with=train_with)
-    if cav is not None:
-        from rigtool.cavitation_artefacts import write_cavitation_artefacts
-
-        cav_paths = write_cavitation_artefacts(cav, Path(args.out), created_utc=created)
-        out.print(f"quasi-cavitation (BETM base run {cav.base_run_id}): "
-                  f"{', '.join(str(p) for p in cav_paths)}")
-    _print_warnings(store, run_id, cal, notes)
-    if args.report:
-        from rigtool.report import write_report
-
-        path = write_report(store, run_id, folder, cal, cavitation=cav, extra_warnings=notes)
-        out.print(f"report: {path}")
+    with Store(resolve_db_path(args.db), create=False) as store:
+        res = workflows.calibrate(store, args.run, args.out, base=args.base, causal=args.causal,
+                                  train_with=args.train_with)
+        cal = res.calibration
+        table = Table("quantity", "value", "95 % interval", "unit", "note",
+                      title=f"calibration of run {res.run_id} ({cal.run_name})")
+        for name, value, lo, hi, unit, note in cal.summary_rows():
+            interval = f"{_num(lo)} .. {_num(hi)}" if lo == lo or hi == hi else ""
+            table.add_row(name, _num(value), interval, unit, note)
+        out.print(table)
+        out.print(f"artefacts: {', '.join(str(p) for p in res.paths)}")
+        if res.cavitation is not None:
+            out.print(f"quasi-cavitation model from BETM base run {res.cavitation.base_run_id}")
+        _print_warnings(store, res.run_id, cal, res.notes)
+        if args.report:
+            out.print(f"report: {workflows.report(store, res.run_id, args.out, results=res)}")
     return 0
-
-
-CAUSAL_WARNING = ("quasi-cavitation: the causal (past-only) shortfall window misses the accuracy "
-                  "target outside ventilation events: p95 |error| up to 1.2 N on held-out twin "
-                  "runs against 1 N, and its event intervals are wider than needed "
-                  "(docs/cavitation.md)")
-
-
-def _train_with(store: Store, run_id: str, stage: CavitationStage, refs: list[str]) -> list[str]:
-    """Full ids of --train-with runs, checked before anything is written."""
-    from rigtool.analysis.cavitation import training_runs
-
-    if refs and stage.base_run_id is None:
-        raise UsageError(f"--train-with: run {run_id} has no quasi-cavitation model to train "
-                         f"({'; '.join(stage.warnings) or 'no base run'})")
-    return training_runs(store, run_id, refs)
-
-
-def _cavitation(store: Store, run_id: str, stage: CavitationStage, causal: bool, *,
-                store_events: bool, train_with: Sequence[str] = ()
-                ) -> tuple[CavitationResult | None, list[str]]:
-    """The quasi-cavitation result the stage decision asks for (or None), and its warnings."""
-    from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation
-
-    if stage.base_run_id is None:
-        return None, stage.warnings
-    cav = calibrate_cavitation(store, run_id, stage.base_run_id,
-                               params=CavitationParams(causal=causal), store_events=store_events,
-                               train_with=train_with)
-    notes = [f"quasi-cavitation: {w}" for w in cav.warnings]
-    if causal:
-        notes.append(CAUSAL_WARNING)
-    return cav, notes
 
 
 def _print_warnings(store: Store, run_id: str, cal: Calibration | None, notes: list[str]) -> None:
@@ -386,22 +359,13 @@ def _print_warnings(store: Store, run_id: str, cal: Calibration | None, notes: l
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    from rigtool import workflows
 
-    from rigtool.analysis.calibrate import calibrate_run
-    from rigtool.analysis.cavitation import cavitation_stage
-    from rigtool.report import write_report
-
-    store = Store(resolve_db_path(args.db), read_only=True)
-    run_id = store.resolve_run_id(args.run)
-    stage = cavitation_stage(store, run_id, args.base)
-    train_with = _train_with(store, run_id, stage, args.train_with)
-    cal = calibrate_run(store, run_id) if store.steps(run_id) else None
-    cav, notes = _cavitation(store, run_id, stage, args.causal, store_events=False,
-                             train_with=train_with)
-    _print_warnings(store, run_id, cal, notes)
-    path = write_report(store, run_id, run_folder(args.out, run_id), cal, cavitation=cav,
-                        extra_warnings=notes)
-    out.print(str(path))
+    with Store(resolve_db_path(args.db), read_only=True) as store:
+        run_id = store.resolve_run_id(args.run)
+        res = workflows.stored_results(store, run_id)
+        _print_warnings(store, run_id, res.calibration, res.notes)
+        out.print(str(workflows.report(store, run_id, args.out, results=res)))
     return 0
 
 
@@ -414,37 +378,30 @@ def cmd_import(args: argparse.Namespace) -> int:
         decimal="," if args.decimal_comma else None, delimiter=args.delimiter,
         format=args.format, settle_s=args.settle_s, pole_pairs=args.pole_pairs,
         neutral=args.neutral, thrust_sign=-1 if args.flip_thrust else None)
-    store = Store(resolve_db_path(args.db))
-    several = len(args.files) > 1
-    for path in args.files:
-        name = f"{args.name}-{os.path.splitext(os.path.basename(path))[0]}" if (
-            args.name and several) else args.name
-        result = import_file(store, path, mapping, name=name, thruster_id=args.thruster_id,
-                             depth_m=args.depth, strict=args.strict)
-        for line in result.errors[:MAX_PRINTED_ERRORS]:
-            err.print(line)
-        if len(result.errors) > MAX_PRINTED_ERRORS:
-            err.print(f"... and {len(result.errors) - MAX_PRINTED_ERRORS} more unreadable "
-                      "cell(s)")
-        for warning in result.warnings:
-            err.print(f"warning: {warning}")
-        out.print(result.summary())
-    return 0
+    with Store(resolve_db_path(args.db)) as store:
+        several = len(args.files) > 1
+        for path in args.files:
+            name = f"{args.name}-{os.path.splitext(os.path.basename(path))[0]}" if (
+                args.name and several) else args.name
+            result = import_file(store, path, mapping, name=name, thruster_id=args.thruster_id,
+                                 depth_m=args.depth, strict=args.strict)
+            for line in result.errors[:MAX_PRINTED_ERRORS]:
+                err.print(line)
+            if len(result.errors) > MAX_PRINTED_ERRORS:
+                err.print(f"... and {len(result.errors) - MAX_PRINTED_ERRORS} more unreadable "
+                          "cell(s)")
+            for warning in result.warnings:
+                err.print(f"warning: {warning}")
+            out.print(result.summary())
+        return 0
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from rigtool import workflows
 
-    from rigtool.compare import compare_runs, write_corrections
-    from rigtool.report.compare_html import write_compare_report
-
-    store = Store(resolve_db_path(args.db), read_only=True)
-    run_ids = [store.resolve_run_id(r) for r in args.runs]
-    reference = store.resolve_run_id(args.reference) if args.reference else None
-    result = compare_runs(store, run_ids, reference, floor_frac=args.floor_frac)
-    folder = Path(args.out)
-    paths = write_corrections(result, folder)
-    paths.append(write_compare_report(result, folder))
+    with Store(resolve_db_path(args.db), read_only=True) as store:
+        result, paths = workflows.compare(store, args.runs, args.reference, args.out,
+                                          floor_frac=args.floor_frac)
     table = Table("run", "thruster", "branch", "a", "b (" + result.command_unit + ")",
                   "max dev before", "max dev after", title=f"corrections vs {result.reference_label}")
     for c in result.corrections:
@@ -504,14 +461,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_calibrate)
 
-    p = sub.add_parser("report", help="write calibrations/<run-id>/report.html and print its path")
+    p = sub.add_parser("report", help="write calibrations/<run-id>/report.html from what "
+                       "`calibrate` stored, and print its path")
     p.add_argument("run", help="run id, unique prefix, or `last`")
     p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
-    p.add_argument("--base", metavar="RUN_ID", help="deep run giving the BETM coefficients of a "
-                   "shallow run's quasi-cavitation section (default: as for calibrate)")
-    p.add_argument("--causal", action="store_true", help="as for calibrate")
-    p.add_argument("--train-with", metavar="RUN", action="append", default=[],
-                   help="as for calibrate")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_report)
 
@@ -543,12 +496,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rig-out", help="also write the rig file here")
     p.set_defaults(func=cmd_sim)
 
-    p = sub.add_parser("export", help="write a run's points, samples and events as CSV or Parquet")
-    p.add_argument("run", help="run id, unique prefix, or `last`")
-    p.add_argument("--format", choices=("csv", "parquet"), default="csv")
+    p = sub.add_parser("export", help="write a run's points, samples and events as CSV or "
+                       "Parquet, or every run as a Parquet dataset (--all)")
+    p.add_argument("run", nargs="?", help="run id, unique prefix, or `last`")
+    p.add_argument("--format", choices=("csv", "parquet"),
+                   help="file format (default: csv; parquet with --all)")
     p.add_argument("--out", default="exports", help="output folder (default: ./exports)")
+    p.add_argument("--all", metavar="DIR", help="write every run as a Parquet dataset in DIR: "
+                   "runs, calibrations, and points/samples/events per run (docs/sql.md)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("merge", help="merge the run databases of several rigs into one")
+    p.add_argument("stores", nargs="+", metavar="DB", help="run databases to merge")
+    p.add_argument("-o", "--output", required=True, metavar="DB",
+                   help="merged database (created, or added to; runs already there are skipped)")
+    p.set_defaults(func=cmd_merge)
 
     p = sub.add_parser("import", help="store existing thrust-stand logs (Tyto/RCbenchmark, any CSV) as runs")
     p.add_argument("files", nargs="+", metavar="FILE", help="CSV log(s); one run per file")

@@ -11,10 +11,7 @@ F_ref ~ g * F_i + o is reported beside it for information.
 
 from __future__ import annotations
 
-import csv
-import json
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -234,51 +231,3 @@ def curve_from_calibration(cal: object, label: str | None = None) -> ThrusterCur
     return ThrusterCurve(cal.run_id, f"{name} ({cal.run_id[-6:]})", cmd, thrust,  # type: ignore[attr-defined]
                          list(curve.dead_zones) if curve else [],
                          list(curve.saturated) if curve else [])
-
-
-def compare_runs(store: object, run_ids: list[str], reference: str | None = None, *,
-                 floor_frac: float = 0.1) -> CompareResult:
-    """Calibrate each run from the store and compare them (the reference is added if missing)."""
-    from rigtool.analysis.calibrate import calibrate_run
-
-    ids = list(dict.fromkeys(run_ids + ([reference] if reference else [])))
-    cals = [calibrate_run(store, r) for r in ids]  # type: ignore[arg-type]
-    units = {c.command_unit for c in cals}
-    if len(units) > 1:
-        raise UsageError(f"runs use different command units ({', '.join(sorted(units))}): "
-                         "cannot compare their command curves")
-    return compare_curves([curve_from_calibration(c) for c in cals], reference,
-                          command_unit=units.pop(), floor_frac=floor_frac)
-
-
-def corrections_document(result: CompareResult) -> dict:
-    """The corrections.json content: what each thruster should be sent, per branch."""
-    return {
-        "rigtool_corrections": 1,
-        "command_unit": result.command_unit,
-        "reference": result.reference_run or "mean",
-        "reference_label": result.reference_label,
-        "model": "send c_i = a * c + b to thruster i when the controller wants the reference "
-                 "thrust at command c; use the branch whose [command_lo, command_hi] side of "
-                 "the reference's neutral contains c",
-        "floor_frac": result.floor_frac,
-        "spread_before": result.spread_before,
-        "spread_after": result.spread_after,
-        "corrections": [asdict(c) for c in result.corrections],
-        "warnings": result.warnings,
-    }
-
-
-def write_corrections(result: CompareResult, out_dir: Path) -> list[Path]:
-    """Write corrections.json and corrections.csv into `out_dir`; return their paths."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    js = out_dir / "corrections.json"
-    js.write_text(json.dumps(corrections_document(result), indent=2) + "\n", encoding="utf-8")
-    path = out_dir / "corrections.csv"
-    names = list(Correction.__dataclass_fields__)
-    with path.open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(names)
-        for c in result.corrections:
-            w.writerow([f"{v:.8g}" if isinstance(v, float) else v for v in asdict(c).values()])
-    return [js, path]

@@ -1,48 +1,33 @@
-"""Export a run's samples, points and events as CSV or Parquet for other tools.
+"""`rigtool export`: a run's points, samples and events as CSV or Parquet; `--all`: every run
+of a database as one Parquet dataset (docs/sql.md).
 
-CSV is streamed straight from SQLite (constant memory for million-sample runs);
-Parquet goes through pyarrow in step-sized batches.
+Every table starts with run_id, thruster_id and rig, so files from many runs and rigs stack;
+the other column names are the Python API's. Parquet is built from numpy columns, zstd
+compressed, with missing values as nulls and the run record in the schema metadata. Samples
+are streamed in chunks, so memory does not grow with the run.
 """
 
 from __future__ import annotations
 
 import csv
-from collections.abc import Iterator
+import json
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+import numpy as np
+
+from rigtool.artefacts.write import atomic_write
 from rigtool.errors import UsageError
-from rigtool.outpaths import inside
-from rigtool.store import SAMPLE_COLUMNS, Store
+from rigtool.outpaths import inside, safe_component
+from rigtool.store import MISSING_INT, RunRecord, Store
 
-POINT_COLUMNS = (
-    "idx", "command", "command_unit", "depth_m", "repeat", "direction", "t_start_s",
-    "t_acquire_s", "t_end_s", "settle_s", "settled", "rate_hz", "status", "n",
-    "thrust_n_mean", "thrust_n_std", "thrust_n_min", "thrust_n_max",
-    "speed_rpm_mean", "speed_rpm_std", "speed_rpm_min", "speed_rpm_max",
-    "current_a_mean", "current_a_std", "current_a_min", "current_a_max",
-)
-SAMPLE_EXPORT_COLUMNS = ("step_idx", *SAMPLE_COLUMNS[1:])
-EVENT_COLUMNS = ("t_s", "kind", "step_idx", "detail_json")
 FORMATS = ("csv", "parquet")
-
-
-def _queries(run_id: str) -> dict[str, tuple[tuple[str, ...], str, tuple]]:
-    sample_cols = ", ".join(f"s.{c}" for c in SAMPLE_COLUMNS[1:])
-    return {
-        "points": (POINT_COLUMNS, f"SELECT {', '.join(POINT_COLUMNS)} FROM steps WHERE run_id = ? "
-                   "ORDER BY idx", (run_id,)),
-        "samples": (SAMPLE_EXPORT_COLUMNS, f"SELECT st.idx, {sample_cols} FROM samples s "
-                    "JOIN steps st ON st.id = s.step_id WHERE st.run_id = ? ORDER BY s.rowid",
-                    (run_id,)),
-        "events": (EVENT_COLUMNS, f"SELECT {', '.join(EVENT_COLUMNS)} FROM events WHERE run_id = ? "
-                   "ORDER BY id", (run_id,)),
-    }
-
-
-def _batches(store: Store, sql: str, args: tuple, size: int = 50_000) -> Iterator[list[tuple]]:
-    cur = store.conn.execute(sql, args)
-    while rows := cur.fetchmany(size):
-        yield rows
+TABLES = ("points", "samples", "events")
+KEY_COLUMNS = ("run_id", "thruster_id", "rig")
+TEXT_COLUMNS = frozenset({*KEY_COLUMNS, "command_unit", "direction", "status", "kind",
+                          "detail_json", "name", "created_utc", "finished_utc", "tool_version",
+                          "metadata_json", "protocol_json", "unit", "coefficient", "out_dir"})
+Chunk = dict[str, np.ndarray]
 
 
 def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> list[Path]:
@@ -52,39 +37,172 @@ def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> li
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     with store.snapshot():  # points, samples and events of one moment, even mid-sweep
-        for table, (columns, sql, args) in _queries(run_id).items():
+        record = store.run_record(run_id)
+        for table in TABLES:
             path = inside(out_dir, f"{run_id}-{table}.{fmt}")
+            chunks = _table(store, record, table)
             if fmt == "csv":
-                _write_csv(path, columns, _batches(store, sql, args))
+                atomic_write(path, lambda p, chunks=chunks: _write_csv(p, chunks))
             else:
-                _write_parquet(path, columns, _batches(store, sql, args))
+                atomic_write(path, lambda p, chunks=chunks: _write_parquet(p, chunks, record))
             written.append(path)
     return written
 
 
-def _write_csv(path: Path, columns: tuple[str, ...], batches: Iterator[list[tuple]]) -> None:
+def export_all(store: Store, out_dir: Path) -> list[Path]:
+    """Every run as a Parquet dataset in `out_dir`: runs.parquet, calibrations.parquet and one
+    file per run in points/, samples/ and events/. Returns the paths written."""
+    written = []
+    with store.snapshot():
+        records = [store.run_record(r) for r in store.run_ids()]
+        for table in TABLES:
+            folder = out_dir / table
+            folder.mkdir(parents=True, exist_ok=True)
+            for rec in records:
+                path = inside(folder, f"{safe_component(rec.id)}.parquet")
+                chunks = _table(store, rec, table)
+                written.append(atomic_write(
+                    path, lambda p, c=chunks, r=rec: _write_parquet(p, c, r)))
+        written.append(atomic_write(out_dir / "runs.parquet", lambda p: _write_parquet(
+            p, [_runs_table(store, records)], None)))
+        written.append(atomic_write(out_dir / "calibrations.parquet", lambda p: _write_parquet(
+            p, [_calibrations_table(store, records)], None)))
+    return written
+
+
+def _table(store: Store, record: RunRecord, table: str) -> Iterator[Chunk]:
+    if table == "points":
+        points = store.points(record.id)
+        n = len(points["step_idx"])
+        chunks: Iterable[Chunk] = [{**points, "command_unit": np.full(n, record.command_unit)}]
+    elif table == "samples":
+        chunks = _or_empty(store.iter_samples(record.id), store.sample_arrays(record.id, steps=()))
+    else:
+        events = store.events(record.id)
+        chunks = [{
+            "t_s": np.array([np.nan if e["t_s"] is None else e["t_s"] for e in events], float),
+            "kind": np.array([e["kind"] for e in events], dtype=object),
+            "step_idx": np.array([MISSING_INT if e["step_idx"] is None else e["step_idx"]
+                                  for e in events], dtype=np.int64),
+            "detail_json": np.array([json.dumps(e["detail"]) for e in events], dtype=object),
+        }]
+    for chunk in chunks:
+        yield _with_keys(chunk, record)
+
+
+def _or_empty(chunks: Iterator[Chunk], empty: Chunk) -> Iterator[Chunk]:
+    """The chunks, or one empty chunk (the table's columns) when there are none."""
+    any_chunk = False
+    for chunk in chunks:
+        any_chunk = True
+        yield chunk
+    if not any_chunk:
+        yield empty
+
+
+def _with_keys(chunk: Chunk, record: RunRecord) -> Chunk:
+    n = len(next(iter(chunk.values())))
+    keys = {"run_id": record.id, "thruster_id": record.thruster_id, "rig": record.rig_name}
+    return {**{k: np.full(n, v, dtype=object) for k, v in keys.items()}, **chunk}
+
+
+def _runs_table(store: Store, records: list[RunRecord]) -> Chunk:
+    counts = {r["id"]: r["n_steps"] for r in store.runs(limit=len(records) or 1)}
+
+    def col(values: list, dtype: object = object) -> np.ndarray:
+        return np.array(values, dtype=dtype)
+
+    return {
+        "run_id": col([r.id for r in records]),
+        "thruster_id": col([r.thruster_id for r in records]),
+        "rig": col([r.rig_name for r in records]),
+        "name": col([r.name for r in records]),
+        "status": col([r.status for r in records]),
+        "created_utc": col([r.created_utc for r in records]),
+        "finished_utc": col([r.finished_utc for r in records]),
+        "command_unit": col([r.command_unit for r in records]),
+        "neutral": col([r.neutral for r in records], float),
+        "n_planned": col([r.n_planned for r in records], np.int64),
+        "n_points": col([counts.get(r.id, 0) for r in records], np.int64),
+        "tool_version": col([r.tool_version for r in records]),
+        "metadata_json": col([json.dumps(r.metadata) for r in records]),
+        "protocol_json": col([json.dumps(r.protocol) for r in records]),
+    }
+
+
+def _calibrations_table(store: Store, records: list[RunRecord]) -> Chunk:
+    """One row per coefficient of each run's latest calibration (long format)."""
+    rows = []
+    for rec in records:
+        cal = store.latest_calibration(rec.id)
+        if cal is None:
+            continue
+        for depth in cal["summary"].get("depths") or []:
+            for name, c in (depth.get("coefficients") or {}).items():
+                rows.append((rec.id, rec.thruster_id, rec.rig_name, cal["created_utc"],
+                             cal["out_dir"], depth.get("depth_m"), name, c.get("value"),
+                             c.get("lo"), c.get("hi"), c.get("unit"), c.get("n")))
+    names = ("run_id", "thruster_id", "rig", "created_utc", "out_dir", "depth_m",
+             "coefficient", "value", "lo", "hi", "unit", "n")
+    out = {}
+    for i, name in enumerate(names):
+        values = [r[i] for r in rows]
+        if name in TEXT_COLUMNS:
+            out[name] = np.array(values, dtype=object)
+        elif name == "n":
+            out[name] = np.array([MISSING_INT if v is None else v for v in values], np.int64)
+        else:
+            out[name] = np.array([np.nan if v is None else v for v in values], dtype=float)
+    return out
+
+
+def _cells(values: np.ndarray) -> list:
+    """A column as CSV cells: missing values (NaN, None, MISSING_INT in ints) empty."""
+    if values.dtype.kind == "f":
+        obj = values.astype(object)
+        obj[np.isnan(values)] = None
+        return obj.tolist()
+    if values.dtype.kind == "i":
+        obj = values.astype(object)
+        obj[values == MISSING_INT] = None
+        return obj.tolist()
+    return values.tolist()
+
+
+def _write_csv(path: Path, chunks: Iterator[Chunk]) -> None:
     with path.open("w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh)
-        writer.writerow(columns)
-        for rows in batches:
-            writer.writerows(rows)
+        header = False
+        for chunk in chunks:
+            if not header:
+                writer.writerow(chunk)
+                header = True
+            writer.writerows(zip(*(_cells(v) for v in chunk.values()), strict=True))
 
 
-TEXT_COLUMNS = {"command_unit", "direction", "status", "kind", "detail_json"}
-INT_COLUMNS = {"idx", "step_idx", "repeat", "settled", "n", "seq"}
+def _arrow(name: str, values: np.ndarray) -> object:
+    import pyarrow as pa
+
+    if name in TEXT_COLUMNS or values.dtype.kind in "OUS":
+        return pa.array(values.tolist(), type=pa.string())
+    if values.dtype.kind == "i":
+        return pa.array(values, mask=values == MISSING_INT, type=pa.int64())
+    return pa.array(values, mask=np.isnan(values), type=pa.float64())
 
 
-def _write_parquet(path: Path, columns: tuple[str, ...], batches: Iterator[list[tuple]]) -> None:
+def _write_parquet(path: Path, chunks: Iterable[Chunk], record: RunRecord | None) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    def kind(c: str) -> pa.DataType:
-        return pa.string() if c in TEXT_COLUMNS else pa.int64() if c in INT_COLUMNS else pa.float64()
-
-    schema = pa.schema([(c, kind(c)) for c in columns])
-    with pq.ParquetWriter(path, schema) as writer:
-        for rows in batches:
-            cols = list(zip(*rows, strict=True))
-            writer.write_table(pa.Table.from_arrays(
-                [pa.array(col, type=f.type) for col, f in zip(cols, schema, strict=True)],
-                schema=schema))
+    writer = None
+    meta = {} if record is None else {"rigtool_run": json.dumps(record.__dict__, default=str)}
+    try:
+        for chunk in chunks:
+            table = pa.table({k: _arrow(k, v) for k, v in chunk.items()})
+            if writer is None:
+                writer = pq.ParquetWriter(str(path), table.schema.with_metadata(meta),
+                                          compression="zstd")
+            writer.write_table(table.replace_schema_metadata(meta))
+    finally:
+        if writer is not None:
+            writer.close()

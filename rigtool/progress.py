@@ -1,9 +1,12 @@
-"""Terminal progress for sweeps: a live bar with ETA on a TTY, sparse plain lines otherwise."""
+"""Terminal progress: a live bar with ETA for sweeps, a spinner for analysis stages; sparse
+plain lines (or nothing) when the output is not a terminal."""
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import TextIO
 
 from rich.console import Console
@@ -18,13 +21,12 @@ from rich.progress import (
 from rich.text import Text
 
 from rigtool.plan import PlanStep
-
-UNIT_LABEL = {"percent": "%", "pwm_counts": "counts", "pulse_us": "us", "rpm": "r/min", "amps": "A"}
+from rigtool.units import unit_label
 
 
 def _live_text(step: PlanStep, unit: str, thrust_n: float | None) -> str:
     thrust = "   --   " if thrust_n is None else f"{thrust_n:8.2f}"
-    return (f"cmd {step.command:8.2f} {UNIT_LABEL.get(unit, unit)}  depth {step.depth_m:5.2f} m  "
+    return (f"cmd {step.command:8.2f} {unit_label(unit)}  depth {step.depth_m:5.2f} m  "
             f"thrust {thrust} N")
 
 
@@ -137,3 +139,17 @@ class SilentReporter:
 def default_reporter() -> RichReporter | PlainReporter:
     """Live bar on a terminal, plain lines when stderr is a pipe or file."""
     return RichReporter() if sys.stderr.isatty() else PlainReporter()
+
+
+@contextmanager
+def stage(text: str, console: Console | None = None) -> Iterator[None]:
+    """A spinner with the elapsed time while one analysis stage runs, on a terminal only
+    (pipes and logs stay quiet); the line stays with its duration when the stage ends."""
+    con = console or Console(stderr=True, markup=False, highlight=False)
+    if not con.is_terminal:
+        yield
+        return
+    t0 = time.monotonic()
+    with con.status(text + " ..."):
+        yield
+    con.print(f"{text}: {time.monotonic() - t0:.1f} s")

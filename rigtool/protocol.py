@@ -35,9 +35,9 @@ from rigtool.bounds import (
     Seed,
 )
 from rigtool.config import FieldError, load_model
-from rigtool.devices.base import COMMAND_UNITS
 from rigtool.errors import UsageError
 from rigtool.sim.profiles import PROFILES, profile_with_overrides
+from rigtool.units import COMMAND_UNITS
 
 CommandUnit = Literal["percent", "pwm_counts", "pulse_us", "rpm", "amps"]
 assert set(CommandUnit.__args__) == set(COMMAND_UNITS)  # type: ignore[attr-defined]
@@ -154,7 +154,8 @@ class Settle(_Strict):
             return self.seconds
         c = self.until_steady
         assert c is not None
-        loops = max(1, math.ceil((c.timeout_s - c.min_s) / c.window_s - 1e-9) - 1)
+        ratio = min((c.timeout_s - c.min_s) / c.window_s, 1e15)  # finite even if a bound slips
+        loops = max(1, math.ceil(ratio - 1e-9) - 1)
         return c.min_s + c.window_s * (loops + 1)
 
 

@@ -42,6 +42,53 @@ SAMPLE_COLUMNS = (
 
 STAT_FIELDS = ("thrust_n", "speed_rpm", "current_a")
 
+# A stored point's columns under the names the API, points.csv and the exports use
+# (public name -> steps column). Statistics here are over all of a point's samples.
+POINT_COLUMNS = {
+    "step_idx": "idx", "command": "command", "depth_m": "depth_m", "repeat": "repeat",
+    "direction": "direction", "status": "status", "settled": "settled",
+    "t_start_s": "t_start_s", "t_acquire_s": "t_acquire_s", "t_end_s": "t_end_s",
+    "settle_s": "settle_s", "rate_hz": "rate_hz", "n_samples": "n",
+    **{f"{ch}_{stat}_{u}": f"{field}_{stat}"
+       for field, ch, u in (("thrust_n", "thrust", "n"), ("speed_rpm", "speed", "rpm"),
+                            ("current_a", "current", "a"))
+       for stat in ("mean", "std", "min", "max")},
+}
+TEXT_POINT_COLUMNS = ("direction", "status")
+INT_POINT_COLUMNS = ("step_idx", "repeat", "settled", "n_samples")
+INT_SAMPLE_COLUMNS = ("step_idx", "seq")
+MISSING_INT = -1  # an integer column's value where the store has none (seq of old runs)
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One stored run, typed: what analysis and the API need without digging in JSON.
+
+    `neutral` is the actuator's recorded neutral; older and imported runs fall back to the
+    protocol's `command.neutral`, then to the usual neutral of the unit.
+    """
+
+    id: str
+    name: str
+    status: str
+    created_utc: str
+    finished_utc: str | None
+    stop_reason: str | None
+    tool_version: str
+    seed: int | None
+    n_planned: int
+    command_unit: str
+    neutral: float
+    command_min: float | None
+    command_max: float | None
+    thruster_id: str | None
+    propeller_diameter_m: float | None
+    water_density_kg_m3: float | None
+    rig_name: str | None
+    metadata: dict
+    protocol: dict
+    rig: dict
+
 # Bulk writes (imports): sample rows per executemany call, and per transaction, so a big
 # import holds the write lock for about a second at a time and never builds all rows at once.
 BATCH_ROWS = 10_000
@@ -145,6 +192,8 @@ MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [
                                        "UPDATE runs SET started_utc = created_utc"),
     # v5: what each device's transport counters (frames, garbage, lost...) added during a point
     lambda conn: conn.execute("ALTER TABLE steps ADD COLUMN counters_json TEXT"),
+    # v6: the analysis results a calibration found, which `report` and the API render
+    lambda conn: conn.execute("ALTER TABLE calibrations ADD COLUMN state BLOB"),
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -349,7 +398,14 @@ class Store:
         return _Transaction(self.conn, self.path)
 
     def close(self) -> None:
+        """Close the connection; closing twice is harmless."""
         self.conn.close()
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     # -- writing --------------------------------------------------------------------------
     def create_run(
@@ -534,12 +590,51 @@ class Store:
         if cur.rowcount != 1:
             raise UsageError(f"run {run_id} is no longer resumable (another process resumed it?)")
 
-    def add_calibration(self, run_id: str, out_dir: str, summary: dict, tool_version: str) -> None:
+    def add_calibration(self, run_id: str, out_dir: str, summary: dict, tool_version: str,
+                        state: bytes | None = None, created_utc: str | None = None) -> None:
+        """Record a calibration: its folder, its calibration.json content and (`state`) the
+        encoded analysis results that `report` renders."""
         with self.transaction():
-            self.db["calibrations"].insert({
-                "run_id": run_id, "created_utc": utc_now(), "tool_version": tool_version,
-                "out_dir": out_dir, "summary_json": json.dumps(summary),
-            })
+            self.conn.execute(
+                "INSERT INTO calibrations (run_id, created_utc, tool_version, out_dir, "
+                "summary_json, state) VALUES (?, ?, ?, ?, ?, ?)",
+                (run_id, created_utc or utc_now(), tool_version, out_dir, json.dumps(summary),
+                 state))
+
+    def replace_events(self, run_id: str, kind: str, records: list[dict],
+                       t_key: str = "t_start_s", step_key: str = "step_idx") -> None:
+        """Replace a run's events of `kind` by `records` in one transaction (a rerun of an
+        analysis must not duplicate them)."""
+        with self.transaction() as conn:
+            conn.execute("DELETE FROM events WHERE run_id = ? AND kind = ?", (run_id, kind))
+            conn.executemany(
+                "INSERT INTO events (run_id, t_s, kind, step_idx, detail_json) "
+                "VALUES (?, ?, ?, ?, ?)",
+                [(run_id, r.get(t_key), kind, r.get(step_key), json.dumps(r)) for r in records])
+
+    def merge_from(self, source: Store) -> dict[str, list[str]]:
+        """Copy the runs of another store that this one lacks: run, points (new step ids),
+        samples, events and calibrations, one transaction per run. A run already here is
+        skipped, not duplicated; a run still marked running is left for a later merge.
+        Returns {"added": [...], "skipped": [...], "running": [...]}."""
+        if source.version != self.version:
+            raise UsageError(f"{source.path} has schema version {source.version}, this store "
+                             f"{self.version}: open both with the same rigtool first")
+        here = set(self.run_ids())
+        report: dict[str, list[str]] = {"added": [], "skipped": [], "running": []}
+        self.conn.execute("ATTACH DATABASE ? AS src", (str(source.path),))
+        try:
+            for run_id, status in source.conn.execute("SELECT id, status FROM runs ORDER BY id"):
+                key = "skipped" if run_id in here else "running" if status == "running" else None
+                if key:
+                    report[key].append(run_id)
+                    continue
+                with self.transaction() as conn:
+                    _copy_run(conn, run_id)
+                report["added"].append(run_id)
+        finally:
+            self.conn.execute("DETACH DATABASE src")
+        return report
 
     # -- reading --------------------------------------------------------------------------
     def resolve_run_id(self, ref: str) -> str:
@@ -570,6 +665,95 @@ class Store:
         actuator = out.pop("actuator_json")
         out["actuator"] = None if actuator is None else json.loads(actuator)
         return out
+
+    def run_record(self, run_id: str) -> RunRecord:
+        """The typed record of a stored run."""
+        from rigtool.units import NEUTRAL_BY_UNIT
+
+        run = self.run(run_id)
+        protocol = run.get("protocol") or {}
+        command = protocol.get("command") or {}
+        meta = {**(protocol.get("metadata") or {}), **(run.get("metadata") or {})}
+        actuator = run.get("actuator") or {}
+        unit = run.get("command_unit") or command.get("unit") or "percent"
+        neutral = next((v for v in (actuator.get("neutral"), command.get("neutral"))
+                        if v is not None), NEUTRAL_BY_UNIT.get(unit, 0.0))
+        return RunRecord(
+            id=run_id, name=run["name"], status=run["status"], created_utc=run["created_utc"],
+            finished_utc=run.get("finished_utc"), stop_reason=run.get("stop_reason"),
+            tool_version=run["tool_version"], seed=run.get("seed"), n_planned=run["n_planned"],
+            command_unit=unit, neutral=float(neutral),
+            command_min=_opt_float(actuator.get("command_min")),
+            command_max=_opt_float(actuator.get("command_max")),
+            thruster_id=None if meta.get("thruster_id") is None else str(meta["thruster_id"]),
+            propeller_diameter_m=_opt_float(meta.get("propeller_diameter_m")),
+            water_density_kg_m3=_opt_float(meta.get("water_density_kg_m3")),
+            rig_name=(run.get("rig") or {}).get("name"), metadata=run.get("metadata") or {},
+            protocol=protocol, rig=run.get("rig") or {})
+
+    def points(self, run_id: str) -> dict[str, np.ndarray]:
+        """A run's stored points as columns under POINT_COLUMNS' public names, in plan order."""
+        names = list(POINT_COLUMNS)
+        rows = self.conn.execute(
+            f"SELECT {', '.join(POINT_COLUMNS.values())} FROM steps WHERE run_id = ? "
+            "ORDER BY idx", (run_id,)).fetchall()
+        out = {}
+        for i, name in enumerate(names):
+            values = [r[i] for r in rows]
+            if name in TEXT_POINT_COLUMNS:
+                out[name] = np.array(values, dtype=str)
+            elif name in INT_POINT_COLUMNS:
+                out[name] = np.array(values, dtype=np.int64)
+            else:
+                out[name] = np.array([np.nan if v is None else v for v in values], dtype=float)
+        return out
+
+    def sample_arrays(self, run_id: str, columns: Iterable[str] | None = None,
+                      steps: Iterable[int] | None = None) -> dict[str, np.ndarray]:
+        """Samples of a run (or of the points whose plan index is in `steps`) as columns:
+        `step_idx` (the plan index) and `seq` as int64 (MISSING_INT where unrecorded), every
+        other column float64 with NaN for NULL; in acquisition order."""
+        chunks = list(self.iter_samples(run_id, columns, steps))
+        if not chunks:
+            return self._sample_columns([], self._sample_names(columns))
+        return {c: np.concatenate([ch[c] for ch in chunks]) for c in chunks[0]}
+
+    def iter_samples(self, run_id: str, columns: Iterable[str] | None = None,
+                     steps: Iterable[int] | None = None, batch: int = 100_000
+                     ) -> Iterator[dict[str, np.ndarray]]:
+        """`sample_arrays` in chunks of at most `batch` rows, for exports of any size."""
+        cols = self._sample_names(columns)
+        sql = (f"SELECT st.idx{''.join(', s.' + c for c in cols[1:])} FROM samples s "
+               "JOIN steps st ON st.id = s.step_id WHERE st.run_id = ?")
+        args: list[Any] = [run_id]
+        if steps is not None:
+            wanted = sorted({int(i) for i in steps})
+            sql += f" AND st.idx IN ({', '.join('?' * len(wanted))})"
+            args += wanted
+        cur = self.conn.execute(sql + " ORDER BY s.rowid", args)
+        while rows := cur.fetchmany(batch):
+            yield self._sample_columns(rows, cols)
+
+    @staticmethod
+    def _sample_names(columns: Iterable[str] | None) -> list[str]:
+        cols = ["step_idx", *(c for c in (columns or SAMPLE_COLUMNS[1:]) if c != "step_idx")]
+        _checked_columns(cols[1:])
+        return cols
+
+    @staticmethod
+    def _sample_columns(rows: list[tuple], cols: list[str]) -> dict[str, np.ndarray]:
+        data = np.array(rows, dtype=float).reshape(len(rows), len(cols))
+        out = {}
+        for i, c in enumerate(cols):
+            if c in INT_SAMPLE_COLUMNS:
+                out[c] = np.where(np.isnan(data[:, i]), MISSING_INT, data[:, i]).astype(np.int64)
+            else:
+                out[c] = np.ascontiguousarray(data[:, i])
+        return out
+
+    def run_ids(self) -> list[str]:
+        """Every run id, oldest first."""
+        return [r[0] for r in self.conn.execute("SELECT id FROM runs ORDER BY id")]
 
     def runs(self, limit: int = 50) -> list[dict]:
         return list(self.db.query(
@@ -612,12 +796,31 @@ class Store:
                 problems.append(idx)
         return {"totals": totals, "problem_points": problems}
 
+    def latest_calibration(self, run_id: str) -> dict | None:
+        """The run's most recent calibration record (with its `state` blob, None for one
+        stored before schema v6), or None when it was never calibrated."""
+        row = self.conn.execute(
+            "SELECT id, created_utc, tool_version, out_dir, summary_json, state "
+            "FROM calibrations WHERE run_id = ? ORDER BY id DESC LIMIT 1", (run_id,)).fetchone()
+        if row is None:
+            return None
+        keys = ("id", "created_utc", "tool_version", "out_dir", "summary", "state")
+        out = dict(zip(keys, row, strict=True))
+        out["summary"] = json.loads(out["summary"])
+        return out
+
+    def step_samples(self, step_id: int, columns: Iterable[str] = ("t_s", "thrust_n")
+                     ) -> dict[str, np.ndarray]:
+        """The samples of one stored point as float arrays (NULL -> NaN), in time order."""
+        cols = _checked_columns(columns)
+        rows = self.conn.execute(f"SELECT {', '.join(cols)} FROM samples WHERE step_id = ? "
+                                 "ORDER BY rowid", (step_id,)).fetchall()
+        data = np.array(rows, dtype=float).reshape(len(rows), len(cols))
+        return {c: data[:, i] for i, c in enumerate(cols)}
+
     def samples(self, run_id: str, columns: Iterable[str] = SAMPLE_COLUMNS) -> dict[str, np.ndarray]:
         """All samples of a run as float arrays (NULL -> NaN), ordered by step then time."""
-        cols = list(columns)
-        bad = set(cols) - set(SAMPLE_COLUMNS)
-        if bad:
-            raise ValueError(f"unknown sample columns {sorted(bad)}")
+        cols = _checked_columns(columns)
         cur = self.conn.execute(
             f"SELECT {', '.join('s.' + c for c in cols)} FROM samples s "
             "JOIN steps st ON st.id = s.step_id WHERE st.run_id = ? ORDER BY s.rowid",
@@ -628,6 +831,42 @@ class Store:
             return {c: np.empty(0) for c in cols}
         data = np.array(rows, dtype=float)
         return {c: data[:, i] for i, c in enumerate(cols)}
+
+
+def _columns_of(conn: sqlite3.Connection, table: str) -> list[str]:
+    return [r[1] for r in conn.execute(f"PRAGMA main.table_info({table})")]
+
+
+def _copy_run(conn: sqlite3.Connection, run_id: str) -> None:
+    """Copy one run from the attached database `src` into `main`, giving its points new ids."""
+    def copy(table: str, where: str, skip: tuple[str, ...] = ("id",)) -> None:
+        cols = ", ".join(c for c in _columns_of(conn, table) if c not in skip)
+        conn.execute(f"INSERT INTO main.{table} ({cols}) SELECT {cols} FROM src.{table} {where}",
+                     (run_id,))
+
+    copy("runs", "WHERE id = ?", skip=())
+    copy("steps", "WHERE run_id = ?")
+    copy("events", "WHERE run_id = ?")
+    copy("calibrations", "WHERE run_id = ?")
+    sample_cols = [c for c in _columns_of(conn, "samples") if c != "step_id"]
+    conn.execute(
+        f"INSERT INTO main.samples (step_id, {', '.join(sample_cols)}) "
+        f"SELECT m.id, {', '.join('s.' + c for c in sample_cols)} FROM src.samples s "
+        "JOIN src.steps ss ON ss.id = s.step_id "
+        "JOIN main.steps m ON m.run_id = ss.run_id AND m.idx = ss.idx "
+        "WHERE ss.run_id = ? ORDER BY s.rowid", (run_id,))
+
+
+def _opt_float(value: object) -> float | None:
+    return None if value is None else float(value)  # type: ignore[arg-type]
+
+
+def _checked_columns(columns: Iterable[str]) -> list[str]:
+    cols = list(columns)
+    bad = set(cols) - set(SAMPLE_COLUMNS)
+    if bad:
+        raise ValueError(f"unknown sample columns {sorted(bad)}")
+    return cols
 
 
 class _Transaction:

@@ -10,7 +10,7 @@ import pytest
 
 import rigtool
 from rigtool.analysis.calibrate import calibrate_run
-from rigtool.artefacts import write_artefacts
+from rigtool.artefacts.calibration import write_artefacts
 from rigtool.store import StepRecord, Store
 
 CP_FWD, CP_REV, CN, I0 = 1.926e-5, 0.8 * 1.926e-5, 1.2e-9, 0.3

@@ -21,7 +21,7 @@ from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation
 from rigtool.analysis.dataset import load_run
 from rigtool.analysis.gp import GpParams, fit_exact, fit_hetero
 from rigtool.analysis.qctm_export import model_document
-from rigtool.cavitation_artefacts import write_cavitation_artefacts
+from rigtool.artefacts.cavitation import write_cavitation_artefacts
 from rigtool.cli import main
 from rigtool.models import (
     CLAMPED,
@@ -98,7 +98,7 @@ def twin(tmp_path_factory) -> tuple[Path, dict, Betm]:
     train = _sweep(tmp, CAV, "cav.yaml", 31)
     test = _sweep(tmp, CAV, "cav.yaml", 32)
     store = Store(tmp / "db.sqlite")
-    res = calibrate_cavitation(store, train, base, None, PARAMS)
+    res = calibrate_cavitation(store, train, base, PARAMS)
     write_cavitation_artefacts(res, tmp / "out", created_utc="2026-01-01T00:00:00+00:00")
     b = block_means(load_run(store, test), PARAMS.train_block_s)
     rec = {"speed": b.speed_rpm, "current": b.current_a, "depth": b.depth_m,

@@ -73,12 +73,11 @@ def test_shallow_run_without_feedback_is_an_ordinary_calibration(tmp_path, capsy
 def test_base_for_a_run_without_feedback_is_a_one_line_error(tmp_path, capsys):
     run = _sweep(tmp_path, STM32_SMALL, "pwm")
     capsys.readouterr()
-    for command in ("calibrate", "report"):
-        assert _cli(tmp_path, command, run, "--base", run) == 2
-        err = capsys.readouterr().err
-        assert err.count("\n") == 1 and "Traceback" not in err
-        assert err.startswith(f"rigtool: error: --base {run}: ")
-        assert f"run {run} has no speed and current feedback" in err
+    assert _cli(tmp_path, "calibrate", run, "--base", run) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith(f"rigtool: error: --base {run}: ")
+    assert f"run {run} has no speed and current feedback" in err
     assert not (tmp_path / "out").exists()
 
 
@@ -90,7 +89,7 @@ def test_base_run_must_be_deep_with_speed_and_current(tmp_path, capsys):
     assert _cli(tmp_path, "calibrate", shallow, "--base", deep_pwm) == 2
     err = capsys.readouterr().err
     assert "not usable as a base run" in err and f"run {deep_pwm} has no speed and current" in err
-    assert _cli(tmp_path, "report", shallow, "--base", shallow) == 2
+    assert _cli(tmp_path, "calibrate", shallow, "--base", shallow) == 2
     assert f"run {shallow} is not deep" in capsys.readouterr().err
 
 

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from rigtool.cli import main
-from rigtool.compare import ThrusterCurve, compare_curves, compare_runs
+from rigtool.compare import ThrusterCurve, compare_curves
 from rigtool.progress import SilentReporter
 from rigtool.store import Store
 from rigtool.sweep import resolve, run_sweep
+from rigtool.workflows import compare
 
 PROTOCOL = """\
 rigtool_protocol: 1
@@ -55,10 +56,11 @@ def sim_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]]
 
 
 @pytest.mark.parametrize("reference", [None, 0])
-def test_corrections_bring_thrusters_within_two_percent(sim_runs, reference) -> None:
+def test_corrections_bring_thrusters_within_two_percent(sim_runs, reference, tmp_path) -> None:
     db, ids = sim_runs
     store = Store(db, create=False)
-    result = compare_runs(store, ids, None if reference is None else ids[reference])
+    result, _ = compare(store, ids, None if reference is None else ids[reference],
+                        tmp_path / "compare")
     assert result.spread_before > 0.15
     assert result.spread_after <= 0.02
     assert {m.branch for m in result.matches} == {"forward", "reverse"}
@@ -69,9 +71,9 @@ def test_corrections_bring_thrusters_within_two_percent(sim_runs, reference) -> 
         assert np.all(np.abs(stack) >= m.thrust_lo_n * 0.9)
 
 
-def test_weaker_thruster_gets_a_wider_command(sim_runs) -> None:
+def test_weaker_thruster_gets_a_wider_command(sim_runs, tmp_path) -> None:
     db, ids = sim_runs
-    result = compare_runs(Store(db, create=False), ids, ids[0])
+    result, _ = compare(Store(db, create=False), ids, ids[0], tmp_path / "compare")
     weak = next(c for c in result.corrections if c.run_id == ids[1] and c.branch == "forward")
     ref = next(c for c in result.corrections if c.run_id == ids[0] and c.branch == "forward")
     assert weak.a > 1.0 and weak.apply(np.array([1700.0]))[0] > 1700.0

@@ -3,6 +3,7 @@ names, run-id references, ids that are paths, a full disk, and exports taken mid
 
 from __future__ import annotations
 
+import csv
 import os
 import resource
 import signal
@@ -216,8 +217,10 @@ def test_export_reads_one_snapshot_while_a_sweep_appends(swept, tmp_path):
     paths = export_run(store, run_id, tmp_path / "exp")
     store.conn.set_trace_callback(None)
     assert appended
-    points = paths[0].read_text().splitlines()[1:]
-    sample_points = {line.split(",")[0] for line in paths[1].read_text().splitlines()[1:]}
-    assert {line.split(",")[0] for line in points} == sample_points
+    with paths[0].open() as fh:
+        points = {row["step_idx"] for row in csv.DictReader(fh)}
+    with paths[1].open() as fh:
+        sample_points = {row["step_idx"] for row in csv.DictReader(fh)}
+    assert points == sample_points
     store.close()
     writer.close()

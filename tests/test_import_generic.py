@@ -61,6 +61,9 @@ def test_cli_cols_single_sample_points_with_zero_band(tmp_path: Path, capsys) ->
     (lo, hi), = cal.sections[0].curve.dead_zones
     assert 1460 <= lo <= 1480 and 1520 <= hi <= 1540
     out = tmp_path / "cal"
+    assert main(["report", "last", "--out", str(out), "--db", db]) == 2
+    assert "has not been calibrated" in capsys.readouterr().err
+    assert main(["calibrate", "last", "--out", str(out), "--db", db]) == 0
     assert main(["report", "last", "--out", str(out), "--db", db]) == 0
     assert "data:image/svg+xml" in next(out.glob("*/report.html")).read_text()
 

@@ -16,6 +16,7 @@ from rigtool.report.html import fmt_num, fmt_unit
 from rigtool.run_warnings import group_by_depth
 from rigtool.store import Store
 from rigtool.sweep import resolve, run_sweep
+from rigtool.workflows import calibrate, report
 
 CAN_PROTOCOL = """\
 rigtool_protocol: 1
@@ -102,14 +103,16 @@ def _sweep(tmp: Path, name: str, text: str) -> tuple[Store, str]:
 def can_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Store, str]:
     tmp = tmp_path_factory.mktemp("can")
     store, run_id = _sweep(tmp, "can", CAN_PROTOCOL.format(start=-100, tare="per_point", max_thrust=90))
-    return write_report(store, run_id, tmp / "out" / run_id), store, run_id
+    calibrate(store, run_id, tmp / "out")
+    return report(store, run_id, tmp / "out"), store, run_id
 
 
 @pytest.fixture(scope="module")
 def pwm_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Store, str]:
     tmp = tmp_path_factory.mktemp("pwm")
     store, run_id = _sweep(tmp, "pwm", PWM_PROTOCOL)
-    return write_report(store, run_id, tmp / "out"), store, run_id
+    calibrate(store, run_id, tmp / "out")
+    return report(store, run_id, tmp / "out"), store, run_id
 
 
 def test_report_is_self_contained(can_report):
@@ -167,7 +170,8 @@ def test_aborted_run_reports_its_warnings(tmp_path):
     text = CAN_PROTOCOL.format(start=0, tare="at_start", max_thrust=35)
     store, run_id = _sweep(tmp_path, "abort", text)
     assert store.run(run_id)["status"] == "aborted" and store.steps(run_id)
-    _, page = _parse(write_report(store, run_id, tmp_path / "out"))
+    calibrate(store, run_id, tmp_path / "out")
+    _, page = _parse(report(store, run_id, tmp_path / "out"))
     warnings = " ".join(page.text)
     assert "Warnings (" in warnings
     assert "Run aborted: limit trip" in warnings and "limit_trip at t =" in warnings
@@ -181,7 +185,7 @@ def test_run_without_points_still_reports(tmp_path):
                               metadata={}, seed=None, command_unit="percent",
                               tool_version="test")
     store.finish_run(run_id, "failed", "no rig")
-    html, page = _parse(write_report(store, run_id, tmp_path / "out"))
+    html, page = _parse(report(store, run_id, tmp_path / "out"))
     assert "Run failed: no rig" in html and "nothing to calibrate" in html
     assert not page.by_attr("data-figure")
 

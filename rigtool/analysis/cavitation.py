@@ -58,6 +58,10 @@ Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                      tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
+IN_SAMPLE_NOTE = ("partly in-sample: each fold is refitted on the other fold's points, but the "
+                  "hyperparameters, noise model and mean term come from the fit on all points; "
+                  "held-out runs (benchmarks/bench_cavitation.py) give the honest figures")
+
 @dataclass(frozen=True)
 class CavitationParams:
     """Every option of the quasi-cavitation analysis (written to cavitation.json)."""
@@ -491,19 +495,14 @@ ONE_RUN_WARNING = ("the model is trained on this one run: on new twin runs, one 
 
 
 def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
-                         out_dir: object = None,
                          params: CavitationParams | None = None,
-                         store_events: bool = True,
                          train_with: Sequence[str] = ()) -> CavitationResult:
-    """Full quasi-cavitation analysis of `run_id`; stores its "ventilation" events unless
-    `store_events` is False (the report reads, `calibrate` writes). The model is trained on
-    `run_id` and the runs `train_with` (full ids, see `training_runs`): with two runs or
-    more, held-out twin runs met the accuracy targets; with one, not always.
+    """Full quasi-cavitation analysis of `run_id` (reads the store, never writes: the detected
+    events are in the result for the caller to store). The model is trained on `run_id` and
+    the runs `train_with` (full ids, see `training_runs`): with two runs or more, held-out
+    twin runs met the accuracy targets; with one, not always.
 
     UsageError when the analysis does not apply or no base run is usable (`cavitation_stage`).
-
-    `out_dir` is accepted for the CLI's convenience and not used: write the files with
-    `cavitation_artefacts.write_cavitation_artefacts`.
     """
     p = params or CavitationParams()
     stage = cavitation_stage(store, run_id, base_run_id)
@@ -514,8 +513,6 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
     run = load_run(store, run_id)
     events, det_blocks = find_events(run, betm, p)
     records = event_records(run, events)
-    if store_events:
-        _store_events(store, run_id, records)
     table = event_table(run, det_blocks, records)
 
     all_blocks, scale = training_blocks(run, betm, events, p)
@@ -589,13 +586,6 @@ def _two_fold(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: B
               "command": blocks.command, "point": blocks.point}
     return ev, series
 
-
-def _store_events(store: Store, run_id: str, records: list[dict]) -> None:
-    """Replace the run's "ventilation" events by `records` (a rerun must not duplicate them)."""
-    with store.transaction():
-        store.conn.execute("DELETE FROM events WHERE run_id = ? AND kind = ?", (run_id, EVENT_KIND))
-    for r in records:
-        store.add_event(run_id, EVENT_KIND, r, t_s=r["t_start_s"], step_idx=r["step_idx"])
 
 
 def train_model(store: Store, run_ids: list[str], base_run_id: str,

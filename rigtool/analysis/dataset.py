@@ -15,7 +15,6 @@ from rigtool.store import Store
 
 SAMPLE_FIELDS = ("t_s", "thrust_n", "speed_rpm", "current_a")
 FT_FIELDS = ("fx", "fy", "fz", "tx", "ty", "tz")
-NEUTRAL_BY_UNIT = {"percent": 0.0, "pwm_counts": 0.0, "pulse_us": 1500.0, "rpm": 0.0, "amps": 0.0}
 _AXIS_FIT_STEPS = 24  # points sampled to recover the thrust axis from the F/T channels
 
 
@@ -88,7 +87,7 @@ def load_run(store: Store, run_id: str) -> RunData:
 
 
 def _load_run(store: Store, run_id: str) -> RunData:
-    run = store.run(run_id)
+    record = store.run_record(run_id)
     step_rows = store.steps(run_id)
     if not step_rows:
         raise UsageError(f"run {run_id} has no recorded points: nothing to calibrate")
@@ -97,20 +96,15 @@ def _load_run(store: Store, run_id: str) -> RunData:
     events = store.events(run_id)
     tare_rows = [e for e in events if e["kind"] == "tare"]
     tares = _tares(store, tare_rows, steps, step_rows)
-
-    protocol = run.get("protocol") or {}
-    command = protocol.get("command") or {}
-    meta = {**(protocol.get("metadata") or {}), **(run.get("metadata") or {})}
-    unit = run.get("command_unit") or command.get("unit") or "percent"
     return RunData(
         run_id=run_id,
-        name=run.get("name", ""),
-        status=run.get("status", ""),
-        command_unit=unit,
-        neutral_command=_neutral(run, unit),
-        thruster_id=_opt_str(meta.get("thruster_id")),
-        propeller_diameter_m=_opt_float(meta.get("propeller_diameter_m")),
-        water_density_kg_m3=_opt_float(meta.get("water_density_kg_m3")),
+        name=record.name,
+        status=record.status,
+        command_unit=record.command_unit,
+        neutral_command=record.neutral,
+        thruster_id=record.thruster_id,
+        propeller_diameter_m=record.propeller_diameter_m,
+        water_density_kg_m3=record.water_density_kg_m3,
         steps=steps,
         samples=samples,
         tares=tares,
@@ -118,22 +112,10 @@ def _load_run(store: Store, run_id: str) -> RunData:
     )
 
 
-def _neutral(run: dict, unit: str) -> float:
-    """Neutral command of the actuator the run recorded; older and imported runs fall back to
-    the protocol's `command.neutral`, then to the usual neutral of the unit."""
-    recorded = (run.get("actuator") or {}).get("neutral")
-    if recorded is not None:
-        return float(recorded)
-    command = (run.get("protocol") or {}).get("command") or {}
-    return float(command.get("neutral", NEUTRAL_BY_UNIT.get(unit, 0.0)))
 
 
-def _opt_float(value: object) -> float | None:
-    return None if value is None else float(value)  # type: ignore[arg-type]
 
 
-def _opt_str(value: object) -> str | None:
-    return None if value is None else str(value)
 
 
 def _steps(rows: list[dict]) -> Steps:
@@ -198,10 +180,8 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
         return None
     pick = np.unique(np.linspace(0, len(rows) - 1, min(_AXIS_FIT_STEPS, len(rows))).astype(int))
     ids = [int(rows[i]["id"]) for i in pick]
-    cur = store.conn.execute(
-        f"SELECT {', '.join(FT_FIELDS)}, thrust_n FROM samples "
-        f"WHERE step_id IN ({', '.join('?' * len(ids))})", ids)
-    data = np.array(cur.fetchall(), dtype=float)
+    parts = [store.step_samples(i, (*FT_FIELDS, "thrust_n")) for i in ids]
+    data = np.concatenate([np.column_stack(list(p.values())) for p in parts])
     if data.size == 0:
         return None
     cols = np.flatnonzero(usable & np.isfinite(data[:, :6]).all(axis=0))

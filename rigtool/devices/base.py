@@ -13,7 +13,6 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 FT_CHANNELS = ("fx", "fy", "fz", "tx", "ty", "tz")
-COMMAND_UNITS = ("percent", "pwm_counts", "pulse_us", "rpm", "amps")
 
 
 @dataclass

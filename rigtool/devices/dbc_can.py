@@ -23,10 +23,11 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from rigtool.bounds import Baudrate, Command, PositiveSeconds, Scale, Seconds
-from rigtool.devices.base import COMMAND_UNITS, ActuatorInfo, FeedbackBlock
+from rigtool.devices.base import ActuatorInfo, FeedbackBlock
 from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer, check_keepalive
 from rigtool.errors import DeviceError, UsageError
 from rigtool.files import MAX_DBC_BYTES, UnreadableFile, read_regular_bytes
+from rigtool.units import COMMAND_UNITS
 
 log = logging.getLogger(__name__)
 

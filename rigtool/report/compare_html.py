@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import jinja2
@@ -10,10 +9,12 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import rigtool
+from rigtool.artefacts.write import atomic_write
 from rigtool.compare import CompareResult
 from rigtool.report import figures as fg
-from rigtool.report.html import UNIT_LABEL, fmt_num
+from rigtool.report.html import fmt_num
 from rigtool.store import utc_now
+from rigtool.units import unit_label
 
 REPORT_FILE = "compare.html"
 SIZE = (7.2, 3.8)
@@ -61,7 +62,7 @@ def deviation_figure(result: CompareResult, unit: str, after: bool) -> Figure:
 
 def render_compare(result: CompareResult, image_format: str = "svg") -> str:
     """The comparison as one HTML string (figures embedded as data: URIs)."""
-    unit = UNIT_LABEL.get(result.command_unit, result.command_unit)
+    unit = unit_label(result.command_unit)
     with fg.style():
         figures = [
             ("Command curves", fg.encode(curves_figure(result, unit), image_format)),
@@ -82,8 +83,4 @@ def render_compare(result: CompareResult, image_format: str = "svg") -> str:
 def write_compare_report(result: CompareResult, out_dir: Path, image_format: str = "svg") -> Path:
     """Write `out_dir`/compare.html and return its path."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / REPORT_FILE
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(render_compare(result, image_format), encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return atomic_write(out_dir / REPORT_FILE, render_compare(result, image_format))

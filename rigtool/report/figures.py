@@ -88,7 +88,7 @@ def encode(fig: Figure, fmt: str = "svg", dpi: int = 110) -> str:
     return f"data:{mime};base64,{base64.b64encode(buf.getvalue()).decode('ascii')}"
 
 
-def _figure(size: tuple[float, float], *, below_in: float = 0.0, hspace: float = 0.1) -> Figure:
+def figure(size: tuple[float, float], *, below_in: float = 0.0, hspace: float = 0.1) -> Figure:
     """A figure with fixed margins in inches (a layout engine would double the render time)."""
     w, h = size
     fig = Figure(figsize=size)
@@ -143,7 +143,7 @@ def _cp_model(fits: dict[str, Coefficient], n: np.ndarray) -> np.ndarray:
 def thrust_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
     """Thrust vs propeller speed with the C_p |n| n fits, and a residuals panel below; thrust
     is taken relative to the estimated sensor zero (offset and drift), as the fit saw it."""
-    fig = _figure(TALL, hspace=0.08)
+    fig = figure(TALL, hspace=0.08)
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1.3])
     n, f = points.speed_signed_rpm, points.thrust_corrected_n
     used = points.used_in_fits
@@ -175,7 +175,7 @@ def thrust_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
 
 def current_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
     """Motor current vs propeller speed with I = C_n |n|^3 + I_0 (and the free-exponent fit)."""
-    fig = _figure(WIDE)
+    fig = figure(WIDE)
     ax = fig.subplots()
     n, cur = points.speed_signed_rpm, points.current.mean.copy()
     rev = points.used_in_fits & (n < 0) & np.isfinite(cur)
@@ -255,7 +255,7 @@ def command_curve(curve: CommandCurve, unit: str) -> Figure:
     """
     zoom = zoom_range(curve)
     size = (TALL[0], TALL[1] + (2.6 if zoom else 0.0))
-    fig = _figure(size, hspace=0.35)
+    fig = figure(size, hspace=0.35)
     axes = fig.subplots(2 if zoom else 1, 1, squeeze=False)[:, 0]
     for ax in axes:
         _draw_curve(ax, curve, unit)
@@ -276,7 +276,7 @@ def command_curve(curve: CommandCurve, unit: str) -> Figure:
 
 def inverse_map(curve: CommandCurve, unit: str) -> Figure:
     """Command vs thrust over each branch's usable range (the inverse lookup table)."""
-    fig = _figure(SMALL)
+    fig = figure(SMALL)
     ax = fig.subplots()
     for b in curve.branches:
         if b.lut_thrust_n.size:
@@ -292,7 +292,7 @@ def inverse_map(curve: CommandCurve, unit: str) -> Figure:
 
 def hysteresis(h: Hysteresis, unit: str) -> Figure:
     """Up-sweep minus down-sweep thrust vs command, with 95 % error bars."""
-    fig = _figure(WIDE)
+    fig = figure(WIDE)
     ax = fig.subplots()
     ax.errorbar(h.command, h.diff_n, yerr=1.96 * np.nan_to_num(h.diff_se_n), fmt="o-",
                 color=FWD, lw=0.8, capsize=2)
@@ -305,7 +305,7 @@ def hysteresis(h: Hysteresis, unit: str) -> Figure:
 
 def spread(points: PointTable, unit: str) -> Figure:
     """Per-point standard deviation and |max − mean| of the thrust over the steady window."""
-    fig = _figure(WIDE)
+    fig = figure(WIDE)
     ax = fig.subplots()
     t = points.thrust
     ok = points.status == "ok"
@@ -327,7 +327,7 @@ def spread(points: PointTable, unit: str) -> Figure:
 
 def tare_drift(drift: TareDrift) -> Figure:
     """Thrust-channel tare bias (relative to the first tare) vs time, with the linear trend."""
-    fig = _figure(WIDE)
+    fig = figure(WIDE)
     ax = fig.subplots()
     span_h = float(np.ptp(drift.t_s)) / 3600.0
     scale, tunit = (3600.0, "h") if span_h >= 2 else (60.0, "min")
@@ -361,7 +361,7 @@ def time_series(traces: Sequence[Trace]) -> Figure:
     """Thrust vs time within each chosen point, steady window shaded, window mean dashed."""
     panel_in, legend_in = 1.45, 0.35
     size = (7.2, 0.8 + legend_in + panel_in * len(traces))
-    fig = _figure(size, below_in=legend_in, hspace=0.5)
+    fig = figure(size, below_in=legend_in, hspace=0.5)
     axes = fig.subplots(len(traces), 1, squeeze=False)[:, 0]
     for ax, tr in zip(axes, traces, strict=True):
         end = float(tr.t_s[-1]) if tr.t_s.size else 1.0

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
 import re
 from collections import Counter
 from collections.abc import Sequence
@@ -15,16 +14,16 @@ import numpy as np
 from markupsafe import Markup
 
 import rigtool
-from rigtool.analysis.calibrate import Calibration, DepthSection, calibrate_run
+from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.steady import PointTable
+from rigtool.artefacts.write import atomic_write
 from rigtool.report import figures as fg
 from rigtool.run_warnings import run_warnings
 from rigtool.store import Store, utc_now
+from rigtool.units import unit_label
 
 VENTILATION_KIND = "sim.ventilation"
-UNIT_LABEL = {"percent": "%", "pwm_counts": "PWM counts", "pulse_us": "µs", "rpm": "r/min",
-              "amps": "A"}
 REPORT_FILE = "report.html"
 IMAGE_FORMATS = ("svg", "png")
 
@@ -56,16 +55,13 @@ class SectionView:
 def write_report(store: Store, run_id: str, out_dir: Path,
                  calibration: Calibration | None = None, *, image_format: str = "svg",
                  cavitation: object | None = None, extra_warnings: Sequence[str] = ()) -> Path:
-    """Write `out_dir`/report.html for `run_id` (calibrating it unless given) and return the path."""
+    """Write `out_dir`/report.html for `run_id` from its calibration results (None: the run has
+    no points) and return the path."""
     text = render_report(store, run_id, calibration, image_format=image_format,
                          cavitation=cavitation, extra_warnings=extra_warnings)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / REPORT_FILE
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return atomic_write(out / REPORT_FILE, text)
 
 
 def render_report(store: Store, run_id: str, calibration: Calibration | None = None, *,
@@ -79,9 +75,7 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
     steps = store.steps(run_id)
     events = store.events(run_id)
     cal = calibration
-    if cal is None and steps:
-        cal = calibrate_run(store, run_id)
-    unit = UNIT_LABEL.get(run["command_unit"], run["command_unit"])
+    unit = unit_label(run["command_unit"])
     sections: list[SectionView] = []
     drift: FigureItem | None = None
     with fg.style():
@@ -96,12 +90,12 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
                                                  suffix, image_format))
                 sections.append(view)
             drift = _drift_figure(cal, events, image_format)
-    cav_html = Markup("")
+    cav = None
     if cavitation is not None:
-        from rigtool.cavitation_artefacts import cavitation_section_html
+        from rigtool.report.cavitation import cavitation_view
 
-        cav_html = Markup(cavitation_section_html(cavitation, image_format))  # type: ignore[arg-type]
-    return _template().render(cavitation=cav_html,
+        cav = cavitation_view(cavitation, image_format)
+    return _template().render(cav=cav,
         run=run, meta=_meta_rows(run, steps, cal), protocol=_flatten(run.get("protocol") or {}),
         warnings=run_warnings(run, events, cal, extra_warnings), events=_event_counts(events),
         cal=cal, sections=sections, drift=drift, unit=unit, generated=utc_now(),
@@ -173,7 +167,7 @@ def _meta_rows(run: dict, steps: list[dict], cal: Calibration | None) -> list[tu
     command = protocol.get("command") or {}
     plan = run.get("plan") or steps
     commands = sorted({float(s["command"]) for s in plan})
-    unit = UNIT_LABEL.get(run["command_unit"], run["command_unit"])
+    unit = unit_label(run["command_unit"])
     depths = sorted({s["depth_m"] for s in plan if s.get("depth_m") is not None})
     status = run["status"] + (f": {run['stop_reason']}" if run.get("stop_reason") else "")
     rows = [
@@ -382,10 +376,8 @@ def chosen_points(points: PointTable) -> list[tuple[int, str]]:
 
 
 def _step_trace(store: Store, step_id: int) -> tuple[np.ndarray, np.ndarray]:
-    rows = store.conn.execute(
-        "SELECT t_s, thrust_n FROM samples WHERE step_id = ? ORDER BY rowid", (step_id,)).fetchall()
-    data = np.array(rows, dtype=float).reshape(-1, 2)
-    return data[:, 0], data[:, 1]
+    data = store.step_samples(step_id, ("t_s", "thrust_n"))
+    return data["t_s"], data["thrust_n"]
 
 
 def _time_series(store: Store, sec: DepthSection, step_ids: dict[int, int],

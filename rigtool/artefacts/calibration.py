@@ -8,17 +8,15 @@ the files (each one written to a temporary name, then renamed).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.fits import Coefficient
+from rigtool.artefacts.write import MISSING, atomic_write, csv_text, json_clean, json_text
 from rigtool.outpaths import run_folder
 from rigtool.store import utc_now
 
@@ -30,7 +28,6 @@ FILES = {
     "command_curve": "command_curve.csv",
     "inverse_lut": "inverse_lut.csv",
 }
-MISSING = "nan"
 COMMAND_UNIT = "<command unit>"
 
 
@@ -47,20 +44,13 @@ def write_artefacts(cal: Calibration, out_dir: str | Path,
     head = [f"rigtool {cal.tool_version} calibration of run {cal.run_id}, created {created}",
             f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
     texts = {
-        "calibration": json.dumps(calibration_document(cal, created), indent=2,
-                                  sort_keys=True, allow_nan=False) + "\n",
-        "points": _csv(head + POINTS_DOC, _units(POINT_COLUMNS, cal), _point_rows(cal)),
-        "command_curve": _csv(head + CURVE_DOC, _units(CURVE_COLUMNS, cal), _curve_rows(cal)),
-        "inverse_lut": _csv(head + LUT_DOC, _units(LUT_COLUMNS, cal), _lut_rows(cal)),
+        "calibration": json_text(calibration_document(cal, created)),
+        "points": csv_text(head + POINTS_DOC, _units(POINT_COLUMNS, cal), _point_rows(cal)),
+        "command_curve": csv_text(head + CURVE_DOC, _units(CURVE_COLUMNS, cal),
+                                  curve_rows(cal)),
+        "inverse_lut": csv_text(head + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal)),
     }
-    paths = []
-    for key, text in texts.items():
-        path = target / FILES[key]
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(text, encoding="utf-8", newline="\n")
-        os.replace(tmp, path)
-        paths.append(path)
-    return paths
+    return [atomic_write(target / FILES[key], text) for key, text in texts.items()]
 
 
 def calibration_document(cal: Calibration, created_utc: str) -> dict:
@@ -68,7 +58,7 @@ def calibration_document(cal: Calibration, created_utc: str) -> dict:
     all_points = [s.points for s in cal.sections]
     start = np.concatenate([p.window_start_s for p in all_points])
     kept = np.concatenate([p.kept_fraction for p in all_points])
-    return _clean({
+    return json_clean({
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "tool_version": cal.tool_version,
@@ -160,22 +150,6 @@ def _section_doc(sec: DepthSection) -> dict:
     }
 
 
-def _clean(obj: Any) -> Any:
-    """JSON-safe, deterministic: numpy scalars to Python, floats to 10 significant digits,
-    NaN/inf to null."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, bool | np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        x = float(obj)
-        return float(f"{x:.10g}") if math.isfinite(x) else None
-    return obj
-
 
 # -- CSV --------------------------------------------------------------------------------------
 
@@ -238,27 +212,6 @@ def _units(columns: Sequence[tuple[str, str, str]], cal: Calibration) -> list[tu
             for name, unit, text in columns]
 
 
-def _fmt(v: object) -> str:
-    if isinstance(v, bool | np.bool_):
-        return "1" if v else "0"
-    if isinstance(v, int | np.integer):
-        return str(int(v))
-    if isinstance(v, float | np.floating):
-        x = float(v)
-        if not math.isfinite(x):
-            return MISSING
-        s = f"{x:.9g}"
-        return "0" if s == "-0" else s
-    return str(v).replace(",", ";")
-
-
-def _csv(comments: Sequence[str], columns: Sequence[tuple[str, str, str]],
-         rows: Iterable[Sequence[object]]) -> str:
-    lines = [f"# {line}" for c in comments for line in (str(c).splitlines() or [""])]
-    lines += [f"# {name}{f' [{unit}]' if unit else ''}: {text}" for name, unit, text in columns]
-    lines.append(",".join(name for name, _, _ in columns))
-    lines += [",".join(_fmt(v) for v in row) for row in rows]
-    return "\n".join(lines) + "\n"
 
 
 def _depth(sec: DepthSection) -> float:
@@ -281,7 +234,7 @@ def _point_rows(cal: Calibration) -> Iterable[list[object]]:
             yield row
 
 
-def _curve_rows(cal: Calibration) -> Iterable[list[object]]:
+def curve_rows(cal: Calibration) -> Iterable[list[object]]:
     for sec in cal.sections:
         c = sec.curve
         if c is None:
@@ -293,7 +246,7 @@ def _curve_rows(cal: Calibration) -> Iterable[list[object]]:
                    float(c.current_mean_a[i])]
 
 
-def _lut_rows(cal: Calibration) -> Iterable[list[object]]:
+def lut_rows(cal: Calibration) -> Iterable[list[object]]:
     for sec in cal.sections:
         if sec.curve is None:
             continue

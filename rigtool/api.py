@@ -1,0 +1,360 @@
+"""rigtool as a library: runs, points, samples and calibrations for notebooks (docs/api.md).
+
+    lab = rigtool.open("rigtool.sqlite")
+    run = lab.run("last")
+    run.points()["thrust_mean_n"]
+    cal = rigtool.load_calibration("calibrations/<run-id>")
+    cal.command(20.0)
+
+Column names are those of points.csv and of `rigtool export`. Arrays are numpy; every table
+has `.to_pandas()` when pandas is installed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rigtool.errors import UsageError
+from rigtool.store import DB_ENV, DEFAULT_DB, RunRecord, Store
+
+CALIBRATION_FILE = "calibration.json"
+CURVE_FILE = "command_curve.csv"
+LUT_FILE = "inverse_lut.csv"
+
+
+class Columns(dict):
+    """Column name -> numpy array, all of one length."""
+
+    def to_pandas(self) -> Any:
+        """A pandas DataFrame of the columns (needs pandas)."""
+        return _pandas().DataFrame(dict(self))
+
+
+class Records(list):
+    """A list of dicts, one per row."""
+
+    def to_pandas(self) -> Any:
+        """A pandas DataFrame, one row per record (needs pandas)."""
+        return _pandas().DataFrame.from_records(list(self))
+
+
+def _pandas() -> Any:
+    try:
+        import pandas
+    except ImportError as exc:
+        raise ImportError("to_pandas() needs pandas: pip install 'rigtool[pandas]'") from exc
+    return pandas
+
+
+def open(path: str | os.PathLike[str] | None = None, *, write: bool = False) -> Lab:  # noqa: A001
+    """The run database at `path` (default: $RIGTOOL_DB, else ./rigtool.sqlite).
+
+    Read-only unless `write` is true (then `Lab.calibrate` may store its results)."""
+    target = Path(path or os.environ.get(DB_ENV) or DEFAULT_DB)
+    if not target.exists():
+        raise UsageError(f"no run database at {target}")
+    return Lab(Store(target, read_only=not write, create=False))
+
+
+def load_calibration(folder: str | os.PathLike[str]) -> Calibration:
+    """The calibration `rigtool calibrate` wrote to `folder` (calibrations/<run-id>/)."""
+    root = Path(folder)
+    doc_path = root / CALIBRATION_FILE
+    if not doc_path.is_file():
+        raise UsageError(f"{root}: no {CALIBRATION_FILE} here (a calibrations/<run-id>/ folder "
+                         "written by `rigtool calibrate`)")
+    document = json.loads(doc_path.read_text(encoding="utf-8"))
+    return Calibration(document, _read_csv(root / CURVE_FILE), _read_csv(root / LUT_FILE))
+
+
+class Lab:
+    """A run database. Use as a context manager, or call close()."""
+
+    def __init__(self, store: Store) -> None:
+        self.store = store
+        self.path = store.path
+
+    def __enter__(self) -> Lab:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the database; closing twice is harmless."""
+        self.store.close()
+
+    def runs(self, limit: int = 1000) -> Records:
+        """The runs, newest first: id, name, status, created_utc, n_planned, command_unit,
+        n_steps."""
+        return Records(self.store.runs(limit=limit))
+
+    def run(self, ref: str) -> Run:
+        """A run by full id, unique id prefix or "last"."""
+        return Run(self.store, self.store.run_record(self.store.resolve_run_id(ref)))
+
+    def calibration(self, run: Run | str) -> Calibration:
+        """What `rigtool calibrate` stored for a run (UsageError when it was never calibrated)."""
+        from rigtool.workflows import stored_results
+
+        run_id = run.id if isinstance(run, Run) else self.store.resolve_run_id(run)
+        results = stored_results(self.store, run_id)
+        if results.calibration is None:
+            raise UsageError(f"run {run_id} has no points: there is no calibration")
+        return Calibration.from_results(results.calibration, results.created_utc)
+
+    def calibrate(self, run: Run | str, out_dir: str | os.PathLike[str] = "calibrations",
+                  **options: Any) -> Calibration:
+        """Run `rigtool calibrate` on a run (needs `open(..., write=True)`); options as the
+        CLI's: base=, causal=, train_with=."""
+        from rigtool.workflows import calibrate
+
+        ref = run.id if isinstance(run, Run) else run
+        results = calibrate(self.store, ref, out_dir, **options)
+        return Calibration.from_results(results.calibration, results.created_utc)
+
+
+class Run:
+    """One stored run: its record, points, samples and events."""
+
+    def __init__(self, store: Store, record: RunRecord) -> None:
+        self._store = store
+        self.record = record
+        self.id = record.id
+        self.name = record.name
+        self.status = record.status
+        self.metadata = record.metadata
+        self.protocol = record.protocol
+        self.rig = record.rig
+        self.command_unit = record.command_unit
+        self.neutral = record.neutral
+        self.thruster_id = record.thruster_id
+
+    def __repr__(self) -> str:
+        return f"<rigtool run {self.id} {self.name!r} {self.status}>"
+
+    def points(self) -> Columns:
+        """One row per stored point: step_idx, command, depth_m, ..., thrust_mean_n, ...
+        (statistics over all of the point's samples; points.csv has the steady window's)."""
+        return Columns(self._store.points(self.id))
+
+    def samples(self, steps: Iterable[int] | None = None,
+                columns: Iterable[str] | None = None) -> Columns:
+        """Samples of the run, or of the points whose plan index is in `steps`: t_s,
+        thrust_n, ..., step_idx and seq as int (-1 where unrecorded)."""
+        return Columns(self._store.sample_arrays(self.id, columns, steps))
+
+    def events(self, kind: str | None = None) -> Records:
+        """Events (tares, limit trips, warnings, ventilation...): kind, t_s, step_idx, detail."""
+        return Records({"kind": e["kind"], "t_s": e["t_s"], "step_idx": e["step_idx"],
+                        "detail": e["detail"]} for e in self._store.events(self.id, kind))
+
+
+@dataclass(frozen=True)
+class Value:
+    """A coefficient with its 95 % interval (NaN where it has none)."""
+
+    name: str
+    value: float
+    low: float
+    high: float
+    unit: str
+    n: int = 0
+    r2: float = math.nan
+
+
+@dataclass
+class _Depth:
+    """One depth's curve (command -> thrust) and inverse table (thrust -> command)."""
+
+    depth_m: float | None
+    coefficients: dict[str, Value]
+    curve_command: np.ndarray
+    curve_thrust: np.ndarray
+    lut: list[tuple[str, np.ndarray, np.ndarray]]  # (direction, thrust ascending, command)
+
+
+class Calibration:
+    """A calibration as `rigtool calibrate` wrote it: coefficients and the curves that map
+    command <-> thrust. Without `depth`, methods use the deepest depth (the thruster's own
+    thrust: shallower points may ventilate); pass `depth` to pick another."""
+
+    def __init__(self, document: dict, curve: Columns, lut: Columns) -> None:
+        self.document = document
+        source = document.get("source") or {}
+        self.run_id: str = source.get("run_id", "")
+        self.command_unit: str = source.get("command_unit", "")
+        self.neutral: float = _float(source.get("neutral_command"))
+        self.warnings: list[str] = list(document.get("warnings") or [])
+        self._depths = [_depth_from(d, curve, lut) for d in document.get("depths") or []]
+        if not self._depths:
+            raise UsageError(f"calibration of run {self.run_id} has no depth sections")
+
+    @classmethod
+    def from_results(cls, cal: Any, created_utc: str) -> Calibration:
+        """From the analysis results (the same rows calibrate writes to the CSV files)."""
+        from rigtool.artefacts.calibration import (
+            CURVE_COLUMNS,
+            LUT_COLUMNS,
+            calibration_document,
+            curve_rows,
+            lut_rows,
+        )
+
+        return cls(calibration_document(cal, created_utc),
+                   _columns([c[0] for c in CURVE_COLUMNS], curve_rows(cal)),
+                   _columns([c[0] for c in LUT_COLUMNS], lut_rows(cal)))
+
+    def __repr__(self) -> str:
+        return f"<rigtool calibration of run {self.run_id}, depths {self.depths}>"
+
+    @property
+    def depths(self) -> list[float | None]:
+        """Depths (m) with a section, in the calibration's order (None: depth not set)."""
+        return [d.depth_m for d in self._depths]
+
+    @property
+    def coefficients(self) -> dict[str, Value]:
+        """Coefficients of the deepest depth: C_p_fwd, C_p_rev, C_n, I_0, C_i_fwd, ..."""
+        return self._at(None).coefficients
+
+    def coefficients_at(self, depth: float | None) -> dict[str, Value]:
+        """Coefficients of the section at `depth` (m)."""
+        return self._at(depth).coefficients
+
+    def thrust(self, command: Any, depth: float | None = None) -> Any:
+        """Thrust (N) at `command` from the command curve: 0 in dead zones, NaN outside the
+        commands measured. Vectorised; a scalar in gives a scalar out."""
+        d = self._at(depth)
+        c = np.asarray(command, dtype=float)
+        if d.curve_command.size == 0:
+            return _like(command, np.full(c.shape, np.nan))
+        f = np.interp(c, d.curve_command, d.curve_thrust)
+        inside = (c >= d.curve_command[0]) & (c <= d.curve_command[-1])
+        return _like(command, np.where(inside, f, np.nan))
+
+    def command(self, thrust: Any, depth: float | None = None) -> Any:
+        """The command giving `thrust` (N), by the inverse lookup table; the neutral command
+        for 0, NaN outside the achievable range. Vectorised."""
+        d = self._at(depth)
+        f = np.asarray(thrust, dtype=float)
+        out = np.full(f.shape, np.nan)
+        out[f == 0] = self.neutral
+        for _, lut_f, lut_c in d.lut:
+            take = np.isnan(out) & (f >= lut_f[0]) & (f <= lut_f[-1])
+            out[take] = np.interp(f[take], lut_f, lut_c)
+        return _like(thrust, out)
+
+    def thrust_from_speed(self, speed_rpm: Any, depth: float | None = None) -> Any:
+        """Thrust (N) from propeller speed (r/min): f = C_p |n| n, C_p_fwd for n > 0 and
+        C_p_rev for n < 0 (NaN where that direction was not fitted)."""
+        coef = self._at(depth).coefficients
+        n = np.asarray(speed_rpm, dtype=float)
+        fwd, rev = (_value(coef, k) for k in ("C_p_fwd", "C_p_rev"))
+        return _like(speed_rpm, np.where(n >= 0, fwd, rev) * np.abs(n) * n)
+
+    def thrust_from_current(self, current_a: Any, direction: str = "forward",
+                            depth: float | None = None) -> Any:
+        """Thrust (N) from motor current (A): f = C_i (|I| - I_0)^(2/3), signed by
+        `direction` ("forward" or "reverse"; current alone cannot tell). Uses the directly
+        fitted C_i where there is one, else C_p / C_n^(2/3)."""
+        if direction not in ("forward", "reverse"):
+            raise ValueError(f"direction must be 'forward' or 'reverse', not {direction!r}")
+        coef = self._at(depth).coefficients
+        key = "fwd" if direction == "forward" else "rev"
+        c_i = _value(coef, f"C_i_{key}_direct")
+        if math.isnan(c_i):
+            c_i = _value(coef, f"C_i_{key}")
+        i_0 = _value(coef, "I_0")
+        i_0 = 0.0 if math.isnan(i_0) else i_0
+        current = np.abs(np.asarray(current_a, dtype=float))
+        f = c_i * np.maximum(current - i_0, 0.0) ** (2 / 3)
+        return _like(current_a, f if direction == "forward" else -f)
+
+    def _at(self, depth: float | None) -> _Depth:
+        if depth is None:
+            known = [d for d in self._depths if d.depth_m is not None]
+            return max(known, key=lambda d: d.depth_m) if known else self._depths[0]
+        for d in self._depths:
+            if d.depth_m is not None and abs(d.depth_m - depth) < 1e-6:
+                return d
+        raise ValueError(f"no section at depth {depth:g} m; this calibration has "
+                         f"{', '.join('not set' if d is None else f'{d:g} m' for d in self.depths)}")
+
+
+def _depth_from(doc: dict, curve: Columns, lut: Columns) -> _Depth:
+    depth = doc.get("depth_m")
+
+    def mine(table: Columns) -> np.ndarray:
+        if not table:
+            return np.zeros(0, dtype=bool)
+        d = table["depth_m"]
+        return np.isnan(d) if depth is None else np.abs(d - depth) < 1e-6
+
+    m = mine(curve)
+    order = np.argsort(curve["command"][m]) if m.any() else np.zeros(0, dtype=int)
+    cmd = curve["command"][m][order] if m.any() else np.zeros(0)
+    fit = curve["thrust_fit_n"][m][order] if m.any() else np.zeros(0)
+    ok = np.isfinite(fit)
+    tables = []
+    mask = mine(lut)
+    for b in (np.unique(lut["branch"][mask]) if mask.any() else ()):
+        rows = mask & (lut["branch"] == b)
+        f, c = lut["thrust_n"][rows], lut["command"][rows]
+        order_f = np.argsort(f)
+        direction = str(lut["direction"][rows][0])
+        tables.append((direction, f[order_f], c[order_f]))
+    coefficients = {name: Value(name, _float(c.get("value")), _float(c.get("lo")),
+                                _float(c.get("hi")), c.get("unit", ""), int(c.get("n") or 0),
+                                _float(c.get("r2")))
+                    for name, c in (doc.get("coefficients") or {}).items()}
+    return _Depth(depth, coefficients, cmd[ok], fit[ok], tables)
+
+
+def _value(coef: dict[str, Value], name: str) -> float:
+    c = coef.get(name)
+    return math.nan if c is None else c.value
+
+
+def _float(v: object) -> float:
+    return math.nan if v is None else float(v)  # type: ignore[arg-type]
+
+
+def _like(template: Any, values: np.ndarray) -> Any:
+    """A Python float for a scalar input, the array otherwise."""
+    return float(values) if np.ndim(template) == 0 else values
+
+
+TEXT_COLUMNS = ("state", "direction")
+
+
+def _columns(names: list[str], rows: Iterable[list[object]]) -> Columns:
+    data = list(rows)
+    out = Columns()
+    for i, name in enumerate(names):
+        values = [r[i] for r in data]
+        out[name] = (np.array(values, dtype=str) if name in TEXT_COLUMNS
+                     else np.array(values, dtype=float))
+    return out
+
+
+def _read_csv(path: Path) -> Columns:
+    """A calibration CSV (comment lines, header, rows; `nan` for missing) as columns."""
+    if not path.is_file():
+        raise UsageError(f"{path} is missing: the calibration folder is incomplete")
+    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln and ln[0] != "#"]
+    names = lines[0].split(",")
+    return _columns(names, ([_cell(names[i], v) for i, v in enumerate(ln.split(","))]
+                            for ln in lines[1:]))
+
+
+def _cell(name: str, text: str) -> object:
+    return text if name in TEXT_COLUMNS else float(text)

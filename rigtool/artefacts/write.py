@@ -1,0 +1,93 @@
+"""The one way rigtool writes a file (atomically) and the one JSON/CSV convention.
+
+JSON: sorted keys, floats rounded to 10 significant digits, NaN/inf as null, numpy and
+dataclasses as plain data. CSV: `# ` comment lines, a header row, floats as `%.9g`, missing
+values as `nan`. A reader never sees half a file: each is written beside its target and renamed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+MISSING = "nan"
+
+
+def atomic_write(path: Path, content: str | bytes | Callable[[Path], object]) -> Path:
+    """Write `content` (text, bytes, or a function that writes the path it is given) to a
+    temporary file beside `path`, then rename it over `path`; return `path`."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        if isinstance(content, str):
+            tmp.write_text(content, encoding="utf-8", newline="\n")
+        elif isinstance(content, bytes):
+            tmp.write_bytes(content)
+        else:
+            content(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def json_clean(obj: Any, digits: int | None = 10) -> Any:
+    """JSON-safe, deterministic copy: numpy and dataclasses to plain data, floats to `digits`
+    significant digits (None: exact), NaN/inf to None."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return json_clean(dataclasses.asdict(obj), digits)
+    if isinstance(obj, dict):
+        return {str(k): json_clean(v, digits) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [json_clean(v, digits) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_clean(obj.tolist(), digits)
+    if isinstance(obj, bool | np.bool_):
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        x = float(obj)
+        if not math.isfinite(x):
+            return None
+        return x if digits is None else float(f"{x:.{digits}g}")
+    return obj
+
+
+def json_text(obj: Any, indent: int | None = 2, digits: int | None = 10) -> str:
+    """`obj` as JSON text in the convention above, with a final newline."""
+    return json.dumps(json_clean(obj, digits), indent=indent, sort_keys=True,
+                      allow_nan=False) + "\n"
+
+
+def csv_cell(v: object) -> str:
+    """One CSV cell: booleans 0/1, floats %.9g (never -0), missing as `nan`, no commas."""
+    if isinstance(v, bool | np.bool_):
+        return "1" if v else "0"
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    if isinstance(v, float | np.floating):
+        x = float(v)
+        if not math.isfinite(x):
+            return MISSING
+        s = f"{x:.9g}"
+        return "0" if s == "-0" else s
+    return str(v).replace(",", ";")
+
+
+def csv_text(comments: Sequence[str], columns: Sequence[tuple[str, str, str]],
+             rows: Iterable[Sequence[object]]) -> str:
+    """CSV text: comment lines (split on newlines), one `# name [unit]: text` line per column,
+    the header row, then the rows."""
+    lines = [f"# {line}" for c in comments for line in (str(c).splitlines() or [""])]
+    lines += [f"# {name}{f' [{unit}]' if unit else ''}: {text}" for name, unit, text in columns]
+    lines.append(",".join(name for name, _, _ in columns))
+    lines += [",".join(csv_cell(v) for v in row) for row in rows]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,119 @@
+"""Lab-wide data: merging two rigs' stores, and `export --all` as a Parquet dataset, counted
+point by point and sample by sample."""
+
+from __future__ import annotations
+
+import sqlite3
+
+import numpy as np
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+import pytest
+
+from rigtool.cli import main
+from rigtool.store import Store
+
+from .conftest import SMALL_PROTOCOL
+
+CAN = SMALL_PROTOCOL.replace("values: [-50, 0, 50, 100]",
+                             "values: [-100, -75, -50, -25, 0, 25, 50, 75, 100]")
+PWM = SMALL_PROTOCOL.replace("name: small", "name: pwm-rig").replace(
+    "profile: can-bldc, seed: 3", "profile: esc-1100-1900, seed: 4").replace(
+    "unit: percent\n  values: [-50, 0, 50, 100]", "unit: pulse_us\n  values: [1200, 1500, 1800]")
+
+
+def _sweeps(tmp_path, write_yaml, name: str, text: str, n: int) -> tuple[str, list[str]]:
+    db = str(tmp_path / f"{name}.sqlite")
+    for seed in range(n):
+        path = write_yaml(text.replace("seed: ", f"seed: 1{seed}"), f"{name}{seed}.yaml")
+        assert main(["sweep", str(path), "--sim", "--db", db]) == 0
+    with Store(db, read_only=True) as store:
+        return db, store.run_ids()
+
+
+def _counts(db: str) -> dict[str, tuple[int, int, float, int]]:
+    """Per run: points, samples, sum of thrust over samples, events."""
+    conn = sqlite3.connect(db)
+    out = {}
+    for (run_id,) in conn.execute("SELECT id FROM runs"):
+        points, samples, thrust = conn.execute(
+            "SELECT count(DISTINCT st.id), count(s.rowid), total(s.thrust_n) FROM steps st "
+            "LEFT JOIN samples s ON s.step_id = st.id WHERE st.run_id = ?", (run_id,)).fetchone()
+        events = conn.execute("SELECT count(*) FROM events WHERE run_id = ?", (run_id,)).fetchone()
+        out[run_id] = (points, samples, round(thrust, 6), events[0])
+    conn.close()
+    return out
+
+
+@pytest.fixture
+def two_rigs(tmp_path, write_yaml):
+    a, a_ids = _sweeps(tmp_path, write_yaml, "a", CAN, 2)
+    b, b_ids = _sweeps(tmp_path, write_yaml, "b", PWM, 1)
+    assert main(["calibrate", a_ids[0], "--db", a, "--out", str(tmp_path / "cal")]) == 0
+    return tmp_path, a, b, a_ids + b_ids
+
+
+def test_merge_then_export_all_round_trips_every_point_and_sample(two_rigs, capsys):
+    tmp, a, b, ids = two_rigs
+    lab = str(tmp / "lab.sqlite")
+    expected = {**_counts(a), **_counts(b)}
+    assert main(["merge", a, b, "-o", lab]) == 0
+    assert main(["merge", a, b, "-o", lab]) == 0  # again: everything is already there
+    out = capsys.readouterr().out
+    assert "2 run(s) added" in out and "1 run(s) added" in out and "2 already present" in out
+    assert _counts(lab) == expected
+    with Store(lab, read_only=True) as store:
+        assert sorted(store.run_ids()) == sorted(ids)
+        assert store.latest_calibration(ids[0])["state"] is not None
+
+    assert main(["export", "--all", str(tmp / "dataset"), "--db", lab]) == 0
+    data = tmp / "dataset"
+    points = ds.dataset(data / "points", format="parquet").to_table().to_pandas()
+    samples = ds.dataset(data / "samples", format="parquet").to_table(
+        columns=["run_id", "thrust_n", "step_idx", "rig"]).to_pandas()
+    events = ds.dataset(data / "events", format="parquet").to_table().to_pandas()
+    for run_id, (n_points, n_samples, thrust, n_events) in expected.items():
+        mine = samples[samples.run_id == run_id]
+        assert (points.run_id == run_id).sum() == n_points
+        assert len(mine) == n_samples and round(mine.thrust_n.sum(), 6) == thrust
+        assert (events.run_id == run_id).sum() == n_events
+    runs = pq.read_table(data / "runs.parquet").to_pandas()
+    assert sorted(runs.run_id) == sorted(ids) and len(set(runs.rig)) == 2  # two rigs
+    cals = pq.read_table(data / "calibrations.parquet").to_pandas()
+    assert set(cals.run_id) == {ids[0]} and "C_p_fwd" in set(cals.coefficient)
+    meta = pq.read_schema(data / "samples" / f"{ids[0]}.parquet").metadata
+    assert b"rigtool_run" in meta and str(pq.read_schema(
+        data / "samples" / f"{ids[0]}.parquet").field("thrust_n").type) == "double"
+
+
+def test_merged_runs_calibrate_as_before(two_rigs, capsys):
+    tmp, a, b, ids = two_rigs
+    lab = str(tmp / "lab.sqlite")
+    assert main(["merge", a, b, "-o", lab]) == 0
+    for run_id, db in ((ids[1], a), (ids[2], b)):
+        for where, out in ((db, "before"), (lab, "after")):
+            assert main(["calibrate", run_id, "--db", where, "--out", str(tmp / out)]) == 0
+        before = (tmp / "before" / run_id / "command_curve.csv").read_text().splitlines()
+        after = (tmp / "after" / run_id / "command_curve.csv").read_text().splitlines()
+        assert before[2:] == after[2:]  # the same curve (line 1 has the creation time)
+
+
+def test_merge_refuses_bad_input(two_rigs, capsys):
+    tmp, a, _, _ = two_rigs
+    assert main(["merge", str(tmp / "none.sqlite"), "-o", str(tmp / "lab.sqlite")]) == 2
+    assert "no run database at" in capsys.readouterr().err
+    assert main(["merge", a, "-o", a]) == 2
+    assert main(["export", "--db", a]) == 2
+    assert main(["export", "last", "--all", str(tmp / "d"), "--db", a]) == 2
+    assert main(["export", "--all", str(tmp / "d"), "--format", "csv", "--db", a]) == 2
+
+
+def test_export_columns_carry_run_thruster_and_rig(two_rigs, capsys):
+    tmp, a, _, ids = two_rigs
+    assert main(["export", ids[0], "--format", "parquet", "--out", str(tmp / "x"), "--db", a]) == 0
+    table = pq.read_table(tmp / "x" / f"{ids[0]}-points.parquet")
+    assert table.column_names[:3] == ["run_id", "thruster_id", "rig"]
+    assert "thrust_mean_n" in table.column_names and "speed_mean_rpm" in table.column_names
+    samples = pq.read_table(tmp / "x" / f"{ids[0]}-samples.parquet")
+    assert samples.schema.field("seq").type == "int64" and samples.num_rows == 9 * 200
+    assert np.all(np.asarray(samples.column("run_id").to_pylist()) == ids[0])
