@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rigtool.devices.base import FT_CHANNELS
 from rigtool.rig import RigSet
+from rigtool.units import FT_CHANNELS
 
 FEEDBACK = {"speed_rpm": "r/min", "current_a": "A", "voltage_v": "V"}
 SETTLE_S = 1.0  # after a test command, before measuring

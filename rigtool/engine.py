@@ -15,7 +15,7 @@ from types import FrameType
 
 import numpy as np
 
-from rigtool.devices.base import FT_CHANNELS, FeedbackBlock
+from rigtool.devices.base import FeedbackBlock
 from rigtool.errors import DeviceError, SafetyTrip, StoreError
 from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
@@ -24,6 +24,7 @@ from rigtool.rig import RigSet, counter_delta
 from rigtool.safety import FollowMonitor, LimitMonitor
 from rigtool.spool import SampleSpool
 from rigtool.store import SAMPLE_COLUMNS, STAT_FIELDS, StepRecord, Store
+from rigtool.units import FT_CHANNELS
 
 CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this often
 RAMP_DT_S = 0.05  # command update period while slewing

@@ -16,7 +16,7 @@ from rigtool.bounds import DepthM
 from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model
 from rigtool.devices.axes import rotation_deg, wrench_transform
-from rigtool.devices.base import FT_CHANNELS, Actuator, Clock, DepthStage, ForceSensor
+from rigtool.devices.base import Actuator, Clock, DepthStage, ForceSensor
 from rigtool.devices.depth import ManualDepth, PresetDepth
 from rigtool.devices.registry import (
     ACTUATORS,
@@ -28,6 +28,7 @@ from rigtool.devices.registry import (
 )
 from rigtool.errors import UsageError
 from rigtool.protocol import SimulatorSpec
+from rigtool.units import FT_CHANNELS
 
 
 class ThrustAxis(BaseModel):

@@ -1,7 +1,9 @@
-"""Shared vocabulary, defined once: command units, how they are printed, and their neutral."""
+"""Shared vocabulary, defined once: command units, how they are printed, their neutral, and
+the force/torque channel names."""
 
 from __future__ import annotations
 
+FT_CHANNELS = ("fx", "fy", "fz", "tx", "ty", "tz")  # N and N m, in the sensor frame
 COMMAND_UNITS = ("percent", "pwm_counts", "pulse_us", "rpm", "amps")
 UNIT_LABEL = {"percent": "%", "pwm_counts": "PWM counts", "pulse_us": "µs", "rpm": "r/min",
               "amps": "A"}

@@ -7,25 +7,22 @@ import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import rigtool
-from rigtool.analysis.calibrate import Calibration, calibrate_run
-from rigtool.analysis.cavitation import (
-    EVENT_KIND,
-    CavitationParams,
-    CavitationResult,
-    calibrate_cavitation,
-    cavitation_stage,
-    training_runs,
-)
 from rigtool.artefacts import state
-from rigtool.artefacts.calibration import calibration_document, write_artefacts
-from rigtool.artefacts.cavitation import write_cavitation_artefacts
-from rigtool.compare import CompareResult, compare_curves, curve_from_calibration
 from rigtool.errors import UsageError
 from rigtool.outpaths import run_folder
 from rigtool.progress import stage
 from rigtool.store import Store, utc_now
+
+if TYPE_CHECKING:
+    from rigtool.analysis.calibrate import Calibration
+    from rigtool.analysis.cavitation import CavitationResult
+    from rigtool.compare import CompareResult
+
+# Analysis, artefact and comparison modules are imported by the workflow that needs them:
+# `report` only decodes stored results, and starts without scikit-learn or pyarrow.
 
 CAUSAL_WARNING = ("quasi-cavitation: the causal (past-only) shortfall window misses the accuracy "
                   "target outside ventilation events: p95 |error| up to 1.2 N on held-out twin "
@@ -55,6 +52,17 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     Every reference (the run, `base`, `train_with`) is checked before any file is written;
     UsageError names the bad one.
     """
+    from rigtool.analysis.calibrate import calibrate_run
+    from rigtool.analysis.cavitation import (
+        EVENT_KIND,
+        CavitationParams,
+        calibrate_cavitation,
+        cavitation_stage,
+        training_runs,
+    )
+    from rigtool.artefacts.calibration import calibration_document, write_artefacts
+    from rigtool.artefacts.cavitation import write_cavitation_artefacts
+
     run_id = store.resolve_run_id(run_ref)
     cav_stage = cavitation_stage(store, run_id, base)
     if train_with and cav_stage.base_run_id is None:
@@ -122,6 +130,8 @@ def report(store: Store, run_ref: str, out_dir: str | Path = "calibrations", *,
 
 def calibration_of(store: Store, run_id: str) -> Calibration:
     """The run's stored calibration, or (never calibrated) one computed now and not stored."""
+    from rigtool.analysis.calibrate import calibrate_run
+
     record = store.latest_calibration(run_id)
     if record is not None and record["state"] is not None:
         return state.decode(record["state"])["calibration"]
@@ -135,6 +145,7 @@ def compare(store: Store, run_refs: Sequence[str], reference: str | None = None,
     """Compare thrusters (runs): corrections and compare.html in `out_dir`; the reference run
     joins the compared runs if missing."""
     from rigtool.artefacts.compare import write_corrections
+    from rigtool.compare import compare_curves, curve_from_calibration
     from rigtool.report.compare_html import write_compare_report
 
     ids = [store.resolve_run_id(r) for r in run_refs]

@@ -159,8 +159,9 @@ def test_report_renders_the_stored_cavitation_section_without_recomputing(twin, 
     def recompute(*args, **kwargs):
         raise AssertionError("report recomputed the calibration")
 
-    for name in ("calibrate_run", "calibrate_cavitation"):
-        monkeypatch.setattr(f"rigtool.workflows.{name}", recompute)
+    monkeypatch.setattr("rigtool.analysis.calibrate.calibrate_run", recompute)
+    monkeypatch.setattr("rigtool.analysis.calibrate.calibrate", recompute)
+    monkeypatch.setattr("rigtool.analysis.cavitation.calibrate_cavitation", recompute)
     assert main(["report", train, "--db", db, "--out", out]) == 0
     assert capsys.readouterr().err == calibrate_err  # the same warnings, from the store
     html = (tmp / "rep" / train / "report.html").read_text()

@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from sklearn.isotonic import isotonic_regression
 
 from rigtool.analysis.fits import LinearFit, ZeroLine, wls
 
@@ -320,6 +319,8 @@ def _live_segments(direction: np.ndarray, dead: np.ndarray) -> list[tuple[int, i
 
 def _branch(cmd: np.ndarray, m: np.ndarray, se: np.ndarray, neutral: float,
             p: CurveParams) -> Branch:
+    from sklearn.isotonic import isotonic_regression  # on use: reading stored results needs none
+
     sign = 1 if np.nanmedian(m) > 0 else -1
     away = 1 if np.mean(cmd) >= neutral else -1
     slope = np.polyfit(cmd, m, 1)[0] if cmd.size >= 2 else 0.0

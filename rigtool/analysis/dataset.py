@@ -12,9 +12,9 @@ import numpy as np
 
 from rigtool.errors import UsageError
 from rigtool.store import Store
+from rigtool.units import FT_CHANNELS
 
 SAMPLE_FIELDS = ("t_s", "thrust_n", "speed_rpm", "current_a")
-FT_FIELDS = ("fx", "fy", "fz", "tx", "ty", "tz")
 _AXIS_FIT_STEPS = 24  # points sampled to recover the thrust axis from the F/T channels
 
 
@@ -180,7 +180,7 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
         return None
     pick = np.unique(np.linspace(0, len(rows) - 1, min(_AXIS_FIT_STEPS, len(rows))).astype(int))
     ids = [int(rows[i]["id"]) for i in pick]
-    parts = [store.step_samples(i, (*FT_FIELDS, "thrust_n")) for i in ids]
+    parts = [store.step_samples(i, (*FT_CHANNELS, "thrust_n")) for i in ids]
     data = np.concatenate([np.column_stack(list(p.values())) for p in parts])
     if data.size == 0:
         return None

@@ -20,7 +20,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, signal, stats
 
 RPM_PER_RPS = 60.0
 SECONDS_PER_HOUR = 3600.0
@@ -70,6 +69,8 @@ class LinearFit:
     influence: np.ndarray  # beta = influence @ y: one row per coefficient, one column per point
 
     def half_width(self, i: int) -> float:
+        from scipy import stats
+
         t = stats.t.ppf(0.975, max(self.dof, 1))
         return float(t * math.sqrt(max(self.cov[i, i], 0.0)))
 
@@ -136,6 +137,8 @@ def coefficient_correlation(fit_a: LinearFit, i: int, rows_a: np.ndarray, fit_b:
 
 def _ar1_correlate(a: np.ndarray, r1: float) -> np.ndarray:
     """R @ a for the AR(1) correlation R_ij = r1^|i - j|, in O(n) by two recursive filters."""
+    from scipy import signal
+
     fwd = signal.lfilter([1.0], [1.0, -r1], a, axis=0)
     bwd = signal.lfilter([1.0], [1.0, -r1], a[::-1], axis=0)[::-1]
     return fwd + bwd - a
@@ -324,6 +327,8 @@ def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
 
     |n| is scaled by its maximum so the parameters are of order one; C is converted back.
     """
+    from scipy import optimize, stats
+
     u = np.abs(n_rpm)
     u_ref = float(u.max())
     x = u / u_ref
@@ -433,6 +438,8 @@ def with_systematic(c: Coefficient, rel: float) -> Coefficient:
 
 def residual_spread(resid: np.ndarray, name: str, note: str, *, interval: bool) -> Coefficient:
     """RMS of residuals (N) as a coefficient; chi-square 95 % interval when `interval`."""
+    from scipy import stats
+
     r = resid[np.isfinite(resid)]
     n = r.size
     if n == 0:

@@ -17,15 +17,14 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
-from scipy.optimize import least_squares
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
 from rigtool.models.qctm import Z95, GatedMean, LogNoise, gate, matern52
+
+if TYPE_CHECKING:
+    from sklearn.gaussian_process import GaussianProcessRegressor
 
 NU = 2.5
 MIN_GATE_GAIN = 0.01  # the gate must cut the weighted squared residual by this fraction
@@ -75,6 +74,10 @@ class Standardiser:
 
 def fit_hyper(xs: np.ndarray, yn: np.ndarray, w: np.ndarray, p: GpParams) -> Hyper:
     """ML hyperparameters on a subset (prefers well-weighted points), standardised inputs."""
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
     rng = np.random.default_rng(p.seed)
     good = np.flatnonzero(w >= 0.5)
     pool = good if good.size >= min(p.hyper_n, 50) else np.arange(yn.size)
@@ -139,6 +142,10 @@ class ExactGp:
 def fit_hyper_fixed_noise(xs: np.ndarray, yn: np.ndarray, alpha: np.ndarray,
                           p: GpParams) -> Hyper:
     """ML length scales and signal variance with given per-row noise (normalised units)."""
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern
+
     rng = np.random.default_rng(p.seed)
     sub = (np.arange(yn.size) if yn.size <= p.hyper_n
            else np.sort(rng.choice(yn.size, p.hyper_n, replace=False)))
@@ -159,6 +166,10 @@ def fit_noise(x: np.ndarray, resid: np.ndarray, p: GpParams) -> LogNoise:
     mean plus log_mean + log_bias is log var(x). For Gaussian errors log_bias would be
     -E[log chi^2_1] = 1.27; the errors are heavier-tailed (a mixture of ventilated and not),
     so log_bias is set such that 95 % of all rows have |resid| <= 1.96 sqrt(var(x))."""
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
     st = Standardiser(x)
     rng = np.random.default_rng(p.seed + 1)
     sub = (np.arange(resid.size) if resid.size <= p.hyper_n
@@ -294,6 +305,8 @@ def fit_gated_mean(z: np.ndarray, y: np.ndarray, w: np.ndarray) -> GatedMean:
     beta starts from the plain linear fit through 0 and z0 from quantiles of |z|; if the gate
     does not lower the weighted squared residual by 1 %, the plain linear term is returned.
     """
+    from scipy.optimize import least_squares
+
     z, y, sw = np.asarray(z, float), np.asarray(y, float), np.sqrt(np.asarray(w, float))
     if not (np.isfinite(z).all() and np.isfinite(y).all() and np.isfinite(sw).all()):
         raise ValueError("fit_gated_mean: z, y and w must be finite")
@@ -321,6 +334,9 @@ def fit_exact(x: np.ndarray, y: np.ndarray, w: np.ndarray, params: GpParams | No
     """Exact weighted GP with scikit-learn (hyperparameters fitted unless given); with a
     noise model, row i has noise var(x_i) / w_i instead of sigma^2 / w_i; the GP models
     y - mean_term(x[:, 1])."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern
+
     p = params or GpParams()
     mean_term = mean_term or GatedMean()
     y = np.asarray(y, dtype=float) - mean_term(np.asarray(x, dtype=float)[:, 1])
@@ -386,6 +402,8 @@ class SorGp:
 def fit_sor(x: np.ndarray, y: np.ndarray, w: np.ndarray, params: GpParams | None = None,
             hyper: Hyper | None = None) -> SorGp:
     """SoR: f(x) = k_m(x) beta, beta ~ N(0, K_mm^-1); cost O(n m^2) and memory O(n m)."""
+    from scipy.linalg import cho_factor, cho_solve
+
     p = params or GpParams()
     st = Standardiser(x)
     xs = st(x)

@@ -19,7 +19,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize
 
 from rigtool.analysis.fits import (
     Coefficient,
@@ -160,6 +159,8 @@ def scatter_se(pred: np.ndarray, resid: np.ndarray, se: np.ndarray) -> np.ndarra
     The variance model is fitted to the squared residuals, reweighted by its own values (a
     squared residual scatters in proportion to its variance).
     """
+    from scipy import optimize
+
     stated = np.nan_to_num(se) ** 2
     excess = resid**2 - stated
     design = np.column_stack([np.ones(pred.size), np.abs(pred), pred**2])

@@ -6,7 +6,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from rigtool.analysis.fits import Coefficient
 
@@ -114,6 +113,8 @@ def repeatability(command: np.ndarray, direction: np.ndarray, repeat: np.ndarray
 
 def tare_drift(t_s: np.ndarray, bias_n: np.ndarray | None) -> TareDrift | None:
     """Linear trend (N/h, 95 % interval) of the thrust-channel tare bias; None under 2 tares."""
+    from scipy import stats
+
     if bias_n is None:
         return None
     ok = np.isfinite(t_s) & np.isfinite(bias_n)

@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import median_filter
 
 HUBER_K = 1.345
 MAD_TO_SD = 1.4826
@@ -49,6 +48,8 @@ class TrainingSet:
 
 def huber_weights(y: np.ndarray, segment: np.ndarray, window: int = 5) -> tuple[np.ndarray, float]:
     """Huber weights min(1, k s / |r|), r = y minus its running median within each segment."""
+    from scipy.ndimage import median_filter
+
     r = np.empty_like(y, dtype=float)
     for s in np.unique(segment):
         idx = np.flatnonzero(segment == s)

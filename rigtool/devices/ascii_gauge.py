@@ -29,10 +29,12 @@ import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, PositiveSeconds, Scale
-from rigtool.devices.base import FT_CHANNELS, ForceBlock
+from rigtool.devices.base import ForceBlock
 from rigtool.devices.buffer import SampleBuffer
+from rigtool.devices.framing import LineFramer
 from rigtool.devices.netft import FORCE_UNITS_N, unit_factor
 from rigtool.errors import DeviceError
+from rigtool.units import FT_CHANNELS
 
 log = logging.getLogger(__name__)
 
@@ -250,7 +252,7 @@ class AsciiGauge:
         return rows
 
     def _read_loop(self) -> None:
-        buf = b""
+        framer = LineFramer(_MAX_LINE)
         while not self._stop.is_set():
             try:
                 chunk = self._ser.read(max(1, self._ser.in_waiting))
@@ -261,16 +263,15 @@ class AsciiGauge:
             if not chunk:
                 continue
             t = self._now()
-            *lines, buf = re.split(rb"[\r\n]", buf + chunk)
+            lines, overflow = framer.feed(chunk)
             rows = [self._line(raw, t) for raw in lines if raw.strip()]
             if self.config.mode == "stream":
                 rows = [row for row in rows if np.isfinite(row[2])]
             if rows:
                 self._buffer.put_many(rows)
-            if len(buf) > _MAX_LINE:
+            if overflow:
                 self._stats["lines"] += 1
                 self._stats["unparseable"] += 1
-                buf = b""
 
     def _line(self, raw: bytes, t: float) -> tuple:
         """(t, seq, reading in N); the reading is NaN for a line that does not parse."""

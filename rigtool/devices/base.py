@@ -12,8 +12,6 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-FT_CHANNELS = ("fx", "fy", "fz", "tx", "ty", "tz")
-
 
 @dataclass
 class ForceBlock:

@@ -1,4 +1,5 @@
-"""What the CAN actuator drivers share: opening a python-can bus, its threads, feedback buffering.
+"""What the CAN actuator drivers share: opening a python-can bus, its threads, feedback
+buffering, and the actuator life cycle (`CanActuator`).
 
 A `CanLink` owns one python-can bus, a receive thread that hands every frame (stamped
 with `time.monotonic()` on receipt) to the driver's decoder, and an optional keep-alive
@@ -14,12 +15,13 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 import can
 import numpy as np
 
 from rigtool.devices import udp_loopback
-from rigtool.devices.base import FeedbackBlock
+from rigtool.devices.base import ActuatorInfo, FeedbackBlock
 from rigtool.errors import DeviceError
 
 log = logging.getLogger(__name__)
@@ -234,3 +236,83 @@ class FeedbackBuffer:
         columns = {k: values[:, self.fields.index(k)] if k in self.fields else None
                    for k in FEEDBACK_FIELDS}  # fmt: skip
         return FeedbackBlock(np.array(t, dtype=float), **columns)
+
+
+class CanActuator:
+    """What the CAN actuators share: a CanLink with its keep-alive, the command / neutral /
+    close life cycle, silence detection and the wait for the first frame.
+
+    A driver sets `name`, `info` and `config` (with interface, channel, bitrate, keepalive_s
+    and timeout_s), calls `_open_link`, and supplies `_command_frame(value)`,
+    `_neutral_frame()` and `_on_frame(msg, t)`. `close` calls `_before_release` between
+    stopping the link's threads and releasing the bus (e.g. to disable the drive).
+    """
+
+    name: str
+    info: ActuatorInfo
+    config: Any
+
+    def _open_link(self, keepalive_frame: can.Message,
+                   extra: Callable[[], None] | None = None) -> None:
+        c = self.config
+        self._closed = False
+        self._link = CanLink(c.interface, c.channel, c.bitrate, self._on_frame, self.name)
+        self.stats = self._link.stats
+        self._opened_t = time.monotonic()
+        self._link.start(c.keepalive_s, keepalive_frame, extra)
+
+    def _command_frame(self, value: float) -> can.Message:
+        raise NotImplementedError
+
+    def _neutral_frame(self) -> can.Message:
+        raise NotImplementedError
+
+    def _on_frame(self, msg: can.Message, t: float) -> str:
+        raise NotImplementedError
+
+    def set_command(self, value: float) -> None:
+        """Command `value` in info.command_unit (clipped to the command range)."""
+        if self._closed:
+            raise DeviceError(f"{self.name} on {self._link.where}: driver is closed")
+        if not math.isfinite(value):
+            raise ValueError(f"command must be finite, got {value!r}")
+        self._link.command(self._command_frame(value))
+
+    def neutral(self) -> None:
+        """Send the neutral command (retried); idempotent, quiet after close."""
+        if self._closed:
+            return
+        self._link.command(self._neutral_frame(), retry=True)
+
+    def close(self) -> None:
+        """Neutral, stop the keep-alive, release the bus. Idempotent."""
+        if self._closed:
+            return
+        try:
+            self.neutral()
+        except DeviceError as exc:
+            log.warning("%s: could not command neutral on close: %s", self.name, exc)
+        self._closed = True
+        self._link.stop_threads()
+        self._before_release()
+        self._link.close()
+
+    def _before_release(self) -> None:
+        """Last sends before the bus is released (nothing by default)."""
+
+    def _silent_for(self, last_t: float | None) -> bool:
+        """True when nothing arrived for longer than the timeout (never after close)."""
+        last = last_t or self._opened_t
+        return not self._closed and time.monotonic() - last > self.config.timeout_s
+
+    def _wait_for_first(self, received: Callable[[], bool], hint: str) -> None:
+        """Block until `received()` or the timeout after opening; DeviceError naming `hint`."""
+        deadline = self._opened_t + self.config.timeout_s
+        while not received():
+            if time.monotonic() > deadline:
+                raise DeviceError(self._silence(
+                    f"within {self.config.timeout_s:g} s of opening ({hint})"))
+            time.sleep(0.01)
+
+    def _silence(self, how: str) -> str:
+        raise NotImplementedError

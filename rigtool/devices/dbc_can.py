@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from pathlib import Path
 from typing import Literal
 
@@ -24,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 from rigtool.bounds import Baudrate, Command, PositiveSeconds, Scale, Seconds
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
-from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer, check_keepalive
+from rigtool.devices.canbus import FEEDBACK_FIELDS, CanActuator, FeedbackBuffer, check_keepalive
 from rigtool.errors import DeviceError, UsageError
 from rigtool.files import MAX_DBC_BYTES, UnreadableFile, read_regular_bytes
 from rigtool.units import COMMAND_UNITS
@@ -175,7 +174,7 @@ def encode_signal(message, name: str, value: float) -> bytes:
     return message.encode(data, scaling=True, strict=True)
 
 
-class DbcCanDriver:
+class DbcCanDriver(CanActuator):
     """Actuator on a DBC-described CAN drive."""
 
     def __init__(self, config: DbcCanConfig) -> None:
@@ -203,35 +202,20 @@ class DbcCanDriver:
         self._feedback = FeedbackBuffer(self._fields)
         self._fault: str | None = None
         self._last_rx: float | None = None
-        self._closed = False
-        self._link = CanLink(c.interface, c.channel, c.bitrate, self._on_frame, self.name)
-        self.stats = self._link.stats
-        self._opened_t = time.monotonic()
-        self._link.start(c.keepalive_s, self._command_frame(c.neutral))
+        self._open_link(self._neutral_frame())
         try:
             self.neutral()
             if self._enable_msg is not None:
                 self._send_signal(self._enable_msg, c.enable.signal, c.enable.on_start)
-            self._wait_for_device()
+            if self._rx:
+                self._wait_for_first(lambda: self._last_rx is not None,
+                                     "is it powered, on this bus and bitrate, with the right "
+                                     "node_id?")
         except BaseException:
             self._link.close()
             raise
 
-    # ----- Actuator -----
-
-    def set_command(self, value: float) -> None:
-        """Command `value` in info.command_unit (clipped to the command range)."""
-        if self._closed:
-            raise DeviceError(f"{self.name} on {self._link.where}: driver is closed")
-        if not math.isfinite(value):
-            raise ValueError(f"command must be finite, got {value!r}")
-        self._link.command(self._command_frame(value))
-
-    def neutral(self) -> None:
-        """Send the neutral command; idempotent, quiet after close."""
-        if self._closed:
-            return
-        self._link.command(self._command_frame(self.config.neutral), retry=True)
+    # ----- Actuator (set_command, neutral, close: CanActuator) -----
 
     def expected_speed_rpm(self, command: float) -> float | None:
         """A command in r/min is the speed the drive holds; other units: unknown."""
@@ -243,29 +227,18 @@ class DbcCanDriver:
         """Feedback samples since the last call; DeviceError on a reported fault or on silence."""
         if self._fault is not None:
             raise DeviceError(f"{self.name} on {self._link.where} reports fault {self._fault}")
-        if self._rx and not self._closed:
-            last = self._last_rx or self._opened_t
-            if time.monotonic() - last > self.config.timeout_s:
-                raise DeviceError(self._silence(f"for {self.config.timeout_s:g} s"))
+        if self._rx and self._silent_for(self._last_rx):
+            raise DeviceError(self._silence(f"for {self.config.timeout_s:g} s"))
         return self._feedback.take()
 
-    def close(self) -> None:
-        """Neutral, stop the keep-alive, disable (if configured), release the bus. Idempotent."""
-        if self._closed:
-            return
-        try:
-            self.neutral()
-        except DeviceError as exc:
-            log.warning("%s: could not command neutral on close: %s", self.name, exc)
-        self._closed = True
-        self._link.stop_threads()
+    def _before_release(self) -> None:
+        """Disable the drive (if configured) once neutral is sent and the keep-alive stopped."""
         if self._enable_msg is not None:
             try:
                 self._send_signal(self._enable_msg, self.config.enable.signal,
                                   self.config.enable.on_close)  # fmt: skip
             except DeviceError as exc:
                 log.warning("%s: could not disable on close: %s", self.name, exc)
-        self._link.close()
 
     @property
     def fault(self) -> str | None:
@@ -312,6 +285,9 @@ class DbcCanDriver:
                              f"range [{lo:g}, {hi:g}]")  # fmt: skip
         return lo, hi
 
+    def _neutral_frame(self) -> can.Message:
+        return self._command_frame(self.config.neutral)
+
     def _command_frame(self, value: float) -> can.Message:
         cmd = self.config.command
         v = min(max(value, self.info.command_min), self.info.command_max)
@@ -355,17 +331,6 @@ class DbcCanDriver:
         choices = self._fault_signal.choices or {}
         label = choices.get(int(value)) if float(value).is_integer() else None
         self._fault = f"{self.config.fault.signal}={value:g}" + (f" ({label})" if label else "")
-
-    def _wait_for_device(self) -> None:
-        if not self._rx:
-            return
-        deadline = self._opened_t + self.config.timeout_s
-        while self._last_rx is None:
-            if time.monotonic() > deadline:
-                raise DeviceError(self._silence(
-                    f"within {self.config.timeout_s:g} s of opening (is it powered, on this bus "
-                    "and bitrate, with the right node_id?)"))  # fmt: skip
-            time.sleep(0.01)
 
     def _silence(self, how: str) -> str:
         names = sorted({m.name for m in self._rx_messages.values()})

@@ -38,9 +38,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from rigtool.bounds import MAX_SAMPLES_PER_POINT, PositiveScale, PositiveSeconds
-from rigtool.devices.base import FT_CHANNELS, ForceBlock
+from rigtool.devices.base import ForceBlock
 from rigtool.devices.buffer import SampleBuffer
 from rigtool.errors import DeviceError
+from rigtool.units import FT_CHANNELS
 
 log = logging.getLogger(__name__)
 

@@ -19,6 +19,7 @@ import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, DepthM, PositiveSeconds
+from rigtool.devices.framing import LineFramer
 from rigtool.errors import DeviceError, UsageError
 
 _LINE = re.compile(r"(?P<kind>OK|ERR|DONE|POS)(?:\s+(?P<arg>.*?))?\s*")
@@ -59,7 +60,7 @@ class SerialStage:
         self.config = config
         self.name = f"serial stage on {config.url}"
         self.stats = dict.fromkeys(("lines", "garbage", "unexpected", "errors", "timeouts"), 0)
-        self._buf = bytearray()
+        self._framer = LineFramer(_MAX_LINE)
         self._pending: list[str] = []
         self._closed = False
         try:
@@ -138,7 +139,7 @@ class SerialStage:
             raise DeviceError(f"{self.name} is closed")
         try:
             self._ser.reset_input_buffer()  # a stale reply must not answer this request
-            self._buf.clear()
+            self._framer.clear()
             self._pending.clear()
             self._ser.write(f"{line}\n".encode("ascii"))
         except (serial.SerialException, OSError) as exc:
@@ -170,18 +171,14 @@ class SerialStage:
     def _lines(self) -> list[str]:
         """Complete lines read within one poll period (undecodable ones counted as garbage)."""
         try:
-            self._buf.extend(self._ser.read(max(1, self._ser.in_waiting)))
+            chunk = self._ser.read(max(1, self._ser.in_waiting))
         except (serial.SerialException, OSError) as exc:
             raise DeviceError(f"lost connection to {self.name}: {exc}") from None
-        parts = re.split(rb"[\r\n]", bytes(self._buf))
-        self._buf = bytearray(parts.pop())
-        if len(self._buf) > _MAX_LINE:
+        parts, overflow = self._framer.feed(chunk)
+        if overflow:
             self.stats["garbage"] += 1
-            self._buf.clear()
         out = []
         for raw in parts:
-            if not raw:
-                continue
             try:
                 out.append(raw.decode("ascii").strip())
             except UnicodeDecodeError:

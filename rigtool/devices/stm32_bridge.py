@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import MAX_CLOCK_HZ, MAX_DURATION_S, Baudrate, Command, PositiveSeconds, Seconds
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
+from rigtool.devices.framing import LineFramer
 from rigtool.errors import DeviceError, UsageError
 
 log = logging.getLogger(__name__)
@@ -285,7 +286,7 @@ class Stm32Bridge:
                 log.debug("heartbeat to %s failed: %s", self.name, exc)
 
     def _read_loop(self) -> None:
-        buf = bytearray()
+        framer = LineFramer(_MAX_LINE)
         while not self._stop.is_set():
             try:
                 chunk = self._ser.read(max(1, self._ser.in_waiting))
@@ -294,15 +295,11 @@ class Stm32Bridge:
                     self._lost = str(exc) or type(exc).__name__
                     self._replies.put(("lost", self._lost))
                 return
-            buf.extend(chunk)
-            parts = re.split(rb"[\r\n]", bytes(buf))
-            buf = bytearray(parts.pop())
-            for raw in parts:
-                if raw:
-                    self._handle_line(raw)
-            if len(buf) > _MAX_LINE:
+            lines, overflow = framer.feed(chunk)
+            for raw in lines:
+                self._handle_line(raw)
+            if overflow:
                 self.stats["garbage"] += 1
-                buf.clear()
 
     def _handle_line(self, raw: bytes) -> None:
         t = time.monotonic()

@@ -18,9 +18,7 @@ PROCESS_SHORT_BUFFER frame; the VESC answers with a PROCESS_SHORT_BUFFER address
 from __future__ import annotations
 
 import logging
-import math
 import struct
-import time
 from typing import Literal
 
 import can
@@ -28,7 +26,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 from rigtool.bounds import MAX_CURRENT_A, MAX_SPEED_RPM, Baudrate, PositiveSeconds, Seconds
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
-from rigtool.devices.canbus import FEEDBACK_FIELDS, CanLink, FeedbackBuffer, check_keepalive
+from rigtool.devices.canbus import (
+    FEEDBACK_FIELDS,
+    CanActuator,
+    FeedbackBuffer,
+    check_keepalive,
+)
 from rigtool.errors import DeviceError
 
 log = logging.getLogger(__name__)
@@ -143,45 +146,27 @@ def fault_name(code: int) -> str:
     return f"FAULT_CODE_{FAULT_NAMES[code] if code < len(FAULT_NAMES) else code}"
 
 
-class VescCanDriver:
+class VescCanDriver(CanActuator):
     """Actuator on a VESC: commands in percent, r/min or A; feedback from its status frames."""
 
     def __init__(self, config: VescCanConfig) -> None:
-        self.config = config
-        c = config
+        self.config = c = config
         self.name = f"VESC {c.controller_id}"
         self.info = ActuatorInfo(c.unit, 0.0, *self._range(), FEEDBACK_FIELDS)
         self._packet = {"duty": SET_DUTY, "current": SET_CURRENT, "rpm": SET_RPM}[c.mode]
         self._feedback = FeedbackBuffer()
         self._fault = 0
-        self._closed = False
-        self._link = CanLink(c.interface, c.channel, c.bitrate, self._on_frame, self.name)
-        self.stats = self._link.stats
-        self._opened_t = time.monotonic()
-        self._link.start(c.keepalive_s, self._message(SET_CURRENT, 0.0),
-                         self._poll_fault if c.poll_fault else None)
+        self._open_link(self._neutral_frame(), self._poll_fault if c.poll_fault else None)
         try:
-            self._wait_for_status()
+            self._wait_for_first(lambda: self._feedback.last_t is not None,
+                                 "is it powered, on this bus and bitrate, with CAN status "
+                                 "messages 1, 4 and 5 enabled?")
             self.neutral()
         except BaseException:
             self._link.close()
             raise
 
-    # ----- Actuator -----
-
-    def set_command(self, value: float) -> None:
-        """Command `value` in info.command_unit (clipped to the command range)."""
-        if self._closed:
-            raise DeviceError(f"{self.name} on {self._link.where}: driver is closed")
-        if not math.isfinite(value):
-            raise ValueError(f"command must be finite, got {value!r}")
-        self._link.command(self._message(self._packet, self._to_protocol(value)))
-
-    def neutral(self) -> None:
-        """Release the motor (SET_CURRENT 0, whatever the mode); idempotent, quiet after close."""
-        if self._closed:
-            return
-        self._link.command(self._message(SET_CURRENT, 0.0), retry=True)
+    # ----- Actuator (set_command, neutral, close: CanActuator) -----
 
     def expected_speed_rpm(self, command: float) -> float | None:
         """In rpm mode the VESC's speed loop holds the commanded speed; otherwise unknown."""
@@ -196,21 +181,9 @@ class VescCanDriver:
                 f"{self.name} on {self._link.where} reports {fault_name(self._fault)} "
                 f"(code {self._fault}); the motor is stopped"
             )
-        last = self._feedback.last_t or self._opened_t
-        if not self._closed and time.monotonic() - last > self.config.timeout_s:
+        if self._silent_for(self._feedback.last_t):
             raise DeviceError(self._silence(f"for {self.config.timeout_s:g} s"))
         return self._feedback.take()
-
-    def close(self) -> None:
-        """Neutral, stop the keep-alive, release the bus. Idempotent."""
-        if self._closed:
-            return
-        try:
-            self.neutral()
-        except DeviceError as exc:
-            log.warning("%s: could not command neutral on close: %s", self.name, exc)
-        self._closed = True
-        self._link.close()
 
     @property
     def fault(self) -> int:
@@ -235,6 +208,13 @@ class VescCanDriver:
         if c.mode == "current":
             return v / 100.0 * c.max_current_a if c.unit == "percent" else v
         return v / 100.0 * c.max_erpm if c.unit == "percent" else v * c.pole_pairs
+
+    def _command_frame(self, value: float) -> can.Message:
+        return self._message(self._packet, self._to_protocol(value))
+
+    def _neutral_frame(self) -> can.Message:
+        """Release the motor: SET_CURRENT 0, whatever the mode."""
+        return self._message(SET_CURRENT, 0.0)
 
     def _message(self, packet: int, value: float) -> can.Message:
         return can.Message(
@@ -282,16 +262,6 @@ class VescCanDriver:
         else:
             return "ignored"
         return "frames"
-
-    def _wait_for_status(self) -> None:
-        deadline = self._opened_t + self.config.timeout_s
-        while self._feedback.last_t is None:
-            if time.monotonic() > deadline:
-                raise DeviceError(self._silence(
-                    f"within {self.config.timeout_s:g} s of opening (is it powered, on this "
-                    "bus and bitrate, with CAN status messages 1, 4 and 5 enabled?)"
-                ))  # fmt: skip
-            time.sleep(0.01)
 
     def _silence(self, how: str) -> str:
         rx = f"; receive error: {self._link.rx_error}" if self._link.rx_error else ""

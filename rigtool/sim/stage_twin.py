@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from rigtool.devices.framing import LineFramer
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.stm32_twin import open_pty
 
@@ -52,7 +53,7 @@ class StageTwin:
         self.lines_received = 0
         self._rng = np.random.default_rng(seed)
         self._master, self._slave, self.pty_path = open_pty()
-        self._buf = bytearray()
+        self._framer = LineFramer()
         self._sel = selectors.DefaultSelector()
         self._sel.register(self._master, selectors.EVENT_READ)
         self._stop = threading.Event()
@@ -129,15 +130,13 @@ class StageTwin:
     def _loop(self) -> None:
         last = time.monotonic()
         while not self._stop.is_set():
+            data = b""
             for _ in self._sel.select(timeout=_STEP_S):
                 with contextlib.suppress(BlockingIOError, OSError):
-                    self._buf.extend(os.read(self._master, 4096))
-            parts = re.split(rb"[\r\n]", bytes(self._buf))
-            self._buf = bytearray(parts.pop())
-            for raw in parts:
-                if raw:
-                    self.lines_received += 1
-                    self._command(raw.decode("ascii", errors="replace").strip())
+                    data += os.read(self._master, 4096)
+            for raw in self._framer.feed(data)[0]:
+                self.lines_received += 1
+                self._command(raw.decode("ascii", errors="replace").strip())
             now = time.monotonic()
             self._advance(now - last)
             last = now

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rigtool.devices.framing import LineFramer
 from rigtool.sim.live import LiveTwin
 
 _PLACEHOLDERS = {"{channel}": r"(?P<channel>\d+)", "{value}": r"(?P<value>[-+]?\d+(?:\.\d*)?)"}
@@ -108,7 +109,7 @@ class Stm32BridgeTwin:
         self._sel = selectors.DefaultSelector()
         self._sel.register(self._master, selectors.EVENT_READ, "pty")
         self._sel.register(self._listener, selectors.EVENT_READ, "listen")
-        self._bufs: dict[object, bytearray] = {"pty": bytearray()}
+        self._framers: dict[object, LineFramer] = {"pty": LineFramer()}
         self._clients: list[socket.socket] = []
         self._last_line_t = time.monotonic()
         self._armed = False
@@ -202,13 +203,7 @@ class Stm32BridgeTwin:
             pass  # a UART drops what nobody reads; a vanished client is reaped on read
 
     def _on_bytes(self, end: object, data: bytes) -> None:
-        buf = self._bufs.setdefault(end, bytearray())
-        buf.extend(data)
-        parts = re.split(rb"[\r\n]", bytes(buf))
-        self._bufs[end] = bytearray(parts.pop())
-        for raw in parts:
-            if not raw:
-                continue
+        for raw in self._framers.setdefault(end, LineFramer()).feed(data)[0]:
             self.lines_received += 1
             self._last_line_t = time.monotonic()
             self._armed = True
@@ -268,7 +263,7 @@ class Stm32BridgeTwin:
             self._sel.unregister(client)
         with contextlib.suppress(ValueError):
             self._clients.remove(client)
-        self._bufs.pop(client, None)
+        self._framers.pop(client, None)
         client.close()
 
     def _close_all(self) -> None:
