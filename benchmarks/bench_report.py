@@ -23,6 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 # (protocol, runs swept before it that it needs: the cavitation run's deep base run)
 CASES = {
+    "luo2020-baseline": [],
     "esc-1100-1900": [],
     "quick-demo": [],
     "luo2020-cavitation": ["luo2020-baseline"],

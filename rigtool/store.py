@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import sqlite_utils
 
 from rigtool.errors import StoreError, UsageError
 from rigtool.spool import SampleSpool
@@ -272,7 +271,6 @@ class Store:
                 self._set_wal(timeout_s)
                 self.conn.execute("PRAGMA synchronous=NORMAL")
             self.conn.execute("PRAGMA foreign_keys=ON")
-            self.db = sqlite_utils.Database(self.conn)
             if read_only:
                 self._check_readable()
             else:
@@ -450,8 +448,9 @@ class Store:
             "actuator_json": None if actuator is None else json.dumps(actuator),
             "started_utc": utc_now("microseconds"),
         }
-        with self.transaction():
-            self.db["runs"].insert(row)
+        with self.transaction() as conn:
+            conn.execute(f"INSERT INTO runs ({', '.join(row)}) VALUES "
+                         f"({', '.join('?' * len(row))})", tuple(row.values()))
         return run_id
 
     def add_step(
@@ -658,8 +657,10 @@ class Store:
         return rows[0][0]
 
     def run(self, run_id: str) -> dict:
-        row = self.db["runs"].get(run_id)
-        out = dict(row)
+        rows = self._dicts("SELECT * FROM runs WHERE id = ?", [run_id])
+        if not rows:
+            raise UsageError(f"no run {run_id!r} in {self.path}")
+        out = rows[0]
         for key in ("protocol_json", "rig_json", "plan_json", "metadata_json"):
             out[key.removesuffix("_json")] = json.loads(out.pop(key))
         actuator = out.pop("actuator_json")
@@ -751,18 +752,24 @@ class Store:
                 out[c] = np.ascontiguousarray(data[:, i])
         return out
 
+    def _dicts(self, sql: str, args: Iterable[Any] = ()) -> list[dict]:
+        """Rows of a query as dicts keyed by column name."""
+        cur = self.conn.execute(sql, tuple(args))
+        names = [d[0] for d in cur.description]
+        return [dict(zip(names, row, strict=True)) for row in cur.fetchall()]
+
     def run_ids(self) -> list[str]:
         """Every run id, oldest first."""
         return [r[0] for r in self.conn.execute("SELECT id FROM runs ORDER BY id")]
 
     def runs(self, limit: int = 50) -> list[dict]:
-        return list(self.db.query(
+        return self._dicts(
             "SELECT r.id, r.name, r.status, r.created_utc, r.n_planned, r.command_unit, "
             "(SELECT count(*) FROM steps s WHERE s.run_id = r.id) AS n_steps "
-            "FROM runs r ORDER BY r.id DESC LIMIT ?", [limit]))
+            "FROM runs r ORDER BY r.id DESC LIMIT ?", [limit])
 
     def steps(self, run_id: str) -> list[dict]:
-        return list(self.db.query("SELECT * FROM steps WHERE run_id = ? ORDER BY idx", [run_id]))
+        return self._dicts("SELECT * FROM steps WHERE run_id = ? ORDER BY idx", [run_id])
 
     def events(self, run_id: str, kind: str | None = None) -> list[dict]:
         sql = "SELECT * FROM events WHERE run_id = ?"
@@ -770,7 +777,7 @@ class Store:
         if kind:
             sql += " AND kind = ?"
             args.append(kind)
-        rows = list(self.db.query(sql + " ORDER BY id", args))
+        rows = self._dicts(sql + " ORDER BY id", args)
         for r in rows:
             r["detail"] = json.loads(r.pop("detail_json"))
         return rows
