@@ -201,7 +201,7 @@ def _read_csv(path):
 def test_artefacts_formats(can_cal, tmp_path):
     paths = write_artefacts(can_cal, tmp_path, CREATED)
     assert [p.name for p in paths] == ["calibration.json", "points.csv", "command_curve.csv",
-                                       "inverse_lut.csv"]
+                                       "inverse_lut.csv", "performance.csv"]
     assert all(p.parent == tmp_path / can_cal.run_id for p in paths)
     doc = json.loads(paths[0].read_text())
     assert doc["format"] == "rigtool-calibration" and doc["format_version"] == 1
@@ -232,7 +232,9 @@ def test_artefacts_formats(can_cal, tmp_path):
     comments, header, rows = _read_csv(paths[1])
     assert header[:3] == ["depth_m", "step_idx", "command"]
     assert "thrust_mean_n" in header and "speed_se_rpm" in header and "current_max_a" in header
-    assert header[-2:] == ["thrust_peak_n", "thrust_zero_n"]
+    assert header[header.index("thrust_peak_n"):][:3] == ["thrust_peak_n", "thrust_zero_n",
+                                                           "voltage_mean_v"]
+    assert header[-3:] == ["efficiency_n_per_w", "efficiency_se_n_per_w", "efficiency_g_per_w"]
     assert "# thrust_mean_n [N]: thrust mean over the steady window" in comments
     assert len(rows) == sum(len(s.points) for s in can_cal.sections)
     assert float(rows[0]["thrust_mean_n"]) == pytest.approx(

@@ -14,7 +14,7 @@ from rigtool.errors import UsageError
 from rigtool.store import Store
 from rigtool.units import FT_CHANNELS
 
-SAMPLE_FIELDS = ("t_s", "thrust_n", "speed_rpm", "current_a")
+SAMPLE_FIELDS = ("t_s", "thrust_n", "speed_rpm", "current_a", "voltage_v")
 _AXIS_FIT_STEPS = 24  # points sampled to recover the thrust axis from the F/T channels
 
 
@@ -47,9 +47,15 @@ class Samples:
     current_a: np.ndarray
     point: np.ndarray
     offsets: np.ndarray
+    voltage_v: np.ndarray | None = None  # bus voltage (None: not recorded)
 
     def channel(self, name: str) -> np.ndarray:
-        return getattr(self, name)
+        """A per-sample channel; `power_w` is V * I sample by sample (so its mean is the mean
+        power, not the product of the means); NaN where a channel was not recorded."""
+        if name == "power_w":
+            return self.channel("voltage_v") * np.abs(self.current_a)
+        value = getattr(self, name)
+        return np.full(self.t_s.shape, np.nan) if value is None else value
 
 
 @dataclass

@@ -20,7 +20,8 @@ import numpy as np
 
 from rigtool.analysis.dataset import Samples, Steps
 
-CHANNEL_UNITS = {"thrust_n": "N", "speed_rpm": "r/min", "current_a": "A"}
+CHANNEL_UNITS = {"thrust_n": "N", "speed_rpm": "r/min", "current_a": "A", "voltage_v": "V",
+                 "power_w": "W"}
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,8 @@ class PointTable:
     thrust: ChannelStats
     speed: ChannelStats
     current: ChannelStats
+    voltage: ChannelStats
+    power: ChannelStats  # electrical power V * |I|, averaged sample by sample
     dead: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     used_in_fits: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     thrust_zero_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -109,6 +112,21 @@ class PointTable:
         """Mean thrust minus the estimated zero (offset + drift) at the point's time."""
         return self.thrust.mean - self.thrust_zero_n
 
+    @property
+    def efficiency_n_per_w(self) -> np.ndarray:
+        """|thrust| / electrical power (N/W); NaN where the power is not positive or unknown."""
+        p = self.power.mean
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(p > 0, np.abs(self.thrust_corrected_n) / p, np.nan)
+
+    @property
+    def efficiency_se_n_per_w(self) -> np.ndarray:
+        """Standard error of efficiency_n_per_w (thrust and power errors combined, first order)."""
+        f, p = np.abs(self.thrust_corrected_n), self.power.mean
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rel = np.hypot(self.thrust.se / f, self.power.se / p)
+        return self.efficiency_n_per_w * rel
+
     def __len__(self) -> int:
         return len(self.step_idx)
 
@@ -119,10 +137,9 @@ class PointTable:
 
     def take(self, index: np.ndarray) -> PointTable:
         """Rows `index` (int or bool array) as a new table."""
-        plain = {k: getattr(self, k)[index] for k in self.__dataclass_fields__
-                 if k not in ("thrust", "speed", "current")}
-        return PointTable(**plain, thrust=self.thrust.take(index), speed=self.speed.take(index),
-                          current=self.current.take(index))
+        stats = ("thrust", "speed", "current", "voltage", "power")
+        plain = {k: getattr(self, k)[index] for k in self.__dataclass_fields__ if k not in stats}
+        return PointTable(**plain, **{k: getattr(self, k).take(index) for k in stats})
 
 
 @dataclass
@@ -147,6 +164,7 @@ class SteadyWindows:
             n_window=self.n_window, window_start_s=self.window_start_s, t_mid_s=self.t_mid_s,
             unsteady=self.unsteady, thrust=self.channels["thrust_n"],
             speed=self.channels["speed_rpm"], current=self.channels["current_a"],
+            voltage=self.channels["voltage_v"], power=self.channels["power_w"],
             dead=np.zeros(n, bool), used_in_fits=np.zeros(n, bool), thrust_zero_n=np.zeros(n),
             speed_sign=np.zeros(n),
         )

@@ -16,10 +16,18 @@ import numpy as np
 
 from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.fits import Coefficient
-from rigtool.artefacts.write import MISSING, atomic_write, csv_text, json_clean, json_text
+from rigtool.artefacts.write import (
+    MISSING,
+    atomic_write,
+    csv_cell,
+    csv_text,
+    json_clean,
+    json_text,
+)
 from rigtool.outpaths import run_folder
 from rigtool.store import utc_now
 
+GRAMS_PER_NEWTON = 1000.0 / 9.80665  # grams-force per newton
 FORMAT = "rigtool-calibration"
 FORMAT_VERSION = 1
 FILES = {
@@ -27,6 +35,7 @@ FILES = {
     "points": "points.csv",
     "command_curve": "command_curve.csv",
     "inverse_lut": "inverse_lut.csv",
+    "performance": "performance.csv",
 }
 COMMAND_UNIT = "<command unit>"
 
@@ -49,6 +58,7 @@ def write_artefacts(cal: Calibration, out_dir: str | Path,
         "command_curve": csv_text(head + CURVE_DOC, _units(CURVE_COLUMNS, cal),
                                   curve_rows(cal)),
         "inverse_lut": csv_text(head + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal)),
+        "performance": performance_text(cal),
     }
     return [atomic_write(target / FILES[key], text) for key, text in texts.items()]
 
@@ -108,6 +118,20 @@ def _coef_doc(c: Coefficient) -> dict:
             "rms_unit": c.rms_unit, "note": c.note}
 
 
+def _efficiency_doc(sec: DepthSection) -> dict | None:
+    """Best thrust per electrical watt among the live points (None without power)."""
+    p = sec.points
+    eff = np.where((p.status == "ok") & ~p.dead, p.efficiency_n_per_w, np.nan)
+    if not np.isfinite(eff).any():
+        return None
+    i = int(np.nanargmax(eff))
+    return {"max_n_per_w": float(eff[i]), "max_g_per_w": float(eff[i]) * GRAMS_PER_NEWTON,
+            "se_n_per_w": float(p.efficiency_se_n_per_w[i]), "at_command": float(p.command[i]),
+            "at_thrust_n": float(p.thrust_corrected_n[i]), "power_w": float(p.power.mean[i]),
+            "n_points": int(np.isfinite(eff).sum()),
+            "power": "mean over the steady window of V * |I| sample by sample"}
+
+
 def _section_doc(sec: DepthSection) -> dict:
     curve = None
     if sec.curve is not None:
@@ -143,6 +167,7 @@ def _section_doc(sec: DepthSection) -> dict:
         "command_curve": curve,
         "hysteresis": None if h is None else {
             "max_abs_n": h.max_abs_n, "at_command": h.at_command, "n_commands": int(h.command.size)},
+        "efficiency": _efficiency_doc(sec),
         "repeatability": None if r is None else {
             "max_std_n": r.max_std_n, "median_std_n": r.median_std_n,
             "n_groups": int(r.command.size)},
@@ -177,6 +202,15 @@ POINT_COLUMNS = (
     ("thrust_peak_n", "N", "extreme on the side of the mean: max if mean >= 0 else min"),
     ("thrust_zero_n", "N", "estimated sensor zero (offset + drift) at t_mid_s; "
      "thrust_mean_n - thrust_zero_n is the thruster's thrust"),
+    *((f"{ch}_{stat}_{u}", unit, f"{label} {text} over the steady window")
+      for ch, u, unit, label in (("voltage", "v", "V", "bus voltage"),
+                                 ("power", "w", "W", "electrical power V |I|, sample by sample,"))
+      for stat, text in (("mean", "mean"), ("std", "standard deviation"),
+                         ("se", "standard error of the mean"), ("min", "minimum"),
+                         ("max", "maximum"))),
+    ("efficiency_n_per_w", "N/W", "|thrust_mean_n - thrust_zero_n| / power_mean_w"),
+    ("efficiency_se_n_per_w", "N/W", "standard error of efficiency_n_per_w"),
+    ("efficiency_g_per_w", "g/W", "efficiency in grams-force per watt (manufacturer tables)"),
 )
 CURVE_COLUMNS = (
     ("depth_m", "m", "depth (nan: not set)"),
@@ -231,6 +265,11 @@ def _point_rows(cal: Calibration) -> Iterable[list[object]]:
                 row += [float(ch.mean[i]), float(ch.std[i]), float(ch.se[i]), float(ch.min[i]),
                         float(ch.max[i])]
             row += [float(p.thrust.peak[i]), float(p.thrust_zero_n[i])]
+            for ch in (p.voltage, p.power):
+                row += [float(ch.mean[i]), float(ch.std[i]), float(ch.se[i]), float(ch.min[i]),
+                        float(ch.max[i])]
+            eff = float(p.efficiency_n_per_w[i])
+            row += [eff, float(p.efficiency_se_n_per_w[i]), eff * GRAMS_PER_NEWTON]
             yield row
 
 
@@ -253,3 +292,42 @@ def lut_rows(cal: Calibration) -> Iterable[list[object]]:
         thrust, command, branch = sec.curve.lut
         for f, c, b in zip(thrust, command, branch, strict=True):
             yield [_depth(sec), b, sec.curve.branches[b].direction, float(f), float(c)]
+
+
+# -- manufacturer-style performance table -----------------------------------------------------
+
+def performance_rows(cal: Calibration) -> list[list[float]]:
+    """One row per (depth, command) over the 'ok' points: the means of their steady-window
+    means, thrust relative to the sensor zero. Columns: PERFORMANCE_HEADER."""
+    rows = []
+    for sec in cal.sections:
+        p = sec.points
+        ok = p.status == "ok"
+        f = p.thrust_corrected_n
+        for command in np.unique(p.command[ok]):
+            m = ok & (p.command == command)
+
+            def mean(x: np.ndarray, m: np.ndarray = m) -> float:
+                v = x[m & np.isfinite(x)]
+                return float(v.mean()) if v.size else math.nan
+
+            thrust, power = mean(f), mean(p.power.mean)
+            g_per_w = abs(thrust) / power * GRAMS_PER_NEWTON if power > 0 else math.nan
+            rows.append([_depth(sec), float(command), mean(p.speed.mean), mean(p.current.mean),
+                         mean(p.voltage.mean), power, thrust, thrust / 9.80665, g_per_w])
+    return rows
+
+
+def performance_header(command_unit: str) -> list[str]:
+    """Headers with unit suffixes, in the Tyto/manufacturer style `rigtool import` reads."""
+    return ["Depth (m)", f"ESC ({command_unit})", "Motor Optical Speed (RPM)", "Current (A)",
+            "Voltage (V)", "Electrical Power (W)", "Thrust (N)", "Force (kgf)",
+            "Efficiency (g/W)"]
+
+
+def performance_text(cal: Calibration) -> str:
+    """performance.csv: a plain table (no comment lines) that spreadsheets and `rigtool
+    import` read as they are (docs/artefacts.md)."""
+    lines = [",".join(performance_header(cal.command_unit))]
+    lines += [",".join(csv_cell(v) for v in row) for row in performance_rows(cal)]
+    return "\n".join(lines) + "\n"

@@ -17,6 +17,7 @@ PATTERNS: dict[str, tuple[str, ...]] = {
     "command": (r"esc signal", r"esc", r"pwm", r"throttle"),
     "thrust": (r"thrust",),
     "voltage": (r"voltage",),
+    "depth": (r"depth",),  # rigtool's own performance.csv
     "current": (r"current",),
     "speed": (r"motor optical speed", r"optical speed", r"motor speed", r"rpm",
               r"motor electrical speed", r"electrical speed"),

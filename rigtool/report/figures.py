@@ -325,6 +325,30 @@ def spread(points: PointTable, unit: str) -> Figure:
     return fig
 
 
+def efficiency(points: PointTable) -> Figure:
+    """Thrust per electrical watt (g/W, with 95 % bars) and electrical power (W) vs thrust."""
+    fig = figure(WIDE)
+    eff_ax, pow_ax = fig.subplots(1, 2)
+    ok = (points.status == "ok") & ~points.dead & np.isfinite(points.efficiency_n_per_w)
+    f = points.thrust_corrected_n
+    grams = 1000.0 / 9.80665
+    for mask, color, label in ((ok & (f >= 0), FWD, "forward"), (ok & (f < 0), REV, "reverse")):
+        if not mask.any():
+            continue
+        eff_ax.errorbar(np.abs(f[mask]), grams * points.efficiency_n_per_w[mask],
+                        yerr=1.96 * grams * np.nan_to_num(points.efficiency_se_n_per_w[mask]),
+                        fmt=".", color=color, label=label)
+        pow_ax.plot(np.abs(f[mask]), points.power.mean[mask], ".", color=color, label=label)
+    eff_ax.set_xlabel("|thrust| (N)")
+    eff_ax.set_ylabel("efficiency (g/W)")
+    eff_ax.set_ylim(bottom=0)
+    pow_ax.set_xlabel("|thrust| (N)")
+    pow_ax.set_ylabel("electrical power V·|I| (W)")
+    fig.subplots_adjust(wspace=0.3, bottom=(0.48 + _rows(eff_ax, 2)) / WIDE[1])
+    _fig_legend(fig, eff_ax, 2)
+    return fig
+
+
 def tare_drift(drift: TareDrift) -> Figure:
     """Thrust-channel tare bias (relative to the first tare) vs time, with the linear trend."""
     fig = figure(WIDE)

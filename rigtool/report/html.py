@@ -239,7 +239,19 @@ def _section(sec: DepthSection, cal: Calibration, unit: str, suffix: str,
             "spread", f"fig-spread{suffix}", f"Per-point spread{at}",
             "Thrust standard deviation and |max − mean| per point over its steady window "
             f"(N) vs command ({unit}).", fg.encode(fg.spread(p, unit), fmt)))
+    view.figures.append(_efficiency_figure(sec, suffix, at, fmt))
     return view
+
+
+def _efficiency_figure(sec: DepthSection, suffix: str, at: str, fmt: str) -> FigureItem:
+    base = ("efficiency", f"fig-efficiency{suffix}", f"Efficiency and electrical power{at}")
+    p = sec.points
+    if not (np.isfinite(p.efficiency_n_per_w) & (p.status == "ok") & ~p.dead).any():
+        return FigureItem(*base, "No efficiency figure: the run recorded no bus voltage and "
+                          "current (electrical power V·|I| needs both).")
+    return FigureItem(*base, "Thrust per electrical watt (g/W; bars: 95 % intervals) and "
+                      "electrical power V·|I| averaged sample by sample (W), both vs |thrust| "
+                      "(N), live points only.", fg.encode(fg.efficiency(p), fmt))
 
 
 def _no_fit_reason(sec: DepthSection) -> str:
