@@ -18,7 +18,7 @@ from rich.text import Text
 from rigtool import __version__
 from rigtool.errors import RigtoolError, UsageError
 from rigtool.plan import estimate_duration_s
-from rigtool.progress import default_reporter
+from rigtool.progress import default_reporter, stage
 from rigtool.store import DB_ENV, Store, resolve_db_path
 from rigtool.units import unit_label
 
@@ -33,6 +33,7 @@ err = Console(stderr=True, highlight=False, markup=False, soft_wrap=True,
               width=None if sys.stderr.isatty() else 160)
 
 
+VEHICLE_FORMATS = ("c-header", "ros2", "gazebo", "csv-lut")  # rigtool.artefacts.vehicle.FORMATS
 MAX_PRINTED_ERRORS = 200  # unreadable cells of one imported file listed on stderr
 
 
@@ -216,11 +217,14 @@ def cmd_export(args: argparse.Namespace) -> int:
         if args.all is not None:
             if args.format == "csv":
                 raise UsageError("--all writes a Parquet dataset: drop --format csv")
-            paths = export_all(store, Path(args.all))
+            with stage(f"exporting every run of {store.path} to {args.all}"):
+                paths = export_all(store, Path(args.all))
             out.print(f"{len(paths)} files in {args.all} (docs/sql.md shows how to query them)")
             return 0
         run_id = store.resolve_run_id(args.run)
-        for path in export_run(store, run_id, Path(args.out), args.format or "csv"):
+        with stage(f"exporting run {run_id}"):
+            paths = export_run(store, run_id, Path(args.out), args.format or "csv")
+        for path in paths:
             out.print(str(path))
     return 0
 
@@ -235,7 +239,7 @@ def cmd_merge(args: argparse.Namespace) -> int:
             raise UsageError(f"{src} is the output: give another -o")
     with Store(target) as store:
         for src in sources:
-            with Store(src, read_only=True) as source:
+            with Store(src, read_only=True) as source, stage(f"merging {src}"):
                 report = store.merge_from(source)
             out.print(f"{src}: {len(report['added'])} run(s) added, {len(report['skipped'])} "
                       "already present")
@@ -345,6 +349,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if res.cavitation is not None:
             out.print(f"quasi-cavitation model from BETM base run {res.cavitation.base_run_id}")
         _print_warnings(store, res.run_id, cal, res.notes)
+        if args.export:
+            paths = workflows.export_calibration(store, res.run_id, args.out, args.export,
+                                                 results=res)
+            out.print(f"vehicle artefacts: {', '.join(str(p) for p in paths)}")
         if args.report:
             out.print(f"report: {workflows.report(store, res.run_id, args.out, results=res)}")
     return 0
@@ -394,6 +402,15 @@ def cmd_import(args: argparse.Namespace) -> int:
                 err.print(f"warning: {warning}")
             out.print(result.summary())
         return 0
+
+
+def cmd_export_cal(args: argparse.Namespace) -> int:
+    from rigtool import workflows
+
+    with Store(resolve_db_path(args.db), read_only=True) as store:
+        for path in workflows.export_calibration(store, args.run, args.out, args.format):
+            out.print(str(path))
+    return 0
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -458,8 +475,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train-with", metavar="RUN", action="append", default=[],
                    help="also train the quasi-cavitation model on this shallow run of the same "
                    "thruster (repeatable; two runs or more are recommended)")
+    p.add_argument("--export", metavar="FORMAT", action="append", default=[],
+                   choices=VEHICLE_FORMATS, help="also write a vehicle artefact: "
+                   f"{', '.join(VEHICLE_FORMATS)} (repeatable; docs/artefacts.md)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("export-cal", help="write vehicle artefacts (C header, ROS 2, Gazebo, "
+                       "CSV lookup table) of a calibrated run")
+    p.add_argument("run", help="run id, unique prefix, or `last`")
+    p.add_argument("--format", action="append", required=True, choices=VEHICLE_FORMATS,
+                   help="artefact to write (repeatable)")
+    p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_export_cal)
 
     p = sub.add_parser("report", help="write calibrations/<run-id>/report.html from what "
                        "`calibrate` stored, and print its path")

@@ -160,3 +160,16 @@ def compare(store: Store, run_refs: Sequence[str], reference: str | None = None,
                             command_unit=units.pop(), floor_frac=floor_frac)
     folder = Path(out_dir)
     return result, [*write_corrections(result, folder), write_compare_report(result, folder)]
+
+
+def export_calibration(store: Store, run_ref: str, out_dir: str | Path, formats: Sequence[str],
+                       *, results: Results | None = None) -> list[Path]:
+    """Write vehicle artefacts (c-header, ros2, gazebo, csv-lut) of a calibrated run from
+    its stored results (or `results`, just computed); return their paths."""
+    from rigtool.artefacts.vehicle import write_vehicle_artefacts
+
+    run_id = store.resolve_run_id(run_ref)
+    res = results or stored_results(store, run_id)
+    if res.calibration is None:
+        raise UsageError(f"run {run_id} has no points: nothing to export")
+    return write_vehicle_artefacts(res.calibration, out_dir, formats, res.created_utc)

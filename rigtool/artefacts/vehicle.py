@@ -1,0 +1,244 @@
+"""Artefacts a vehicle team drops in: a C99 header with the inverse lookup table, ROS 2
+parameters, gz-sim Thruster parameters, and the CSV lookup table (docs/artefacts.md).
+
+Each is built from the deepest depth of a calibration (the thruster's own thrust; shallower
+points may ventilate) and states its units and source run.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+import rigtool
+from rigtool.analysis.calibrate import Calibration, DepthSection
+from rigtool.artefacts.calibration import FILES, write_artefacts
+from rigtool.artefacts.write import atomic_write, csv_cell
+from rigtool.errors import UsageError
+from rigtool.outpaths import run_folder
+
+FORMATS = {"c-header": "thruster_calibration.h", "ros2": "thruster_params.yaml",
+           "gazebo": "thruster_gazebo.sdf", "csv-lut": FILES["inverse_lut"]}
+RAD_S_PER_RPM = 2.0 * math.pi / 60.0
+N_TEST = 9  # test-vector thrusts per branch
+
+
+def write_vehicle_artefacts(cal: Calibration, out_dir: str | Path, formats: Sequence[str],
+                            created_utc: str) -> list[Path]:
+    """Write the requested formats into `out_dir`/<run-id>/ and return their paths."""
+    unknown = sorted(set(formats) - set(FORMATS))
+    if unknown:
+        raise UsageError(f"unknown export format(s) {', '.join(unknown)}; choose from "
+                         f"{', '.join(FORMATS)}")
+    folder = run_folder(out_dir, cal.run_id)
+    folder.mkdir(parents=True, exist_ok=True)
+    sec = deepest(cal)
+    paths = []
+    for fmt in dict.fromkeys(formats):
+        if fmt == "csv-lut":
+            paths += [p for p in write_artefacts(cal, out_dir, created_utc)
+                      if p.name == FORMATS["csv-lut"]]
+            continue
+        text = {"c-header": c_header, "ros2": ros2_params, "gazebo": gazebo_sdf}[fmt](
+            cal, sec, created_utc)
+        paths.append(atomic_write(folder / FORMATS[fmt], text))
+    return paths
+
+
+def deepest(cal: Calibration) -> DepthSection:
+    """The section the vehicle artefacts describe: the deepest (or the only) depth."""
+    known = [s for s in cal.sections if s.depth_m is not None]
+    return max(known, key=lambda s: s.depth_m) if known else cal.sections[0]
+
+
+def branches(sec: DepthSection) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(direction, thrust ascending, command) of each branch of the inverse table, in order,
+    rounded as inverse_lut.csv writes them, so every artefact holds the same numbers."""
+    if sec.curve is None:
+        return []
+    thrust, command, branch = sec.curve.lut
+    thrust, command = _as_written(thrust), _as_written(command)
+    out = []
+    for b in np.unique(branch):
+        rows = branch == b
+        order = np.argsort(thrust[rows])
+        out.append((sec.curve.branches[int(b)].direction, thrust[rows][order],
+                    command[rows][order]))
+    return out
+
+
+def _as_written(values: np.ndarray) -> np.ndarray:
+    return np.array([float(csv_cell(float(v))) for v in values])
+
+
+def lut_command(tables: list[tuple[str, np.ndarray, np.ndarray]], neutral: float,
+                thrust_n: np.ndarray) -> np.ndarray:
+    """The reference evaluation the header's function reproduces: neutral for 0 N, linear
+    interpolation in the first branch whose range holds the thrust, NaN outside them all."""
+    f = np.asarray(thrust_n, dtype=float)
+    out = np.full(f.shape, np.nan)
+    out[f == 0] = neutral
+    for _, lut_f, lut_c in tables:
+        take = np.isnan(out) & (f >= lut_f[0]) & (f <= lut_f[-1])
+        out[take] = np.interp(f[take], lut_f, lut_c)
+    return out
+
+
+def _head(cal: Calibration, sec: DepthSection, created: str) -> list[str]:
+    depth = "not set" if sec.depth_m is None else f"{sec.depth_m:g} m"
+    return [f"rigtool {rigtool.__version__}: thruster calibration of run {cal.run_id} "
+            f"({cal.run_name}), thruster {cal.thruster_id or 'not named'}, depth {depth}",
+            f"created {created} from calibrations/{cal.run_id}/ (docs/artefacts.md)",
+            f"units: thrust N, command {cal.command_unit}, speed r/min. Generated: do not edit."]
+
+
+def _c(x: float) -> str:
+    return "NAN" if not math.isfinite(x) else repr(float(x))
+
+
+def _c_array(name: str, values: Sequence[float]) -> str:
+    body = ", ".join(_c(v) for v in values) or "NAN"
+    return f"static const double {name}[] = {{{body}}};"
+
+
+def c_header(cal: Calibration, sec: DepthSection, created: str) -> str:
+    """A C99 header: coefficients, dead zones, the inverse table of every branch, a lookup
+    function and a test vector (thrust -> command) computed by `lut_command`."""
+    tables = branches(sec)
+    if not tables:
+        raise UsageError(f"run {cal.run_id}: no command curve with a live branch, so there is "
+                         "no lookup table to export")
+    starts = np.cumsum([0] + [t[1].size for t in tables])
+    test_f = np.concatenate([np.linspace(f[0], f[-1], N_TEST) for _, f, _ in tables] +
+                            [np.array([0.0])])
+    test_c = lut_command(tables, cal.neutral_command, test_f)
+    coef = {k: sec.fits[k].value if k in sec.fits else math.nan
+            for k in ("C_p_fwd", "C_p_rev")}
+    zones = list(sec.curve.dead_zones) if sec.curve else []
+    guard = "RIGTOOL_THRUSTER_CALIBRATION_H"
+    lines = ["/*"] + [f" * {line}" for line in _head(cal, sec, created)] + [" */", "",
+             f"#ifndef {guard}", f"#define {guard}", "", "#include <math.h>", "",
+             f'#define RIGTOOL_SOURCE_RUN "{_c_string(cal.run_id)}"',
+             f'#define RIGTOOL_COMMAND_UNIT "{_c_string(cal.command_unit)}"',
+             f"#define RIGTOOL_NEUTRAL_COMMAND {_c(cal.neutral_command)}",
+             f"#define RIGTOOL_C_P_FWD {_c(coef['C_p_fwd'])} /* N/(r/min)^2: f = C_p |n| n, n > 0 */",
+             f"#define RIGTOOL_C_P_REV {_c(coef['C_p_rev'])} /* N/(r/min)^2: n < 0 */",
+             f"#define RIGTOOL_N_DEAD_ZONES {len(zones)}",
+             _c_array("rigtool_dead_zones", [v for z in zones for v in z])
+             + " /* command pairs lo, hi */",
+             f"#define RIGTOOL_N_BRANCHES {len(tables)}",
+             "static const int rigtool_branch_start[] = {"
+             + ", ".join(str(int(s)) for s in starts) + "};",
+             "/* branch directions: " + ", ".join(d for d, _, _ in tables) + " */",
+             _c_array("rigtool_lut_thrust", np.concatenate([f for _, f, _ in tables]))
+             + " /* N, ascending per branch */",
+             _c_array("rigtool_lut_command", np.concatenate([c for _, _, c in tables])),
+             "",
+             "/* The command giving thrust_n (N): the neutral command for 0 N, linear",
+             "   interpolation in the first branch whose thrust range holds thrust_n, NAN",
+             "   outside every branch (not achievable). */",
+             "static inline double rigtool_command_for_thrust(double thrust_n)",
+             "{",
+             "    if (thrust_n == 0.0) return RIGTOOL_NEUTRAL_COMMAND;",
+             "    for (int b = 0; b < RIGTOOL_N_BRANCHES; ++b) {",
+             "        int lo = rigtool_branch_start[b], hi = rigtool_branch_start[b + 1] - 1;",
+             "        if (thrust_n < rigtool_lut_thrust[lo] || thrust_n > rigtool_lut_thrust[hi])",
+             "            continue;",
+             "        while (hi - lo > 1) {",
+             "            int mid = (lo + hi) / 2;",
+             "            if (rigtool_lut_thrust[mid] <= thrust_n) lo = mid; else hi = mid;",
+             "        }",
+             "        if (hi == lo || rigtool_lut_thrust[hi] == rigtool_lut_thrust[lo])",
+             "            return rigtool_lut_command[lo];",
+             "        double w = (thrust_n - rigtool_lut_thrust[lo])",
+             "                   / (rigtool_lut_thrust[hi] - rigtool_lut_thrust[lo]);",
+             "        return rigtool_lut_command[lo]",
+             "               + w * (rigtool_lut_command[hi] - rigtool_lut_command[lo]);",
+             "    }",
+             "    return NAN;",
+             "}",
+             "",
+             "/* Test vector: rigtool_command_for_thrust(rigtool_test_thrust[i]) should give",
+             "   rigtool_test_command[i]. */",
+             f"#define RIGTOOL_N_TEST {test_f.size}",
+             _c_array("rigtool_test_thrust", test_f),
+             _c_array("rigtool_test_command", test_c),
+             "", f"#endif /* {guard} */", ""]
+    return "\n".join(lines)
+
+
+def _c_string(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.:+\- ]", "_", text)
+
+
+def _first(tables: list, direction: str) -> tuple[list[float], list[float]]:
+    table = next(((f, c) for d, f, c in tables if d == direction), None)
+    return ([], []) if table is None else ([float(v) for v in table[0]],
+                                           [float(v) for v in table[1]])
+
+
+def ros2_params(cal: Calibration, sec: DepthSection, created: str) -> str:
+    """ROS 2 parameters (`/**: ros__parameters:` applies them to any node that loads the file):
+    coefficients per direction, dead band, command range and mapping."""
+    tables = branches(sec)
+    fwd_f, fwd_c = _first(tables, "forward")
+    rev_f, rev_c = _first(tables, "reverse")
+    params = {
+        "source_run": cal.run_id,
+        "thruster_id": cal.thruster_id or "",
+        "depth_m": math.nan if sec.depth_m is None else float(sec.depth_m),
+        "command_unit": cal.command_unit,
+        "neutral_command": float(cal.neutral_command),
+        "dead_band": [float(v) for z in (sec.curve.dead_zones if sec.curve else []) for v in z],
+        "thrust_coefficient_forward": _coef(sec, "C_p_fwd"),
+        "thrust_coefficient_reverse": _coef(sec, "C_p_rev"),
+        "thrust_coefficient_unit": "N/(r/min)^2, f = C |n| n",
+        "map_forward_thrust_n": fwd_f, "map_forward_command": fwd_c,
+        "map_reverse_thrust_n": rev_f, "map_reverse_command": rev_c,
+    }
+    head = "".join(f"# {line}\n" for line in _head(cal, sec, created))
+    head += ("# map_*: thrust (N, ascending) -> command; interpolate linearly; neutral for 0 N.\n"
+             "# NaN (.nan) marks a value this run could not give. No time constant yet: the\n"
+             "# dynamics are not identified by this calibration.\n")
+    return head + yaml.safe_dump({"/**": {"ros__parameters": {"rigtool": params}}},
+                                 sort_keys=False, default_flow_style=None, width=100)
+
+
+def _coef(sec: DepthSection, name: str) -> float:
+    c = sec.fits.get(name)
+    return math.nan if c is None else float(c.value)
+
+
+def gazebo_sdf(cal: Calibration, sec: DepthSection, created: str) -> str:
+    """A gz-sim Thruster system block. The plugin computes thrust = C_T rho D^4 w|w| with w the
+    propeller speed in rad/s, so C_T = C_p / (rho D^4 (2 pi / 60)^2), C_p in N/(r/min)^2."""
+    cp = _coef(sec, "C_p_fwd")
+    rho, d = cal.water_density_kg_m3, cal.propeller_diameter_m
+    if not math.isfinite(cp):
+        raise UsageError(f"run {cal.run_id}: no C_p_fwd (the run has no speed feedback), so "
+                         "there is no thrust coefficient for the Gazebo thruster")
+    if not rho or not d:
+        raise UsageError(f"run {cal.run_id}: the Gazebo thrust coefficient needs the propeller "
+                         "diameter and water density: set metadata propeller_diameter_m and "
+                         "water_density_kg_m3 in the protocol")
+    c_t = cp / (rho * d**4 * RAD_S_PER_RPM**2)
+    rev = _coef(sec, "C_p_rev")
+    rev_note = ("" if not math.isfinite(rev) else
+                f" Reverse: C_T = {rev / (rho * d**4 * RAD_S_PER_RPM**2):.6g} (the plugin "
+                "takes one coefficient).")
+    comment = " ".join(_head(cal, sec, created)).replace("--", "-")
+    return (f"<!-- {comment} -->\n"
+            f"<!-- thrust = C_T rho D^4 w|w|, w in rad/s; C_T from C_p_fwd = {cp:.6g} "
+            f"N/(r/min)^2.{rev_note} No time constant: the dynamics are not identified. -->\n"
+            '<plugin filename="gz-sim-thruster-system" name="gz::sim::systems::Thruster">\n'
+            "  <namespace>thruster</namespace>\n"
+            "  <joint_name>propeller_joint</joint_name>\n"
+            f"  <thrust_coefficient>{c_t:.9g}</thrust_coefficient>\n"
+            f"  <fluid_density>{rho:.9g}</fluid_density>\n"
+            f"  <propeller_diameter>{d:.9g}</propeller_diameter>\n"
+            "</plugin>\n")
