@@ -52,7 +52,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     Every reference (the run, `base`, `train_with`) is checked before any file is written;
     UsageError names the bad one.
     """
-    from rigtool.analysis.calibrate import calibrate_run
+    from rigtool.analysis.calibrate import calibrate as analyse
     from rigtool.analysis.cavitation import (
         EVENT_KIND,
         CavitationParams,
@@ -60,6 +60,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
         cavitation_stage,
         training_runs,
     )
+    from rigtool.analysis.dataset import load_run
     from rigtool.artefacts.calibration import calibration_document, write_artefacts
     from rigtool.artefacts.cavitation import write_cavitation_artefacts
 
@@ -70,7 +71,8 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
                          f"({'; '.join(cav_stage.warnings) or 'no base run'})")
     extra = training_runs(store, run_id, train_with)
     with stage(f"calibrating run {run_id}"):
-        cal = calibrate_run(store, run_id)
+        run = load_run(store, run_id)
+        cal = analyse(run)
     created = utc_now()
     folder = run_folder(out_dir, run_id)
     paths = write_artefacts(cal, out_dir, created_utc=created)
@@ -78,7 +80,8 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     if cav_stage.base_run_id is not None:
         with stage(f"quasi-cavitation model of run {run_id} (base run {cav_stage.base_run_id})"):
             cav = calibrate_cavitation(store, run_id, cav_stage.base_run_id,
-                                       params=CavitationParams(causal=causal), train_with=extra)
+                                       params=CavitationParams(causal=causal), train_with=extra,
+                                       run=run)
         store.replace_events(run_id, EVENT_KIND, cav.events)
         paths += write_cavitation_artefacts(cav, out_dir, created_utc=created)
         notes = [f"quasi-cavitation: {w}" for w in cav.warnings]

@@ -496,13 +496,15 @@ ONE_RUN_WARNING = ("the model is trained on this one run: on new twin runs, one 
 
 def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
                          params: CavitationParams | None = None,
-                         train_with: Sequence[str] = ()) -> CavitationResult:
+                         train_with: Sequence[str] = (),
+                         run: RunData | None = None) -> CavitationResult:
     """Full quasi-cavitation analysis of `run_id` (reads the store, never writes: the detected
     events are in the result for the caller to store). The model is trained on `run_id` and
     the runs `train_with` (full ids, see `training_runs`): with two runs or more, held-out
     twin runs met the accuracy targets; with one, not always.
 
     UsageError when the analysis does not apply or no base run is usable (`cavitation_stage`).
+    `run`: `run_id` already loaded (calibrate has it), so it is not read twice.
     """
     p = params or CavitationParams()
     stage = cavitation_stage(store, run_id, base_run_id)
@@ -510,7 +512,7 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
         raise UsageError(stage.reason)
     base_id = stage.base_run_id
     betm, deep_blocks, deep_samples = build_betm(load_run(store, base_id), p)
-    run = load_run(store, run_id)
+    run = run if run is not None and run.run_id == run_id else load_run(store, run_id)
     events, det_blocks = find_events(run, betm, p)
     records = event_records(run, events)
     table = event_table(run, det_blocks, records)
