@@ -117,6 +117,9 @@ class Lab:
         CLI's: base=, causal=, train_with=."""
         from rigtool.workflows import calibrate
 
+        if self.store.read_only:
+            raise UsageError(f"{self.path} is open read-only: use rigtool.open(path, write=True) "
+                             "to calibrate")
         ref = run.id if isinstance(run, Run) else run
         results = calibrate(self.store, ref, out_dir, **options)
         return Calibration.from_results(results.calibration, results.created_utc)
@@ -350,11 +353,19 @@ def _read_csv(path: Path) -> Columns:
     """A calibration CSV (comment lines, header, rows; `nan` for missing) as columns."""
     if not path.is_file():
         raise UsageError(f"{path} is missing: the calibration folder is incomplete")
-    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln and ln[0] != "#"]
-    names = lines[0].split(",")
-    return _columns(names, ([_cell(names[i], v) for i, v in enumerate(ln.split(","))]
-                            for ln in lines[1:]))
-
-
-def _cell(name: str, text: str) -> object:
-    return text if name in TEXT_COLUMNS else float(text)
+    numbered = [(i, ln) for i, ln in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+                if ln and ln[0] != "#"]
+    if not numbered:
+        raise UsageError(f"{path}: no header row")
+    names = numbered[0][1].split(",")
+    rows = []
+    for number, line in numbered[1:]:
+        cells = line.split(",")
+        if len(cells) != len(names):
+            raise UsageError(f"{path}:{number}: {len(cells)} cells, the header has {len(names)}")
+        try:
+            rows.append([c if n in TEXT_COLUMNS else float(c) for n, c in zip(names, cells,
+                                                                              strict=True)])
+        except ValueError as exc:
+            raise UsageError(f"{path}:{number}: {exc}") from None
+    return _columns(names, rows)

@@ -123,6 +123,18 @@ def test_missing_things_are_clear_errors(lab_run, tmp_path):
         rigtool.load_calibration(tmp_path)
     with pytest.raises(UsageError, match="no run 'zz'"):
         lab_run[1].run("zz")
+    with pytest.raises(UsageError, match="open read-only"):
+        lab_run[1].calibrate("last", tmp_path / "nowhere")
+    assert not (tmp_path / "nowhere").exists()
+    folder = tmp_path / "broken"
+    folder.mkdir()
+    for f in _folder(lab_run).iterdir():
+        (folder / f.name).write_bytes(f.read_bytes())
+    lines = (folder / "inverse_lut.csv").read_text().splitlines()
+    lines[-1] = lines[-1].rsplit(",", 1)[0] + ",abc"
+    (folder / "inverse_lut.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(UsageError, match=rf"inverse_lut.csv:{len(lines)}: could not convert"):
+        rigtool.load_calibration(folder)
 
 
 def _folder(lab_run):
