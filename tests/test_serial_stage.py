@@ -12,8 +12,8 @@ from pydantic import ValidationError
 from rigtool.devices.base import DepthStage
 from rigtool.devices.serial_stage import SerialStage, SerialStageConfig
 from rigtool.errors import DeviceError, UsageError
+from rigtool.sim.line_server import open_pty
 from rigtool.sim.stage_twin import StageTwin
-from rigtool.sim.stm32_twin import open_pty
 
 SPEED = 250.0  # mm/s, fast enough to keep the tests short
 

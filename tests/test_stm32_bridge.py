@@ -21,10 +21,11 @@ from rigtool.devices.stm32_bridge import (
     pulse_us_for,
 )
 from rigtool.errors import DeviceError, UsageError
+from rigtool.sim.line_server import open_pty
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.physics import ThrusterTwin
 from rigtool.sim.profiles import PROFILES
-from rigtool.sim.stm32_twin import Dialect, Stm32BridgeTwin, open_pty
+from rigtool.sim.stm32_twin import Dialect, Stm32BridgeTwin
 
 from .helpers import wait_for as _wait_for
 

@@ -23,8 +23,8 @@ import time
 from typing import Literal
 
 from rigtool.devices.netft import FORCE_UNITS_N, unit_factor
+from rigtool.sim.line_server import open_pty
 from rigtool.sim.live import LiveTwin
-from rigtool.sim.stm32_twin import open_pty
 
 _JUNK = b"#$%&*@!?ABCDEFGHJKxyz \xff\x80\xfe"  # no digits: a garbled line never parses
 

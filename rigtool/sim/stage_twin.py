@@ -19,8 +19,8 @@ import time
 import numpy as np
 
 from rigtool.devices.framing import LineFramer
+from rigtool.sim.line_server import open_pty
 from rigtool.sim.live import LiveTwin
-from rigtool.sim.stm32_twin import open_pty
 
 _MOVE = re.compile(r"MOVE\s+(?P<mm>[-+]?\d+(?:\.\d*)?)")
 _STEP_S = 0.005  # position update period

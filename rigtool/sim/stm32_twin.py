@@ -10,19 +10,13 @@ are applied but never answered) and `disconnect()` (the device vanishes).
 
 from __future__ import annotations
 
-import contextlib
-import os
 import re
-import selectors
-import socket
-import threading
 import time
-import tty
 from dataclasses import dataclass
 
 import numpy as np
 
-from rigtool.devices.framing import LineFramer
+from rigtool.sim.line_server import LineServer
 from rigtool.sim.live import LiveTwin
 
 _PLACEHOLDERS = {"{channel}": r"(?P<channel>\d+)", "{value}": r"(?P<value>[-+]?\d+(?:\.\d*)?)"}
@@ -50,13 +44,6 @@ def command_pattern(fmt: str) -> re.Pattern[str]:
     parts = re.split(r"(\{channel\}|\{value\})", fmt)
     return re.compile("".join(_PLACEHOLDERS.get(p, re.escape(p)) for p in parts))
 
-
-def open_pty() -> tuple[int, int, str]:
-    """A raw pseudo-terminal: (master fd, slave fd, slave path); the master is non-blocking."""
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    os.set_blocking(master, False)
-    return master, slave, os.ttyname(slave)
 
 
 class Stm32BridgeTwin:
@@ -101,39 +88,24 @@ class Stm32BridgeTwin:
         self._patterns = [(kind, command_pattern(fmt)) for kind, fmt in (
             ("set", d.set), ("pulse", d.pulse), ("get", d.get), ("stop", d.stop),
             ("heartbeat", d.heartbeat), ("ping", d.ping)) if fmt]  # fmt: skip
-        self._master, self._slave, self.pty_path = open_pty()
-        self._listener = socket.create_server((host, 0))  # loopback unless told otherwise
-        self._listener.setblocking(False)
-        self.port = self._listener.getsockname()[1]
-        self.url = f"socket://{host}:{self.port}"
-        self._sel = selectors.DefaultSelector()
-        self._sel.register(self._master, selectors.EVENT_READ, "pty")
-        self._sel.register(self._listener, selectors.EVENT_READ, "listen")
-        self._framers: dict[object, LineFramer] = {"pty": LineFramer()}
-        self._clients: list[socket.socket] = []
         self._last_line_t = time.monotonic()
         self._armed = False
         self._next_tel = 0.0
-        self._stop = threading.Event()
-        self._disconnect = threading.Event()
-        self._disconnected = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="stm32-bridge-twin", daemon=True)
+        self._server = LineServer(self._on_line, "stm32-bridge-twin", host, tick=self._tick)
+        self.pty_path, self.url = self._server.pty_path, self._server.url
+        self.port = int(self.url.rsplit(":", 1)[1])
 
     def start(self) -> Stm32BridgeTwin:
         self.live.set_command(self._live_command(self.ccr[self.thruster_channel]))
-        self._thread.start()
+        self._server.start()
         return self
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
-        self._close_all()
+        self._server.stop()
 
     def disconnect(self) -> None:
         """Fault: the device vanishes (pty and TCP endpoints close)."""
-        self._disconnect.set()
-        self._disconnected.wait(timeout=2.0)
+        self._server.disconnect()
 
     def __enter__(self) -> Stm32BridgeTwin:
         return self.start()
@@ -194,26 +166,24 @@ class Stm32BridgeTwin:
         data = text.encode("ascii") + b"\n"
         if self.garbage:
             data = bytes(self._rng.integers(0x80, 0x100, size=8, dtype=np.uint8)) + b"\n" + data
-        try:
-            if end == "pty":
-                os.write(self._master, data)
-            else:
-                end.sendall(data)  # type: ignore[attr-defined]
-        except (BlockingIOError, OSError):
-            pass  # a UART drops what nobody reads; a vanished client is reaped on read
+        self._server.send(end, data)
 
-    def _on_bytes(self, end: object, data: bytes) -> None:
-        for raw in self._framers.setdefault(end, LineFramer()).feed(data)[0]:
-            self.lines_received += 1
-            self._last_line_t = time.monotonic()
-            self._armed = True
-            try:
-                answer = self._reply(raw.decode("ascii").strip())
-            except UnicodeDecodeError:
-                self.bad_lines += 1
-                answer = self.dialect.error.format(reason="bad line")
-            if not self.no_replies:
-                self._send(end, answer)
+    def _on_line(self, end: object, raw: bytes) -> None:
+        self.lines_received += 1
+        self._last_line_t = time.monotonic()
+        self._armed = True
+        try:
+            answer = self._reply(raw.decode("ascii").strip())
+        except UnicodeDecodeError:
+            self.bad_lines += 1
+            answer = self.dialect.error.format(reason="bad line")
+        if not self.no_replies:
+            self._send(end, answer)
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        self._watchdog(now)
+        self._telemetry(now)
 
     def _telemetry(self, now: float) -> None:
         if self.telemetry_hz <= 0 or now < self._next_tel:
@@ -225,55 +195,5 @@ class Stm32BridgeTwin:
         text = self.dialect.telemetry.format(speed_rpm=float(block.speed_rpm[-1]),
                                              current_a=float(block.current_a[-1]),
                                              voltage_v=float(block.voltage_v[-1]))
-        for end in ["pty", *self._clients]:
+        for end in self._server.ends():
             self._send(end, text)
-
-    def _loop(self) -> None:
-        while not self._stop.is_set():
-            if self._disconnect.is_set() and not self._disconnected.is_set():
-                self._close_all()
-                self._disconnected.set()
-            if self._disconnected.is_set():
-                self._stop.wait(0.01)
-                continue
-            for key, _ in self._sel.select(timeout=0.005):
-                if key.data == "listen":
-                    with contextlib.suppress(BlockingIOError):
-                        client, _ = self._listener.accept()
-                        client.settimeout(0.2)
-                        self._clients.append(client)
-                        self._sel.register(client, selectors.EVENT_READ, client)
-                    continue
-                try:
-                    data = os.read(self._master, 4096) if key.data == "pty" else key.data.recv(4096)
-                except BlockingIOError:
-                    continue
-                except OSError:
-                    data = b""
-                if data:
-                    self._on_bytes(key.data, data)
-                elif key.data != "pty":
-                    self._drop_client(key.data)
-            now = time.monotonic()
-            self._watchdog(now)
-            self._telemetry(now)
-
-    def _drop_client(self, client: socket.socket) -> None:
-        with contextlib.suppress(KeyError, ValueError):
-            self._sel.unregister(client)
-        with contextlib.suppress(ValueError):
-            self._clients.remove(client)
-        self._framers.pop(client, None)
-        client.close()
-
-    def _close_all(self) -> None:
-        for client in list(self._clients):
-            self._drop_client(client)
-        for obj in (self._listener, self._master):
-            with contextlib.suppress(KeyError, ValueError):
-                self._sel.unregister(obj)
-        self._listener.close()
-        for fd in (self._master, self._slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-        self._master = self._slave = -1
