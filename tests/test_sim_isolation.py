@@ -105,7 +105,7 @@ def test_every_sim_socket_is_bound_to_loopback_by_default(profile: str) -> None:
         ft = server.parts["netft"]
         assert ft.address[0] == "127.0.0.1" and ft._http.server_address[0] == "127.0.0.1"
         if profile == "stm32-pwm":
-            assert server.parts["bridge"]._listener.getsockname()[0] == "127.0.0.1"
+            assert server.parts["bridge"].address[0] == "127.0.0.1"
             assert rig["actuator"]["url"].startswith("socket://127.0.0.1:")
         else:
             group = _socket_address(server.parts["vesc"]._bus.fileno())[0]
@@ -119,7 +119,7 @@ def test_bind_opts_in_to_other_addresses(capsys) -> None:
 
     server = start_sim("stm32-pwm", bind="0.0.0.0", netft="0")
     try:
-        assert server.parts["bridge"]._listener.getsockname()[0] == "0.0.0.0"
+        assert server.parts["bridge"].address[0] == "0.0.0.0"
         assert server.parts["netft"].address[0] == "0.0.0.0"
     finally:
         server.stop()

@@ -50,6 +50,11 @@ class LineServer:
     def start(self) -> None:
         self._thread.start()
 
+    @property
+    def address(self) -> tuple[str, int]:
+        """(host, port) the TCP side listens on."""
+        return self._listener.getsockname()[:2]
+
     def stop(self) -> None:
         """Stop serving and close every endpoint. Idempotent."""
         self._stop.set()

@@ -103,6 +103,11 @@ class Stm32BridgeTwin:
     def stop(self) -> None:
         self._server.stop()
 
+    @property
+    def address(self) -> tuple[str, int]:
+        """(host, port) the TCP side listens on."""
+        return self._server.address
+
     def disconnect(self) -> None:
         """Fault: the device vanishes (pty and TCP endpoints close)."""
         self._server.disconnect()
