@@ -69,9 +69,9 @@ class LinearFit:
     influence: np.ndarray  # beta = influence @ y: one row per coefficient, one column per point
 
     def half_width(self, i: int) -> float:
-        from scipy import stats
+        from scipy import special  # not scipy.stats: 0.6 s more to import
 
-        t = stats.t.ppf(0.975, max(self.dof, 1))
+        t = special.stdtrit(max(self.dof, 1), 0.975)
         return float(t * math.sqrt(max(self.cov[i, i], 0.0)))
 
 
@@ -327,7 +327,7 @@ def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
 
     |n| is scaled by its maximum so the parameters are of order one; C is converted back.
     """
-    from scipy import optimize, stats
+    from scipy import optimize, special
 
     u = np.abs(n_rpm)
     u_ref = float(u.max())
@@ -347,7 +347,7 @@ def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
     chi2_red = float(np.sum((resid / sigma) ** 2) / dof) if dof > 0 else math.nan
     if dof > 0 and chi2_red > 1.0:
         pcov = pcov * chi2_red
-    t = stats.t.ppf(0.975, max(dof, 1))
+    t = special.stdtrit(max(dof, 1), 0.975)
     a, k, i0 = popt
     # C = a / u_ref^k; log C = log a - k log u_ref; delta method on (a, k).
     grad = np.array([1.0 / a if a > 0 else math.nan, -math.log(u_ref)])
@@ -438,7 +438,7 @@ def with_systematic(c: Coefficient, rel: float) -> Coefficient:
 
 def residual_spread(resid: np.ndarray, name: str, note: str, *, interval: bool) -> Coefficient:
     """RMS of residuals (N) as a coefficient; chi-square 95 % interval when `interval`."""
-    from scipy import stats
+    from scipy import special
 
     r = resid[np.isfinite(resid)]
     n = r.size
@@ -447,6 +447,6 @@ def residual_spread(resid: np.ndarray, name: str, note: str, *, interval: bool) 
     s = float(math.sqrt(np.mean(r**2)))
     lo = hi = math.nan
     if interval and n > 1:
-        lo = s * math.sqrt(n / stats.chi2.ppf(0.975, n))
-        hi = s * math.sqrt(n / stats.chi2.ppf(0.025, n))
+        lo = s * math.sqrt(n / special.chdtri(n, 0.025))  # chi2 quantiles
+        hi = s * math.sqrt(n / special.chdtri(n, 0.975))
     return Coefficient(name, s, lo, hi, "N", n, note=note)

@@ -113,7 +113,7 @@ def repeatability(command: np.ndarray, direction: np.ndarray, repeat: np.ndarray
 
 def tare_drift(t_s: np.ndarray, bias_n: np.ndarray | None) -> TareDrift | None:
     """Linear trend (N/h, 95 % interval) of the thrust-channel tare bias; None under 2 tares."""
-    from scipy import stats
+    from scipy import special
 
     if bias_n is None:
         return None
@@ -125,14 +125,18 @@ def tare_drift(t_s: np.ndarray, bias_n: np.ndarray | None) -> TareDrift | None:
     order = np.argsort(t, kind="stable")
     t, b = t[order], b[order] - b[order][0]
     hours = (t - t[0]) / SECONDS_PER_HOUR
-    res = stats.linregress(hours, b)
-    resid = b - (res.intercept + res.slope * hours)
+    dx, dy = hours - hours.mean(), b - b.mean()
+    sxx = float(dx @ dx)
+    rate = float(dx @ dy) / sxx
+    resid = dy - rate * dx
     lo = hi = math.nan
+    r2 = math.nan
     if n > 2:
-        hw = stats.t.ppf(0.975, n - 2) * res.stderr
-        lo, hi = res.slope - hw, res.slope + hw
-    r2 = res.rvalue**2 if n > 2 else math.nan
-    slope = Coefficient("tare_drift", float(res.slope), float(lo), float(hi), "N/h", n,
+        hw = special.stdtrit(n - 2, 0.975) * math.sqrt(float(resid @ resid) / (n - 2) / sxx)
+        lo, hi = rate - hw, rate + hw
+        syy = float(dy @ dy)
+        r2 = 1.0 - float(resid @ resid) / syy if syy > 0 else math.nan
+    slope = Coefficient("tare_drift", rate, float(lo), float(hi), "N/h", n,
                         float(r2), float(np.sqrt(np.mean(resid**2))), "N",
                         "thrust-channel tare bias vs time, linear trend")
     scatter = float(np.sqrt(np.mean(np.diff(b) ** 2)))
