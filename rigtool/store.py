@@ -92,6 +92,7 @@ class RunRecord:
 # import holds the write lock for about a second at a time and never builds all rows at once.
 BATCH_ROWS = 10_000
 IMPORT_ROWS_PER_TRANSACTION = 200_000
+READ_ROWS = 20_000  # sample rows fetched from SQLite at a time (a batch of tuples: ~10 MB)
 
 # Transport counters that count ordinary traffic; every other counter a driver keeps
 # (garbage, lost_packets, timeouts, error_frames...) is a problem a reader should see.
@@ -720,7 +721,7 @@ class Store:
         return {c: np.concatenate([ch[c] for ch in chunks]) for c in chunks[0]}
 
     def iter_samples(self, run_id: str, columns: Iterable[str] | None = None,
-                     steps: Iterable[int] | None = None, batch: int = 100_000
+                     steps: Iterable[int] | None = None, batch: int = READ_ROWS
                      ) -> Iterator[dict[str, np.ndarray]]:
         """`sample_arrays` in chunks of at most `batch` rows, for exports of any size."""
         cols = self._sample_names(columns)
@@ -731,7 +732,7 @@ class Store:
             wanted = sorted({int(i) for i in steps})
             sql += f" AND st.idx IN ({', '.join('?' * len(wanted))})"
             args += wanted
-        cur = self.conn.execute(sql + " ORDER BY s.rowid", args)
+        cur = self.conn.execute(sql + " ORDER BY st.idx, s.rowid", args)  # index order: no sort
         while rows := cur.fetchmany(batch):
             yield self._sample_columns(rows, cols)
 
@@ -826,18 +827,20 @@ class Store:
         return {c: data[:, i] for i, c in enumerate(cols)}
 
     def samples(self, run_id: str, columns: Iterable[str] = SAMPLE_COLUMNS) -> dict[str, np.ndarray]:
-        """All samples of a run as float arrays (NULL -> NaN), ordered by step then time."""
+        """All samples of a run as float arrays (NULL -> NaN), in plan order, each point's in
+        acquisition order (the order the indexes give: no sort, no memory beyond the arrays)."""
         cols = _checked_columns(columns)
         cur = self.conn.execute(
             f"SELECT {', '.join('s.' + c for c in cols)} FROM samples s "
-            "JOIN steps st ON st.id = s.step_id WHERE st.run_id = ? ORDER BY s.rowid",
+            "JOIN steps st ON st.id = s.step_id WHERE st.run_id = ? "
+            "ORDER BY st.idx, s.rowid",
             (run_id,),
         )
-        rows = cur.fetchall()
-        if not rows:
-            return {c: np.empty(0) for c in cols}
-        data = np.array(rows, dtype=float)
-        return {c: data[:, i] for i, c in enumerate(cols)}
+        chunks = []
+        while rows := cur.fetchmany(READ_ROWS):  # tuples cost ~10x the floats: never all at once
+            chunks.append(np.array(rows, dtype=float).reshape(len(rows), len(cols)))
+        data = np.concatenate(chunks) if chunks else np.empty((0, len(cols)))
+        return {c: np.ascontiguousarray(data[:, i]) for i, c in enumerate(cols)}
 
 
 def _columns_of(conn: sqlite3.Connection, table: str) -> list[str]:
@@ -861,7 +864,7 @@ def _copy_run(conn: sqlite3.Connection, run_id: str) -> None:
         f"SELECT m.id, {', '.join('s.' + c for c in sample_cols)} FROM src.samples s "
         "JOIN src.steps ss ON ss.id = s.step_id "
         "JOIN main.steps m ON m.run_id = ss.run_id AND m.idx = ss.idx "
-        "WHERE ss.run_id = ? ORDER BY s.rowid", (run_id,))
+        "WHERE ss.run_id = ? ORDER BY ss.idx, s.rowid", (run_id,))
 
 
 def _opt_float(value: object) -> float | None:
