@@ -391,8 +391,10 @@ def cmd_import(args: argparse.Namespace) -> int:
         for path in args.files:
             name = f"{args.name}-{os.path.splitext(os.path.basename(path))[0]}" if (
                 args.name and several) else args.name
-            result = import_file(store, path, mapping, name=name, thruster_id=args.thruster_id,
-                                 depth_m=args.depth, strict=args.strict)
+            with stage(f"importing {path}"):
+                result = import_file(store, path, mapping, name=name,
+                                     thruster_id=args.thruster_id, depth_m=args.depth,
+                                     strict=args.strict)
             for line in result.errors[:MAX_PRINTED_ERRORS]:
                 err.print(line)
             if len(result.errors) > MAX_PRINTED_ERRORS:
