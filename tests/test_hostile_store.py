@@ -224,3 +224,29 @@ def test_export_reads_one_snapshot_while_a_sweep_appends(swept, tmp_path):
     assert points == sample_points
     store.close()
     writer.close()
+
+
+def test_samples_read_outside_a_snapshot_keep_rows_added_after_the_count(swept):
+    """samples() counts, then fills arrays in place; rows a sweep adds between the two are
+    kept, not dropped or overflowing."""
+    _, db, run_id = swept
+    store = Store(db, read_only=True)
+    before = len(store.samples(run_id, ["t_s"])["t_s"])
+    writer = sqlite3.connect(db)
+    step_id = writer.execute("SELECT max(id) FROM steps WHERE run_id = ?", (run_id,)).fetchone()[0]
+    added = []
+
+    def add_samples(statement: str) -> None:
+        if statement.startswith("SELECT s.") and not added:  # after the count, before the rows
+            with writer:
+                writer.executemany("INSERT INTO samples (step_id, t_s, thrust_n) VALUES (?, ?, 1)",
+                                   [(step_id, 1e6 + i) for i in range(3)])
+            added.append(True)
+
+    store.conn.set_trace_callback(add_samples)
+    got = store.samples(run_id, ["t_s", "thrust_n"])
+    store.conn.set_trace_callback(None)
+    assert added and len(got["t_s"]) == before + 3 and len(got["thrust_n"]) == before + 3
+    assert set(got["t_s"][-3:]) == {1e6, 1e6 + 1, 1e6 + 2}
+    store.close()
+    writer.close()
