@@ -28,6 +28,8 @@ MAX_CLOCK_HZ = 1e10  # timer input clocks
 MAX_THRUST_N = 1e6  # protocol limits
 MAX_CURRENT_A = 1e5
 MAX_SPEED_RPM = 1e7
+MAX_SUPPLY_V = 1_000.0  # supply voltages a protocol may sweep
+MAX_VOLTAGES = 1_000  # voltages in one sweep
 
 # Reusable field types: finite, with both ends bounded.
 Seconds = Annotated[float, Field(ge=0, le=MAX_DURATION_S, allow_inf_nan=False)]

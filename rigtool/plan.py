@@ -9,20 +9,27 @@ from dataclasses import asdict, dataclass
 from rigtool.protocol import Protocol
 
 DEPTH_MOVE_S = 10.0  # time budgeted per depth change in duration estimates
+VOLTAGE_CHANGE_S = 2.0  # time budgeted per supply ramp in duration estimates
 
 
 @dataclass(frozen=True)
 class PlanStep:
-    """One point of a sweep: command at a depth, which repeat, which sweep direction."""
+    """One point of a sweep: command at a depth (and supply voltage), which repeat, which
+    sweep direction."""
 
     idx: int
     command: float
     depth_m: float
     repeat: int
     direction: str  # "up", "down" or "random"
+    voltage_v: float | None = None  # supply voltage; None when the protocol sets none
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """The stored form; `voltage_v` only where set, so plans stored before it still match."""
+        out = asdict(self)
+        if self.voltage_v is None:
+            del out["voltage_v"]
+        return out
 
 
 def _command_sequence(protocol: Protocol, repeat: int) -> list[tuple[float, str]]:
@@ -39,38 +46,60 @@ def _command_sequence(protocol: Protocol, repeat: int) -> list[tuple[float, str]
     return [(v, "random") for v in shuffled]
 
 
-def _combos(protocol: Protocol) -> Iterator[tuple[float, int, float, str]]:
-    """(depth, repeat, command, direction) in execution order: depth outer (default) or inner."""
+def _voltages(protocol: Protocol) -> list[float | None]:
+    return protocol.voltage.voltages_v() if protocol.voltage is not None else [None]
+
+
+def _combos(protocol: Protocol) -> Iterator[tuple[float, float | None, int, float, str]]:
+    """(depth, voltage, repeat, command, direction) in execution order. Depth outer (default):
+    depth, then voltage, repeat, command. Depth inner: voltage, repeat, command, then depth."""
     depths = protocol.depth.depths_m()
     repeats = range(protocol.command.repeats)
     if protocol.depth.loop == "outer":
         for depth in depths:
+            for volts in _voltages(protocol):
+                for rep in repeats:
+                    for c, d in _command_sequence(protocol, rep):
+                        yield depth, volts, rep, c, d
+    else:
+        for volts in _voltages(protocol):
             for rep in repeats:
                 for c, d in _command_sequence(protocol, rep):
-                    yield depth, rep, c, d
-    else:
-        for rep in repeats:
-            for c, d in _command_sequence(protocol, rep):
-                for depth in depths:
-                    yield depth, rep, c, d
+                    for depth in depths:
+                        yield depth, volts, rep, c, d
 
 
 def expand(protocol: Protocol) -> list[PlanStep]:
     """All steps in execution order (at most MAX_POINTS: the protocol validator counts them)."""
-    return [PlanStep(i, c, depth, rep, d) for i, (depth, rep, c, d) in enumerate(_combos(protocol))]
+    return [PlanStep(i, c, depth, rep, d, volts)
+            for i, (depth, volts, rep, c, d) in enumerate(_combos(protocol))]
 
 
 def step_at(protocol: Protocol, idx: int) -> PlanStep:
     """Step `idx` of the plan, found arithmetically (for --dry-run: the plan is never built)."""
     n_depths, per_rep = len(protocol.depth.values), protocol.command.per_repeat()
+    per_volt = protocol.command.repeats * per_rep
     if protocol.depth.loop == "outer":
-        i_depth, rest = divmod(idx, protocol.command.repeats * per_rep)
+        i_depth, rest = divmod(idx, protocol.n_voltages() * per_volt)
+        i_volt, rest = divmod(rest, per_volt)
         i_rep, i_cmd = divmod(rest, per_rep)
     else:
-        i_rep, rest = divmod(idx, per_rep * n_depths)
+        i_volt, rest = divmod(idx, per_volt * n_depths)
+        i_rep, rest = divmod(rest, per_rep * n_depths)
         i_cmd, i_depth = divmod(rest, n_depths)
     command, direction = _command_sequence(protocol, i_rep)[i_cmd]
-    return PlanStep(idx, command, protocol.depth.depths_m()[i_depth], i_rep, direction)
+    return PlanStep(idx, command, protocol.depth.depths_m()[i_depth], i_rep, direction,
+                    _voltages(protocol)[i_volt])
+
+
+def _voltage_changes(protocol: Protocol) -> int:
+    """Supply voltage changes in the plan, the first setting included (0 without a voltage axis)."""
+    if protocol.voltage is None:
+        return 0
+    n = protocol.n_voltages()
+    if protocol.depth.loop == "outer":
+        return len(protocol.depth.values) * n
+    return n
 
 
 def _depth_changes(protocol: Protocol) -> int:
@@ -79,7 +108,7 @@ def _depth_changes(protocol: Protocol) -> int:
     inside = sum(1 for a, b in zip(depths, depths[1:], strict=False) if a != b)
     if protocol.depth.loop == "outer":
         return 1 + inside
-    cycles = protocol.command.repeats * protocol.command.per_repeat()
+    cycles = protocol.n_voltages() * protocol.command.repeats * protocol.command.per_repeat()
     return 1 + cycles * inside + (cycles - 1) * (depths[-1] != depths[0])
 
 
@@ -97,6 +126,8 @@ def estimate_duration_s(protocol: Protocol, neutral: float | None = None) -> flo
         total += visits * sum(2 * abs(v - neutral) for v in protocol.command.command_values()) / slew
     depth_changes = _depth_changes(protocol)
     total += depth_changes * DEPTH_MOVE_S
+    if protocol.voltage is not None:
+        total += _voltage_changes(protocol) * (protocol.voltage.settle_s + VOLTAGE_CHANGE_S)
     if timing.tare == "per_point":
         total += timing.tare_s * n
     elif timing.tare == "per_depth":

@@ -7,6 +7,7 @@ silently change an experiment. Units are explicit in the file and converted to S
 from __future__ import annotations
 
 import math
+import random
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -25,7 +26,9 @@ from rigtool.bounds import (
     MAX_SAMPLES_PER_POINT,
     MAX_SCALE,
     MAX_SPEED_RPM,
+    MAX_SUPPLY_V,
     MAX_THRUST_N,
+    MAX_VOLTAGES,
     MIN_RATE_HZ,
     MIN_WINDOW_S,
     Command,
@@ -123,6 +126,28 @@ class DepthAxis(_Strict):
 
     def depths_m(self) -> list[float]:
         return [round(v * DEPTH_TO_M[self.unit], 9) for v in self.values]
+
+
+class VoltageAxis(_Strict):
+    """Supply voltages to sweep, each set before its points: by the rig's programmable supply
+    (`preset`) or by the operator, who confirms each one (`manual`)."""
+
+    unit: Literal["V"]
+    values: list[Annotated[float, Field(gt=0, le=MAX_SUPPLY_V, allow_inf_nan=False)]] = Field(
+        min_length=1, max_length=MAX_VOLTAGES)
+    order: Literal["up", "down", "random"] = "up"
+    mode: Literal["preset", "manual"] = "preset"
+    settle_s: Seconds = 1.0  # wait at neutral after a voltage change
+    seed: Seed = 0
+
+    def voltages_v(self) -> list[float]:
+        """The voltages in the order they are visited."""
+        values = sorted(self.values)
+        if self.order == "down":
+            return values[::-1]
+        if self.order == "random":
+            random.Random(self.seed).shuffle(values)
+        return values
 
 
 class SteadySettle(_Strict):
@@ -224,11 +249,11 @@ class SimulatorSpec(_Strict):
 
     profile: str
     seed: Seed = 1
-    overrides: dict[str, Scale | str] = Field(default_factory=dict)
+    overrides: dict[str, Scale | str | list[Scale | str]] = Field(default_factory=dict)
 
     @field_validator("overrides")
     @classmethod
-    def _known(cls, overrides: dict[str, float | str], info: ValidationInfo) -> dict[str, float | str]:
+    def _known(cls, overrides: dict, info: ValidationInfo) -> dict:
         """Unknown parameters and bad values are file errors, found before any device opens."""
         profile = info.data.get("profile")
         if profile is not None:
@@ -257,6 +282,7 @@ class Protocol(_Strict):
     metadata: Metadata = Field(default_factory=Metadata)
     command: CommandAxis
     depth: DepthAxis
+    voltage: VoltageAxis | None = None
     timing: Timing
     limits: Limits = Field(default_factory=Limits)
 
@@ -267,6 +293,7 @@ class Protocol(_Strict):
         if n > MAX_POINTS:
             raise FieldError(("command", "repeats"), (
                 f"the plan has {n:,} points ({len(self.depth.values)} depth(s) x "
+                f"{self.n_voltages()} voltage(s) x "
                 f"{self.command.repeats} repeat(s) x {self.command.per_repeat():,} command(s)); "
                 f"the limit is {MAX_POINTS:,}"))
         least = self.min_duration_s()
@@ -278,9 +305,14 @@ class Protocol(_Strict):
                 f"{MAX_DURATION_S:g} s)"))
         return self
 
+    def n_voltages(self) -> int:
+        """Supply voltages in the plan (1 when the protocol sets none)."""
+        return len(self.voltage.values) if self.voltage is not None else 1
+
     def n_points(self) -> int:
-        """Points in the plan: depths x repeats x commands per repeat."""
-        return len(self.depth.values) * self.command.repeats * self.command.per_repeat()
+        """Points in the plan: depths x voltages x repeats x commands per repeat."""
+        return (len(self.depth.values) * self.n_voltages() * self.command.repeats
+                * self.command.per_repeat())
 
     def _ramps_s(self) -> float:
         """Least total slew time whatever the neutral: each point ramps out and back, and the
@@ -291,7 +323,8 @@ class Protocol(_Strict):
         values = sorted(self.command.command_values())
         median = values[len(values) // 2]
         per_pass = sum(abs(v - median) for v in values) * (2 if self.command.order == "up-down" else 1)
-        return 2 * per_pass * self.command.repeats * len(self.depth.values) / slew
+        return (2 * per_pass * self.command.repeats * len(self.depth.values) * self.n_voltages()
+                / slew)
 
     def min_duration_s(self) -> float:
         """A lower bound of the run's length: every point's timing and ramps, the first tare."""

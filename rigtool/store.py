@@ -44,7 +44,8 @@ STAT_FIELDS = ("thrust_n", "speed_rpm", "current_a")
 # A stored point's columns under the names the API, points.csv and the exports use
 # (public name -> steps column). Statistics here are over all of a point's samples.
 POINT_COLUMNS = {
-    "step_idx": "idx", "command": "command", "depth_m": "depth_m", "repeat": "repeat",
+    "step_idx": "idx", "command": "command", "depth_m": "depth_m", "voltage_set_v": "voltage_v",
+    "repeat": "repeat",
     "direction": "direction", "status": "status", "settled": "settled",
     "t_start_s": "t_start_s", "t_acquire_s": "t_acquire_s", "t_end_s": "t_end_s",
     "settle_s": "settle_s", "rate_hz": "rate_hz", "n_samples": "n",
@@ -194,6 +195,8 @@ MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [
     lambda conn: conn.execute("ALTER TABLE steps ADD COLUMN counters_json TEXT"),
     # v6: the analysis results a calibration found, which `report` and the API render
     lambda conn: conn.execute("ALTER TABLE calibrations ADD COLUMN state BLOB"),
+    # v7: the supply voltage set for a point (NULL when the protocol sweeps none)
+    lambda conn: conn.execute("ALTER TABLE steps ADD COLUMN voltage_v REAL"),
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -249,6 +252,7 @@ class StepRecord:
     rate_hz: float
     status: str = "ok"
     counters: dict | None = None  # transport counters added during the point, by device role
+    voltage_v: float | None = None  # supply voltage set for the point (None: not swept)
 
 
 class Store:

@@ -6,6 +6,8 @@ and one ThrusterTwin, so the engine drives them exactly as it drives hardware.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from rigtool.devices.base import ActuatorInfo, Clock, FeedbackBlock, ForceBlock
@@ -13,6 +15,8 @@ from rigtool.sim.physics import ThrusterTwin
 
 STAGE_SPEED_M_S = 0.05
 STAGE_SETTLE_S = 2.0
+SUPPLY_SLEW_V_S = 10.0  # simulated supply's voltage ramp
+SUPPLY_RAMP_S = 0.05  # a new setpoint this often while ramping
 
 
 class SimWorld:
@@ -120,3 +124,40 @@ class SimDepthStage:
 
     def close(self) -> None:
         return None
+
+
+class SimSupply:
+    """The twin's programmable supply: ramps at `slew_v_per_s` in the world's time, then the
+    twin runs on the new voltage; `safe()` switches the output off (0 V)."""
+
+    reached_by = "simulator"
+
+    def __init__(self, world: SimWorld, slew_v_per_s: float = SUPPLY_SLEW_V_S) -> None:
+        self.world = world
+        self.slew_v_per_s = slew_v_per_s
+
+    def set_voltage(self, volts: float) -> float:
+        """Ramp to `volts`; return the bus voltage measured at the end (the sag included)."""
+        twin, clock = self.world.twin, self.world.clock
+        start = twin.supply_voltage_v
+        steps = max(1, math.ceil(abs(volts - start) / self.slew_v_per_s / SUPPLY_RAMP_S))
+        for k in range(1, steps + 1):
+            if k > 1:
+                clock.sleep(SUPPLY_RAMP_S)
+            twin.set_supply_voltage(max(clock.now(), twin.t_s), start + (volts - start) * k / steps)
+        return self.measure()[0]
+
+    def measure(self) -> tuple[float, float]:
+        """(volts, amps) at the output: the noise-free bus voltage and current now."""
+        twin = self.world.twin
+        _, _, amps = twin.steady_state(twin.command)
+        if twin.supply_voltage_v <= 0:
+            return 0.0, 0.0
+        return twin.supply_voltage_v - twin.profile.supply_resistance_ohm * amps, amps
+
+    def safe(self) -> None:
+        twin = self.world.twin
+        twin.set_supply_voltage(max(self.world.clock.now(), twin.t_s), 0.0)
+
+    def close(self) -> None:
+        self.safe()

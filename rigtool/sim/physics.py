@@ -31,7 +31,7 @@ def _new_block(size: int) -> np.ndarray:
     return block
 
 
-def _mixing_matrices(p: ThrusterProfile, t0: float) -> tuple[np.ndarray, np.ndarray]:
+def _mixing_matrices(p: ThrusterProfile, t0: float, supply_v: float) -> tuple[np.ndarray, np.ndarray]:
     """Matrices mapping work-block rows to the six F/T channels and to speed, current, voltage."""
     ch, sign = p.thrust_channel, p.thrust_sign
     ft_mix = np.zeros((9, 6))
@@ -46,7 +46,7 @@ def _mixing_matrices(p: ThrusterProfile, t0: float) -> tuple[np.ndarray, np.ndar
     fb_mix = np.zeros((3, 6))  # columns: one, 3 normals, speed, current
     fb_mix[0, [1, 4]] = p.speed_noise_rpm, 1.0
     fb_mix[1, [2, 5]] = p.current_noise_a, 1.0
-    fb_mix[2, [0, 3, 5]] = p.supply_voltage_v, p.voltage_noise_v, -p.supply_resistance_ohm
+    fb_mix[2, [0, 3, 5]] = supply_v, p.voltage_noise_v, -p.supply_resistance_ohm
     return ft_mix, fb_mix
 
 
@@ -94,7 +94,9 @@ class ThrusterTwin:
         self._pos = _BLOCK_SAMPLES  # block used up: redrawn on first use
         p = profile
         self._settled_rpm = _SETTLED_FRAC * p.max_speed_rpm
-        self._ft_mix, self._fb_mix = _mixing_matrices(p, self._t0)
+        self._supply_v = p.supply_voltage_v
+        self._cn, self._idle = p.cn, p.idle_current_a  # current law at the supply voltage
+        self._ft_mix, self._fb_mix = _mixing_matrices(p, self._t0, self._supply_v)
         self._log_depths = np.array(p.cav_depth_table_m, dtype=float)
         self._log_onset = np.log(np.array(p.cav_mean_onset_s, dtype=float))
         self._log_duration = np.log(np.array(p.cav_mean_duration_s, dtype=float))
@@ -119,6 +121,30 @@ class ThrusterTwin:
         self._advance(float(t))
         p = self.profile
         self._command = min(max(float(command), p.command_min), p.command_max)
+        self._n_target = self.target_speed_rpm(self._command)
+        if abs(self._n_target) < p.cav_min_speed_rpm:
+            self._end_active_event()
+
+    @property
+    def supply_voltage_v(self) -> float:
+        """The supply voltage in force (the bus sags below it by R * current)."""
+        return self._supply_v
+
+    def set_supply_voltage(self, t: float, volts: float) -> None:
+        """Advance to `t`, then supply `volts` (0: output off, motor stopped) from `t` on.
+
+        Without a speed loop the speed reached per command scales with the voltage; the
+        current drawn for the same shaft power scales with its inverse.
+        """
+        if not (math.isfinite(volts) and volts >= 0):
+            raise ValueError(f"supply voltage must be finite and >= 0, got {volts!r}")
+        self._advance(float(t))
+        p = self.profile
+        self._supply_v = float(volts)
+        on = self._supply_v > 0
+        self._cn = p.cn * p.supply_voltage_v / self._supply_v if on else 0.0
+        self._idle = p.idle_current_a if on else 0.0
+        self._fb_mix[2, 0] = self._supply_v
         self._n_target = self.target_speed_rpm(self._command)
         if abs(self._n_target) < p.cav_min_speed_rpm:
             self._end_active_event()
@@ -155,7 +181,7 @@ class ThrusterTwin:
             thrust = p.cp_reverse * n * absn
         else:
             thrust = np.where(n >= 0, p.cp_forward, p.cp_reverse) * n * absn
-        current = p.cn * absn**3 + p.idle_current_a
+        current = self._cn * absn**3 + self._idle
         thrust_sd = np.hypot(p.vibration_noise_frac * thrust, p.force_noise_n)
         weight, drop = self._ventilation(t)
         if weight is not None:
@@ -175,20 +201,25 @@ class ThrusterTwin:
         """Noise-free steady (speed_rpm, thrust_n, current_a) at `command`, without ventilation."""
         p = self.profile
         n = self.target_speed_rpm(min(max(float(command), p.command_min), p.command_max))
-        return n, self._thrust(n), p.cn * abs(n) ** 3 + p.idle_current_a
+        return n, self._thrust(n), self._cn * abs(n) ** 3 + self._idle
 
     def target_speed_rpm(self, command: float) -> float:
-        """Speed the propeller settles at under `command` (already within range)."""
+        """Speed the propeller settles at under `command` (already within range) at the
+        supply voltage in force."""
         p = self.profile
+        if self._supply_v <= 0:
+            return 0.0
+        scale = 1.0 if p.speed_loop else self._supply_v / p.supply_voltage_v
         if p.command_map == "pwm_table":
             f = pwm_thrust_n(p, command)
-            return math.copysign(math.sqrt(abs(f) / (p.cp_forward if f > 0 else p.cp_reverse)), f)
+            n = math.sqrt(abs(f) / (p.cp_forward if f > 0 else p.cp_reverse))
+            return math.copysign(scale * n, f)
         u = command - p.neutral
         span = (p.command_max if u > 0 else p.command_min) - p.neutral
         if abs(u) <= p.deadband or abs(span) <= p.deadband:
             return 0.0
         frac = min(1.0, (abs(u) - p.deadband) / (abs(span) - p.deadband))
-        return math.copysign(frac * p.max_speed_rpm, u)
+        return math.copysign(scale * frac * p.max_speed_rpm, u)
 
     def onset_rate_per_s(self, speed_rpm: float, depth_m: float | None = None) -> float:
         """Ventilation onset rate at `speed_rpm` and `depth_m` (default: current depth), 1/s."""

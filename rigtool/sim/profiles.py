@@ -2,7 +2,8 @@
 
 Units are SI with the unit in the name, except propeller speed in r/min (as the rigs
 report it) and commands in the actuator's native unit. Thrust is f = C_p |n| n with
-C_p = cp_forward for n > 0 and cp_reverse for n < 0; current is I = cn |n|^3 + idle.
+C_p = cp_forward for n > 0 and cp_reverse for n < 0; current is I = cn (U0/U) |n|^3 + idle
+at supply voltage U (nominal U0 = supply_voltage_v): the shaft power C |n|^3 drawn at U.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ class ThrusterProfile:
     cp_reverse: float  # N/(r/min)^2, thrust coefficient for n < 0 (magnitude)
     cn: float  # A/(r/min)^3, current coefficient
     idle_current_a: float  # driver + motor current at zero speed
-    supply_voltage_v: float  # bus voltage at zero current
+    supply_voltage_v: float  # nominal supply voltage U0: max_speed_rpm and cn hold at U0
     tau_s: float  # first-order time constant of propeller speed
     # --- feedback and sensor noise (standard deviations of white noise) ---
     speed_noise_rpm: float
@@ -71,6 +72,9 @@ class ThrusterProfile:
     # thrust seen on each channel: N/N for forces, N m/N for torques (reaction torque)
     crosstalk: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     supply_resistance_ohm: float = 0.05  # voltage sag = R * current
+    # speed loop in the driver: speed per command holds at any supply voltage; otherwise (duty
+    # cycle, PWM) the speed reached scales with the supply voltage (back-EMF)
+    speed_loop: bool = False
     voltage_noise_v: float = 0.05
     # --- quasi-cavitation (domain.md section 4) ---
     cav_ref_speed_rpm: float = 1404.0  # speed at which the onset/duration tables hold
@@ -99,7 +103,7 @@ _NON_NEGATIVE = (
     "torque_noise_nm", "vibration_noise_frac", "voltage_noise_v", "supply_resistance_ohm",
     "cav_noise_frac", "cav_current_drop", "cav_ramp_in_s", "cav_ramp_out_s",
 )  # fmt: skip
-_POSITIVE = ("cp_forward", "cp_reverse", "max_speed_rpm", "tau_s", "cav_ref_speed_rpm",
+_POSITIVE = ("cp_forward", "cp_reverse", "max_speed_rpm", "tau_s", "supply_voltage_v", "cav_ref_speed_rpm",
              "cav_duration_shape")  # fmt: skip
 _PWM_BREAKPOINTS = ("pwm_fwd_start", "pwm_fwd_sat_end", "pwm_fwd_end", "pwm_rev_creep_start",
                     "pwm_rev_breakaway", "pwm_rev_sat_start")  # fmt: skip
@@ -162,6 +166,7 @@ _CAN_BLDC = ThrusterProfile(
     cavitation=True,
     crosstalk=(0.0, 0.015, -0.02, 0.02, 0.0, 0.004),  # tx: reaction torque about the axis
     supply_resistance_ohm=0.08,
+    speed_loop=True,
 )
 
 _STM32_PWM = ThrusterProfile(
