@@ -7,6 +7,7 @@ status; completed points are already committed, a point in progress is discarded
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 from collections.abc import Callable
@@ -103,6 +104,8 @@ class Engine:
         self._command = rig.actuator.info.neutral
         self._t0 = 0.0
         self._depth: float | None = None
+        self._voltage: float | None = None
+        self._supply_used = False  # the run has commanded the supply: leave it safe at the end
         self._fb_last = dict.fromkeys(FEEDBACK_FIELDS, np.nan)
         self._bias_total = np.zeros(6)
         self._stored_idx: int | None = None
@@ -123,6 +126,7 @@ class Engine:
                 remaining = self.plan[start_idx:]
                 for i, step in enumerate(remaining):
                     self._prepare_depth(step)
+                    self._prepare_voltage(step)
                     self._run_step_or_pause(step)
                     done += 1
                     if signals.stop_requested and i < len(remaining) - 1:
@@ -148,6 +152,7 @@ class Engine:
             finally:
                 signals.closing = True
                 neutral_ok = self._safe_neutral()
+                self._safe_supply()
                 self.reporter.finish()
                 self._close_run(status, reason, neutral_ok)
         return Outcome(self.run_id, status, reason, done, neutral_ok)
@@ -173,6 +178,24 @@ class Engine:
                 self._tare("per_depth", step.idx)
         if self.protocol.timing.tare == "per_point":
             self._tare("per_point", step.idx)
+
+    def _prepare_voltage(self, step: PlanStep) -> None:
+        """Set the point's supply voltage at neutral, then wait `settle_s` watching the limits."""
+        if step.voltage_v is None or step.voltage_v == self._voltage:
+            return
+        supply = self.rig.supply
+        if supply is None:
+            raise DeviceError(f"point {step.idx} needs {step.voltage_v:g} V, but the rig has no "
+                              "supply to set it")
+        self._ramp_to(self.rig.actuator.info.neutral)
+        self._supply_used = True
+        reached = supply.set_voltage(step.voltage_v)
+        self._event("voltage", {"target_v": step.voltage_v, "measured_v": reached,
+                                "by": supply.reached_by}, step.idx)
+        self._voltage = step.voltage_v
+        settle = self.protocol.voltage.settle_s if self.protocol.voltage else 0.0
+        if settle > 0:
+            self._read_for(settle, self.protocol.timing.acquire.rate_hz, step)
 
     def _run_step_or_pause(self, step: PlanStep) -> None:
         """Run a point; with `on_trip: pause`, a trip goes neutral and the operator may go on.
@@ -221,7 +244,7 @@ class Engine:
                 idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
                 repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
                 t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
-                counters=counter_delta(counters, self.rig.counters()),
+                counters=counter_delta(counters, self.rig.counters()), voltage_v=step.voltage_v,
             )
             self.store.add_step(self.run_id, record, samples)
             self._stored_idx = step.idx
@@ -248,6 +271,21 @@ class Engine:
             self.reporter.note(f"ERROR: could not command neutral: {exc!r}. "
                                "CHECK THE THRUSTER AND CUT ITS POWER IF IT IS STILL RUNNING.")
             return False
+
+    def _safe_supply(self) -> None:
+        """Leave the supply as the rig file asks (output off or a safe voltage), once the
+        thruster is at neutral; never raises. Only a supply this run set is touched."""
+        supply = self.rig.supply
+        if supply is None or not self._supply_used:
+            return
+        try:
+            supply.safe()
+            self._voltage, self._supply_used = None, False
+        except BaseException as exc:  # noqa: BLE001 - the run is ending; report, do not mask
+            self.reporter.note(f"ERROR: could not make the supply safe: {exc!r}. "
+                               "SWITCH ITS OUTPUT OFF BY HAND.")
+            with contextlib.suppress(StoreError):
+                self._event("supply_unsafe", {"message": str(exc)})
 
     def _close_run(self, status: str, reason: str | None, neutral_ok: bool = True) -> None:
         """Record how the run ended; a store that fails here must not mask the original error."""

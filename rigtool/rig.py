@@ -16,15 +16,18 @@ from rigtool.bounds import DepthM
 from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model
 from rigtool.devices.axes import rotation_deg, wrench_transform
-from rigtool.devices.base import Actuator, Clock, DepthStage, ForceSensor
+from rigtool.devices.base import Actuator, Clock, DepthStage, ForceSensor, Supply
 from rigtool.devices.depth import ManualDepth, PresetDepth
+from rigtool.devices.manual_supply import ManualSupply
 from rigtool.devices.registry import (
     ACTUATORS,
     SENSORS,
     STAGES,
+    SUPPLIES,
     ActuatorConfig,
     SensorConfig,
     StageConfig,
+    SupplyConfig,
 )
 from rigtool.errors import UsageError
 from rigtool.protocol import SimulatorSpec
@@ -52,7 +55,7 @@ class Mount(BaseModel):
 
 
 class Rig(BaseModel):
-    """A whole rig file: the simulator, or an actuator + force sensor (+ depth stage)."""
+    """A whole rig file: the simulator, or an actuator + force sensor (+ depth stage, supply)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     rigtool_rig: Literal[1] = 1
@@ -64,15 +67,17 @@ class Rig(BaseModel):
     actuator: ActuatorConfig | None = None
     sensor: SensorConfig | None = None
     depth_stage: StageConfig | None = None
+    supply: SupplyConfig | None = None
     thrust: ThrustAxis | None = None
     mount: Mount | None = None
 
     @model_validator(mode="after")
     def _has_devices(self) -> Rig:
         hardware = self.actuator is not None or self.sensor is not None
-        if self.simulator is not None and (hardware or self.depth_stage is not None):
+        if self.simulator is not None and (hardware or self.depth_stage is not None
+                                           or self.supply is not None):
             raise ValueError("a rig is either the `simulator:` or hardware "
-                             "(`actuator:`, `sensor:`, `depth_stage:`), not both")
+                             "(`actuator:`, `sensor:`, `depth_stage:`, `supply:`), not both")
         if self.simulator is None and (self.actuator is None or self.sensor is None):
             raise ValueError("a hardware rig needs both an `actuator:` and a `sensor:` section "
                              "(or use a `simulator:` section)")
@@ -113,6 +118,7 @@ class RigSet:
     description: dict = field(default_factory=dict)
     world: object | None = None  # the simulator's shared state, when simulated
     transform: np.ndarray | None = None  # 6x6 wrench transform of a mounted sensor
+    supply: Supply | None = None  # sets the supply voltage, when the protocol sweeps it
 
     def annotations(self) -> list[dict]:
         """Ground-truth events a simulator knows (e.g. ventilation), to store with the run."""
@@ -129,7 +135,7 @@ class RigSet:
         """Transport counters (frames, garbage, lost packets...) of the devices that keep them."""
         out = {}
         for role, dev in (("actuator", self.actuator), ("sensor", self.sensor),
-                          ("depth_stage", self.depth_stage)):
+                          ("depth_stage", self.depth_stage), ("supply", self.supply)):
             gauges = getattr(dev, "stats_gauges", ())
             kept = {k: v for k, v in (getattr(dev, "stats", None) or {}).items()
                     if type(v) is int and k not in gauges}
@@ -138,8 +144,17 @@ class RigSet:
         return out
 
     def close(self) -> None:
-        for dev in (self.actuator, self.sensor, self.depth_stage):
-            dev.close()
+        """Close every device, the actuator first; a failure is raised after all are closed."""
+        errors = []
+        for dev in (self.actuator, self.sensor, self.depth_stage, self.supply):
+            if dev is None:
+                continue
+            try:
+                dev.close()
+            except Exception as exc:  # noqa: BLE001 - close the rest, then raise the first
+                errors.append(exc)
+        if errors:
+            raise errors[0]
 
 
 def counter_delta(before: dict[str, dict[str, int]],
@@ -149,10 +164,19 @@ def counter_delta(before: dict[str, dict[str, int]],
             for role, counters in after.items()}
 
 
-def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset") -> RigSet:
-    """Open the devices a rig names; a device that cannot be opened raises DeviceError."""
+def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset",
+             voltage_mode: str | None = None, current_limit_a: float | None = None) -> RigSet:
+    """Open the devices a rig names; a device that cannot be opened raises DeviceError.
+
+    A supply is opened only when the protocol sweeps voltage (`voltage_mode`), its current
+    limit set from the protocol's `max_current_a` when given.
+    """
     if rig.simulator is not None:
-        return _open_sim(rig, rig.simulator, start_depth_m)
+        rigset = _open_sim(rig, rig.simulator, start_depth_m)
+        if voltage_mode is not None:
+            from rigtool.sim.devices import SimSupply
+            rigset.supply = SimSupply(rigset.world) if voltage_mode == "preset" else ManualSupply()
+        return rigset
     opened: list = []
     try:
         actuator = ACTUATORS[rig.actuator.driver](rig.actuator)
@@ -168,6 +192,7 @@ def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset") -> RigS
             stage = ManualDepth()
         else:
             stage = PresetDepth()
+        supply = _open_supply(rig, voltage_mode, current_limit_a)
     except BaseException:
         for dev in reversed(opened):
             dev.close()
@@ -178,8 +203,24 @@ def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset") -> RigS
         thrust_channel=FT_CHANNELS.index(axis.channel), thrust_sign=axis.sign,
         description={"kind": "hardware", "actuator": rig.actuator.driver,
                      "sensor": rig.sensor.driver, "thrust": axis.model_dump()},
-        transform=rig.mount.matrix() if rig.mount else None,
+        transform=rig.mount.matrix() if rig.mount else None, supply=supply,
     )
+
+
+def _open_supply(rig: Rig, voltage_mode: str | None,
+                 current_limit_a: float | None) -> Supply | None:
+    """The supply a voltage sweep needs: the rig's programmable one, or the operator."""
+    if voltage_mode is None:
+        return None
+    if voltage_mode == "manual":
+        return ManualSupply()
+    if rig.supply is None:
+        raise UsageError(f"rig {rig.name!r}: the protocol sets supply voltages (`voltage: "
+                         "{mode: preset}`), but the rig has no `supply:` section")
+    config = rig.supply
+    if current_limit_a is not None:
+        config = config.model_copy(update={"current_limit_a": current_limit_a})
+    return SUPPLIES[config.driver](config)
 
 
 def _open_sim(rig: Rig, spec: SimulatorSpec, start_depth_m: float) -> RigSet:

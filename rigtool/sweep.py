@@ -138,11 +138,32 @@ def check_depth_source(setup: SweepSetup) -> None:
             "use `mode: manual` (the operator sets and confirms each depth) or add a depth stage"])
 
 
+def check_supply(setup: SweepSetup) -> None:
+    """A preset voltage sweep needs the rig's supply (or the simulator), within its rating."""
+    rig, voltage = setup.rig, setup.protocol.voltage
+    if voltage is None or voltage.mode == "manual" or rig.simulator is not None:
+        return
+    where = locate(setup.protocol_path, ("voltage", "mode"))
+    if rig.supply is None:
+        raise ConfigError([f"{where}: voltage.mode: 'preset' needs a `supply:` section in rig "
+                           f"{rig.name!r}, which has none; add one, or use `mode: manual` (the "
+                           "operator sets and confirms each voltage)"])
+    top = max(voltage.values)
+    if top > rig.supply.max_voltage_v:
+        raise ConfigError([f"{locate(setup.protocol_path, ('voltage', 'values'))}: "
+                           f"voltage.values: {top:g} V is above the supply's max_voltage_v "
+                           f"({rig.supply.max_voltage_v:g} V) in rig {rig.name!r}"])
+
+
 def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
     """Open the rig's devices and check the protocol against them (closing them on failure)."""
     check_depth_source(setup)
+    check_supply(setup)
+    voltage = setup.protocol.voltage
     rigset = open_rig(setup.rig, start_depth_m=step_at(setup.protocol, start_idx).depth_m,
-                      depth_mode=setup.protocol.depth.mode)
+                      depth_mode=setup.protocol.depth.mode,
+                      voltage_mode=voltage.mode if voltage else None,
+                      current_limit_a=setup.protocol.limits.max_current_a)
     try:
         check_compatible(setup, rigset)
     except BaseException:
@@ -158,7 +179,8 @@ def _rig_kind(rig: Rig) -> tuple:
     """What must not change between a run and its resume: twin profile, drivers, thrust axis, mount."""
     return (rig.simulator.profile if rig.simulator else None,
             getattr(rig.actuator, "driver", None), getattr(rig.sensor, "driver", None),
-            getattr(rig.depth_stage, "driver", None), rig.thrust, rig.mount)
+            getattr(rig.depth_stage, "driver", None), getattr(rig.supply, "driver", None),
+            rig.thrust, rig.mount)
 
 
 def resolve_resume(store: Store, run_ref: str,

@@ -110,6 +110,22 @@ class DepthStage(Protocol):
 
 
 @runtime_checkable
+class Supply(Protocol):
+    """Sets the thruster's supply voltage (V) for a voltage sweep."""
+
+    reached_by: str  # who reports the voltage reached: "supply", "operator", "simulator"
+
+    def set_voltage(self, volts: float) -> float | None:
+        """Set (or have the operator set) `volts`; return the voltage measured, or None."""
+
+    def safe(self) -> None:
+        """Output off, or the rig file's safe voltage; idempotent."""
+
+    def close(self) -> None:
+        """Leave the output safe and release the transport."""
+
+
+@runtime_checkable
 class Clock(Protocol):
     """Monotonic time source; the simulator injects a virtual one."""
 

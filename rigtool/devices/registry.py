@@ -9,6 +9,7 @@ from pydantic import Field
 from rigtool.devices.ascii_gauge import AsciiGauge, AsciiGaugeConfig
 from rigtool.devices.dbc_can import DbcCanConfig, DbcCanDriver
 from rigtool.devices.netft import NetFTConfig, NetFTSensor
+from rigtool.devices.scpi_supply import ScpiSupply, ScpiSupplyConfig
 from rigtool.devices.serial_stage import SerialStage, SerialStageConfig
 from rigtool.devices.stm32_bridge import Stm32Bridge, Stm32BridgeConfig
 from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
@@ -16,9 +17,11 @@ from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
 ACTUATORS = {"stm32-bridge": Stm32Bridge, "vesc-can": VescCanDriver, "dbc-can": DbcCanDriver}
 SENSORS = {"ati-netft": NetFTSensor, "ascii-gauge": AsciiGauge}
 STAGES = {"serial-stage": SerialStage}
+SUPPLIES = {"scpi-supply": ScpiSupply}
 
 ActuatorConfig = Annotated[
     Union[Stm32BridgeConfig, VescCanConfig, DbcCanConfig], Field(discriminator="driver")  # noqa: UP007
 ]
 SensorConfig = Annotated[Union[NetFTConfig, AsciiGaugeConfig], Field(discriminator="driver")]  # noqa: UP007
 StageConfig = Annotated[Union[SerialStageConfig], Field(discriminator="driver")]  # noqa: UP007
+SupplyConfig = Annotated[Union[ScpiSupplyConfig], Field(discriminator="driver")]  # noqa: UP007

@@ -52,6 +52,8 @@ class ScpiSupplyConfig(BaseModel):
 class ScpiSupply:
     """A supply the engine sets the bus voltage with; `measure()` reads it back."""
 
+    reached_by = "supply"
+
     def __init__(self, config: ScpiSupplyConfig) -> None:
         self.config = config
         self.name = f"SCPI supply on {config.url}"
