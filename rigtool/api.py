@@ -179,6 +179,7 @@ class _Depth:
     """One depth's curve (command -> thrust) and inverse table (thrust -> command)."""
 
     depth_m: float | None
+    voltage_v: float | None  # supply voltage set (None: not swept)
     coefficients: dict[str, Value]
     curve_command: np.ndarray
     curve_thrust: np.ndarray
@@ -188,7 +189,9 @@ class _Depth:
 class Calibration:
     """A calibration as `rigtool calibrate` wrote it: coefficients and the curves that map
     command <-> thrust. Without `depth`, methods use the deepest depth (the thruster's own
-    thrust: shallower points may ventilate); pass `depth` to pick another."""
+    thrust: shallower points may ventilate); pass `depth` to pick another. A run swept over
+    supply voltages has a section per voltage: without `voltage`, methods use the middle
+    voltage of the sweep; pass `voltage` (V, one of `voltages`) to pick another."""
 
     def __init__(self, document: dict, curve: Columns, lut: Columns) -> None:
         self.document = document
@@ -225,18 +228,41 @@ class Calibration:
         return [d.depth_m for d in self._depths]
 
     @property
+    def voltages(self) -> list[float]:
+        """Supply voltages (V) the run was swept at, ascending (empty: not swept)."""
+        return sorted({d.voltage_v for d in self._depths if d.voltage_v is not None})
+
+    @property
+    def voltage_laws(self) -> list[dict]:
+        """Per depth, the fitted C_n(U) = k U^b with its per-voltage coefficients, as in
+        calibration.json `voltage_laws`."""
+        return list(self.document.get("voltage_laws") or [])
+
+    @property
     def coefficients(self) -> dict[str, Value]:
         """Coefficients of the deepest depth: C_p_fwd, C_p_rev, C_n, I_0, C_i_fwd, ..."""
         return self._at(None).coefficients
 
-    def coefficients_at(self, depth: float | None) -> dict[str, Value]:
-        """Coefficients of the section at `depth` (m)."""
-        return self._at(depth).coefficients
+    def coefficients_at(self, depth: float | None, voltage: float | None = None
+                        ) -> dict[str, Value]:
+        """Coefficients of the section at `depth` (m) and supply `voltage` (V)."""
+        return self._at(depth, voltage).coefficients
 
-    def thrust(self, command: Any, depth: float | None = None) -> Any:
+    def current_coefficient(self, voltage: Any, depth: float | None = None) -> Any:
+        """C_n (A/(r/min)^3) at supply voltage U from the fitted law k U^b. Vectorised."""
+        d = self._at(depth)
+        law = next((w for w in self.voltage_laws if w.get("depth_m") == d.depth_m), None)
+        if law is None:
+            raise ValueError(f"run {self.run_id} was not swept over supply voltages"
+                             + ("" if d.depth_m is None else f" at {d.depth_m:g} m"))
+        u = np.asarray(voltage, dtype=float)
+        return _like(voltage, law["k"]["value"] * u ** law["b"]["value"])
+
+    def thrust(self, command: Any, depth: float | None = None,
+               voltage: float | None = None) -> Any:
         """Thrust (N) at `command` from the command curve: 0 in dead zones, NaN outside the
         commands measured. Vectorised; a scalar in gives a scalar out."""
-        d = self._at(depth)
+        d = self._at(depth, voltage)
         c = np.asarray(command, dtype=float)
         if d.curve_command.size == 0:
             return _like(command, np.full(c.shape, np.nan))
@@ -244,10 +270,11 @@ class Calibration:
         inside = (c >= d.curve_command[0]) & (c <= d.curve_command[-1])
         return _like(command, np.where(inside, f, np.nan))
 
-    def command(self, thrust: Any, depth: float | None = None) -> Any:
+    def command(self, thrust: Any, depth: float | None = None,
+                voltage: float | None = None) -> Any:
         """The command giving `thrust` (N), by the inverse lookup table; the neutral command
         for 0, NaN outside the achievable range. Vectorised."""
-        d = self._at(depth)
+        d = self._at(depth, voltage)
         f = np.asarray(thrust, dtype=float)
         out = np.full(f.shape, np.nan)
         out[f == 0] = self.neutral
@@ -256,22 +283,24 @@ class Calibration:
             out[take] = np.interp(f[take], lut_f, lut_c)
         return _like(thrust, out)
 
-    def thrust_from_speed(self, speed_rpm: Any, depth: float | None = None) -> Any:
+    def thrust_from_speed(self, speed_rpm: Any, depth: float | None = None,
+                          voltage: float | None = None) -> Any:
         """Thrust (N) from propeller speed (r/min): f = C_p |n| n, C_p_fwd for n > 0 and
         C_p_rev for n < 0 (NaN where that direction was not fitted)."""
-        coef = self._at(depth).coefficients
+        coef = self._at(depth, voltage).coefficients
         n = np.asarray(speed_rpm, dtype=float)
         fwd, rev = (_value(coef, k) for k in ("C_p_fwd", "C_p_rev"))
         return _like(speed_rpm, np.where(n >= 0, fwd, rev) * np.abs(n) * n)
 
     def thrust_from_current(self, current_a: Any, direction: str = "forward",
-                            depth: float | None = None) -> Any:
+                            depth: float | None = None, voltage: float | None = None) -> Any:
         """Thrust (N) from motor current (A): f = C_i (|I| - I_0)^(2/3), signed by
         `direction` ("forward" or "reverse"; current alone cannot tell). Uses the directly
-        fitted C_i where there is one, else C_p / C_n^(2/3)."""
+        fitted C_i where there is one, else C_p / C_n^(2/3). With `voltage`, the section
+        swept at that supply voltage."""
         if direction not in ("forward", "reverse"):
             raise ValueError(f"direction must be 'forward' or 'reverse', not {direction!r}")
-        coef = self._at(depth).coefficients
+        coef = self._at(depth, voltage).coefficients
         key = "fwd" if direction == "forward" else "rev"
         c_i = _value(coef, f"C_i_{key}_direct")
         if math.isnan(c_i):
@@ -282,25 +311,40 @@ class Calibration:
         f = c_i * np.maximum(current - i_0, 0.0) ** (2 / 3)
         return _like(current_a, f if direction == "forward" else -f)
 
-    def _at(self, depth: float | None) -> _Depth:
+    def _at(self, depth: float | None, voltage: float | None = None) -> _Depth:
         if depth is None:
-            known = [d for d in self._depths if d.depth_m is not None]
-            return max(known, key=lambda d: d.depth_m) if known else self._depths[0]
-        for d in self._depths:
-            if d.depth_m is not None and abs(d.depth_m - depth) < 1e-6:
+            known = [d.depth_m for d in self._depths if d.depth_m is not None]
+            depth_m = max(known) if known else self._depths[0].depth_m
+        else:
+            depth_m = next((d.depth_m for d in self._depths
+                            if d.depth_m is not None and abs(d.depth_m - depth) < 1e-6), None)
+            if depth_m is None:
+                have = ", ".join("not set" if d is None else f"{d:g} m"
+                                 for d in dict.fromkeys(self.depths))
+                raise ValueError(f"no section at depth {depth:g} m; this calibration has {have}")
+        here = sorted((d for d in self._depths if d.depth_m == depth_m),
+                      key=lambda d: -math.inf if d.voltage_v is None else d.voltage_v)
+        if voltage is None:
+            return here[(len(here) - 1) // 2]
+        for d in here:
+            if d.voltage_v is not None and abs(d.voltage_v - voltage) < 1e-6:
                 return d
-        raise ValueError(f"no section at depth {depth:g} m; this calibration has "
-                         f"{', '.join('not set' if d is None else f'{d:g} m' for d in self.depths)}")
+        raise ValueError(f"no section at {voltage:g} V; this calibration was swept at "
+                         f"{', '.join(f'{v:g} V' for v in self.voltages) or 'no voltages'}")
 
 
 def _depth_from(doc: dict, curve: Columns, lut: Columns) -> _Depth:
-    depth = doc.get("depth_m")
+    depth, volts = doc.get("depth_m"), doc.get("supply_voltage_v")
 
     def mine(table: Columns) -> np.ndarray:
         if not table:
             return np.zeros(0, dtype=bool)
         d = table["depth_m"]
-        return np.isnan(d) if depth is None else np.abs(d - depth) < 1e-6
+        at = np.isnan(d) if depth is None else np.abs(d - depth) < 1e-6
+        v = table.get("voltage_set_v")  # absent in files written before voltage sweeps
+        if v is None:
+            return at
+        return at & (np.isnan(v) if volts is None else np.abs(v - volts) < 1e-6)
 
     m = mine(curve)
     order = np.argsort(curve["command"][m]) if m.any() else np.zeros(0, dtype=int)
@@ -319,7 +363,7 @@ def _depth_from(doc: dict, curve: Columns, lut: Columns) -> _Depth:
                                 _float(c.get("hi")), c.get("unit", ""), int(c.get("n") or 0),
                                 _float(c.get("r2")))
                     for name, c in (doc.get("coefficients") or {}).items()}
-    return _Depth(depth, coefficients, cmd[ok], fit[ok], tables)
+    return _Depth(depth, volts, coefficients, cmd[ok], fit[ok], tables)
 
 
 def _value(coef: dict[str, Value], name: str) -> float:

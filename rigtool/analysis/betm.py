@@ -46,6 +46,14 @@ def deep_section(cal: Calibration) -> DepthSection:
     return max(ok, key=lambda s: -math.inf if s.depth_m is None else s.depth_m)
 
 
+def voltage_law_b(cal: Calibration, sec: DepthSection) -> float:
+    """Exponent b of the C_n(U) law at the section's depth (NaN: no voltage sweep there)."""
+    if sec.voltage_v is None:
+        return math.nan
+    return next((law.b.value for law in cal.voltage_laws if law.depth_m == sec.depth_m),
+                math.nan)
+
+
 def betm_from_section(sec: DepthSection, **kw: float) -> Betm:
     """Betm with the section's coefficients and its per-sample residual spreads as variances."""
     f = sec.fits
@@ -58,7 +66,8 @@ def betm_from_section(sec: DepthSection, **kw: float) -> Betm:
                 ci_fwd=v("C_i_fwd_direct", "C_i_fwd"),
                 ci_rev=v("C_i_rev_direct", "C_i_rev_direct") if "C_i_rev_direct" in f
                 else v("C_i_rev", "C_i_fwd_direct"),
-                sigma_n=v("sigma_n_sample"), sigma_i=v("sigma_i_sample"), **kw)
+                sigma_n=v("sigma_n_sample"), sigma_i=v("sigma_i_sample"),
+                voltage_v=math.nan if sec.voltage_v is None else sec.voltage_v, **kw)
 
 
 def level_variances(betm: Betm, f: np.ndarray, speed_rpm: np.ndarray, current_a: np.ndarray,

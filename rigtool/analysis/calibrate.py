@@ -28,6 +28,7 @@ from rigtool.analysis.quality import (
     tare_drift,
 )
 from rigtool.analysis.steady import PointTable, SettlingCriterion, SteadyWindows, steady_windows
+from rigtool.analysis.voltage import VoltageLaw, fit_voltage_law, voltage_point
 from rigtool.store import Store
 
 SummaryRow = tuple[str, float, float, float, str, str]
@@ -67,10 +68,13 @@ class DepthSection:
     repeatability: Repeatability | None
     warnings: list[str]
     speed_sign: str = "measured"  # or "inferred from command" / "inferred from thrust"
+    voltage_v: float | None = None  # supply voltage set for these points (None: not swept)
+    bus_v: float = NAN  # mean bus voltage measured over them (NaN: not recorded)
 
     @property
     def label(self) -> str:
-        return "no depth" if self.depth_m is None else f"{self.depth_m:g} m"
+        depth = "no depth" if self.depth_m is None else f"{self.depth_m:g} m"
+        return depth if self.voltage_v is None else f"{depth}, {self.voltage_v:g} V"
 
 
 @dataclass
@@ -90,6 +94,7 @@ class Calibration:
     sections: list[DepthSection]
     drift: TareDrift | None
     warnings: list[str]
+    voltage_laws: list[VoltageLaw] = field(default_factory=list)  # per depth, voltage sweeps
 
     def summary_rows(self) -> list[SummaryRow]:
         """(name, value, lo, hi, unit, note) rows for a CLI table; NaN where not applicable."""
@@ -120,6 +125,10 @@ class Calibration:
         if self.drift is not None:
             s = self.drift.slope
             rows.append((s.name, s.value, s.lo, s.hi, s.unit, f"{s.n} tares"))
+        for law in self.voltage_laws:
+            suffix = "" if law.depth_m is None else f" @ {law.depth_m:g} m"
+            for c in (law.k_inverse, law.k, law.b):
+                rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, c.note))
         return rows
 
 
@@ -135,22 +144,68 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
     table = windows.point_table(run.steps, run.samples)
     drift = tare_drift(run.tares.t_s, run.tares.thrust_bias_n)
     warnings = _run_warnings(run, table, drift, p)
-    depth_key = np.round(run.steps.depth_m, 6)
     sections = []
-    for depth in np.unique(depth_key):
-        rows = np.flatnonzero(depth_key == depth) if np.isfinite(depth) else np.flatnonzero(
-            np.isnan(depth_key))
-        sections.append(_section(run, table.take(rows), rows, windows, drift, p))
+    for rows in _groups(run.steps):
+        sec = _section(run, table.take(rows), rows, windows, drift, p)
+        volts = run.steps.voltage_v[rows[0]] if run.steps.voltage_v is not None else NAN
+        if math.isfinite(volts):
+            sec.voltage_v = float(volts)
+            sec.bus_v = _bus_voltage(sec.points)
+        sections.append(sec)
     for sec in sections:
         prefix = f"{sec.label}: " if len(sections) > 1 else ""
         warnings += [prefix + w for w in sec.warnings]
+    laws = _voltage_laws(sections)
+    for law in laws:
+        prefix = "" if law.depth_m is None else f"{law.depth_m:g} m: "
+        warnings += [prefix + w for w in law.warnings]
     return Calibration(
         run_id=run.run_id, run_name=run.name, run_status=run.status,
         command_unit=run.command_unit, neutral_command=run.neutral_command,
         thruster_id=run.thruster_id, propeller_diameter_m=run.propeller_diameter_m,
         water_density_kg_m3=run.water_density_kg_m3, tool_version=rigtool.__version__,
-        params=p, sections=sections, drift=drift, warnings=warnings,
+        params=p, sections=sections, drift=drift, warnings=warnings, voltage_laws=laws,
     )
+
+
+def _groups(steps) -> list[np.ndarray]:
+    """Row indices of the points of each (depth, supply voltage), by depth then voltage;
+    a depth or voltage not set is its own group."""
+    def key(values: np.ndarray | None) -> np.ndarray:
+        if values is None:
+            return np.full(len(steps), np.inf)
+        return np.where(np.isfinite(values), np.round(values, 6), np.inf)
+
+    keys = np.column_stack([key(steps.depth_m), key(steps.voltage_v)])
+    if not len(keys):
+        return []
+    _, inverse = np.unique(keys, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    return [np.flatnonzero(inverse == g) for g in range(inverse.max() + 1)]
+
+
+def _bus_voltage(points: PointTable) -> float:
+    """Mean bus voltage over a section's points that entered the fits (all points if none)."""
+    v = points.voltage.mean
+    pick = points.used_in_fits & np.isfinite(v)
+    if not pick.any():
+        pick = np.isfinite(v)
+    return float(np.mean(v[pick])) if pick.any() else NAN
+
+
+def _voltage_laws(sections: list[DepthSection]) -> list[VoltageLaw]:
+    """A C_n(U) law per depth swept at two or more supply voltages."""
+    laws = []
+    depths = sorted({s.depth_m for s in sections if s.voltage_v is not None},
+                    key=lambda d: -math.inf if d is None else d)
+    for depth in depths:
+        mine = sorted((s for s in sections if s.depth_m == depth and s.voltage_v is not None),
+                      key=lambda s: s.voltage_v)
+        points = [voltage_point(s.voltage_v, s.bus_v, s.fits) for s in mine]
+        law = fit_voltage_law(depth, points)
+        if law is not None:
+            laws.append(law)
+    return laws
 
 
 def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: SteadyWindows,

@@ -23,6 +23,7 @@ from rigtool.analysis.betm import (
     compare_estimators,
     deep_section,
     level_variances,
+    voltage_law_b,
 )
 from rigtool.analysis.blocks import Blocks, block_means
 from rigtool.analysis.calibrate import DEEP_DEPTH_M, calibrate
@@ -263,7 +264,7 @@ def build_betm(base: RunData, params: CavitationParams) -> tuple[Betm, list[Esti
     """
     cal = calibrate(base)
     sec = deep_section(cal)
-    betm0 = betm_from_section(sec, gamma=params.gamma)
+    betm0 = betm_from_section(sec, gamma=params.gamma, cn_law_b=voltage_law_b(cal, sec))
     errors = []
     final = betm0
     for block_s in (params.train_block_s, 0.0):

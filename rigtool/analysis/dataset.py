@@ -32,6 +32,7 @@ class Steps:
     t_acquire_s: np.ndarray
     settled: np.ndarray
     status: np.ndarray
+    voltage_v: np.ndarray | None = None  # supply voltage set per point; NaN/None: not swept
 
     def __len__(self) -> int:
         return len(self.idx)
@@ -118,12 +119,6 @@ def _load_run(store: Store, run_id: str) -> RunData:
     )
 
 
-
-
-
-
-
-
 def _steps(rows: list[dict]) -> Steps:
     def col(key: str, dtype: type = float) -> np.ndarray:
         return np.array([np.nan if r[key] is None and dtype is float else r[key] for r in rows],
@@ -140,6 +135,8 @@ def _steps(rows: list[dict]) -> Steps:
         t_acquire_s=col("t_acquire_s"),
         settled=col("settled", bool),
         status=np.array([str(r["status"]) for r in rows]),
+        voltage_v=col("voltage_v") if rows and "voltage_v" in rows[0] else np.full(len(rows),
+                                                                                  np.nan),
     )
 
 

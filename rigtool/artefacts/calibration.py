@@ -16,6 +16,7 @@ import numpy as np
 
 from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.fits import Coefficient
+from rigtool.analysis.voltage import VoltageLaw
 from rigtool.artefacts.write import (
     MISSING,
     atomic_write,
@@ -36,6 +37,7 @@ FILES = {
     "command_curve": "command_curve.csv",
     "inverse_lut": "inverse_lut.csv",
     "performance": "performance.csv",
+    "voltage": "voltage.csv",
 }
 COMMAND_UNIT = "<command unit>"
 
@@ -60,6 +62,11 @@ def write_artefacts(cal: Calibration, out_dir: str | Path,
         "inverse_lut": csv_text(head + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal)),
         "performance": performance_text(cal),
     }
+    stale = target / FILES["voltage"]
+    if cal.voltage_laws:
+        texts["voltage"] = csv_text(head + VOLTAGE_DOC, VOLTAGE_COLUMNS, voltage_rows(cal))
+    elif stale.exists():
+        stale.unlink()  # from an earlier calibration of a run that no longer has voltages
     return [atomic_write(target / FILES[key], text) for key, text in texts.items()]
 
 
@@ -83,7 +90,8 @@ def calibration_document(cal: Calibration, created_utc: str) -> dict:
             "propeller_diameter_m": cal.propeller_diameter_m,
             "water_density_kg_m3": cal.water_density_kg_m3,
         },
-        "files": {k: v for k, v in FILES.items() if k != "calibration"},
+        "files": {k: v for k, v in FILES.items()
+                  if k != "calibration" and (k != "voltage" or cal.voltage_laws)},
         "analysis": dataclasses.asdict(cal.params),
         "steady_window": {
             "method": "block-mean settling criterion (see analysis.settling)",
@@ -94,6 +102,7 @@ def calibration_document(cal: Calibration, created_utc: str) -> dict:
             "se_method": "max(AR(1) effective-sample-size SE, batch-means SE)",
         },
         "depths": [_section_doc(s) for s in cal.sections],
+        "voltage_laws": [_voltage_law_doc(law) for law in cal.voltage_laws],
         "tare_drift": None if cal.drift is None else {
             "slope": _coef_doc(cal.drift.slope),
             "n_tares": int(cal.drift.t_s.size),
@@ -157,6 +166,8 @@ def _section_doc(sec: DepthSection) -> dict:
     h, r, z = sec.hysteresis, sec.repeatability, sec.zero
     return {
         "depth_m": sec.depth_m,
+        "supply_voltage_v": sec.voltage_v,
+        "bus_voltage_mean_v": sec.bus_v,
         "zero": None if z is None else {
             "source": z.source, "offset_n": z.offset_n,
             "drift_n_per_h": z.drift_n_per_s * 3600.0, "t_ref_s": z.t_ref_s},
@@ -174,6 +185,21 @@ def _section_doc(sec: DepthSection) -> dict:
         "warnings": list(sec.warnings),
     }
 
+
+def _voltage_law_doc(law: VoltageLaw) -> dict:
+    return {
+        "depth_m": law.depth_m,
+        "law": "C_n(U) = k * U**b, U the supply voltage set (V); C_i(U) = C_p / C_n(U)**(2/3)",
+        "k": _coef_doc(law.k), "b": _coef_doc(law.b), "k_inverse": _coef_doc(law.k_inverse),
+        "cp_fwd_reduced_chi2": law.cp_chi2_red, "cp_consistent": law.cp_consistent,
+        "voltages": [{
+            "supply_voltage_v": v.voltage_v, "bus_voltage_mean_v": v.bus_v,
+            **{name: None if c is None else _coef_doc(c) for name, c in (
+                ("C_p_fwd", v.cp_fwd), ("C_p_rev", v.cp_rev), ("C_n", v.cn),
+                ("C_i_fwd", v.ci_fwd), ("C_i_rev", v.ci_rev))},
+        } for v in law.points],
+        "warnings": list(law.warnings),
+    }
 
 
 # -- CSV --------------------------------------------------------------------------------------
@@ -211,6 +237,7 @@ POINT_COLUMNS = (
     ("efficiency_n_per_w", "N/W", "|thrust_mean_n - thrust_zero_n| / power_mean_w"),
     ("efficiency_se_n_per_w", "N/W", "standard error of efficiency_n_per_w"),
     ("efficiency_g_per_w", "g/W", "efficiency in grams-force per watt (manufacturer tables)"),
+    ("voltage_set_v", "V", "supply voltage set for the point (nan: not swept)"),
 )
 CURVE_COLUMNS = (
     ("depth_m", "m", "depth (nan: not set)"),
@@ -225,6 +252,7 @@ CURVE_COLUMNS = (
     ("thrust_fit_n", "N", "monotone (isotonic) fit of the branch; 0 in dead zones"),
     ("speed_mean_rpm", "r/min", "mean propeller speed (nan: not measured)"),
     ("current_mean_a", "A", "mean motor current (nan: not measured)"),
+    ("voltage_set_v", "V", "supply voltage set (nan: not swept)"),
 )
 LUT_COLUMNS = (
     ("depth_m", "m", "depth (nan: not set)"),
@@ -232,13 +260,29 @@ LUT_COLUMNS = (
     ("direction", "", "forward (thrust > 0) | reverse (thrust < 0)"),
     ("thrust_n", "N", "thrust; strictly increasing within a (depth, branch)"),
     ("command", COMMAND_UNIT, "command giving that thrust; interpolate linearly"),
+    ("voltage_set_v", "V", "supply voltage set (nan: not swept)"),
 )
+VOLTAGE_COLUMNS = (
+    ("depth_m", "m", "depth (nan: not set)"),
+    ("voltage_set_v", "V", "supply voltage set"),
+    ("bus_voltage_mean_v", "V", "mean bus voltage measured over the fitted points"),
+    *((f"{name}{part}", unit, f"{name} {text}")
+      for name, unit in (("C_p_fwd", "N/(r/min)^2"), ("C_p_rev", "N/(r/min)^2"),
+                         ("C_n", "A/(r/min)^3"), ("C_i_fwd", "N/A^(2/3)"),
+                         ("C_i_rev", "N/A^(2/3)"))
+      for part, text in (("", "fitted at this voltage"), ("_lo", "95 % interval, low end"),
+                         ("_hi", "95 % interval, high end"))),
+    ("C_n_law", "A/(r/min)^3", "C_n from the fitted law k U^b at this voltage"),
+)
+VOLTAGE_DOC = ["one row per (depth, supply voltage): the coefficients at that voltage;",
+               "calibration.json voltage_laws holds the fitted C_n(U) = k U^b"]
 POINTS_DOC = ["one row per recorded point (step); statistics over its steady window"]
 CURVE_DOC = ["one row per distinct command: thrust vs command with dead/saturated states;",
              "thrust values are relative to the estimated sensor zero (calibration.json zero)"]
 LUT_DOC = ["inverse lookup command(thrust) over each branch's usable range (no dead zone,",
-           "no saturated range); rows sorted by depth, branch, thrust; interpolate linearly",
-           "between rows of the same depth and branch, clamp outside (docs/artefacts.md)"]
+           "no saturated range); rows sorted by depth, voltage, branch, thrust; interpolate",
+           "linearly between rows of the same depth, voltage and branch, clamp outside",
+           "(docs/artefacts.md)"]
 
 
 def _units(columns: Sequence[tuple[str, str, str]], cal: Calibration) -> list[tuple[str, str, str]]:
@@ -246,10 +290,12 @@ def _units(columns: Sequence[tuple[str, str, str]], cal: Calibration) -> list[tu
             for name, unit, text in columns]
 
 
-
-
 def _depth(sec: DepthSection) -> float:
     return math.nan if sec.depth_m is None else sec.depth_m
+
+
+def _volts(sec: DepthSection) -> float:
+    return math.nan if sec.voltage_v is None else sec.voltage_v
 
 
 def _point_rows(cal: Calibration) -> Iterable[list[object]]:
@@ -269,7 +315,7 @@ def _point_rows(cal: Calibration) -> Iterable[list[object]]:
                 row += [float(ch.mean[i]), float(ch.std[i]), float(ch.se[i]), float(ch.min[i]),
                         float(ch.max[i])]
             eff = float(p.efficiency_n_per_w[i])
-            row += [eff, float(p.efficiency_se_n_per_w[i]), eff * GRAMS_PER_NEWTON]
+            row += [eff, float(p.efficiency_se_n_per_w[i]), eff * GRAMS_PER_NEWTON, _volts(sec)]
             yield row
 
 
@@ -282,7 +328,7 @@ def curve_rows(cal: Calibration) -> Iterable[list[object]]:
             yield [_depth(sec), float(c.command[i]), c.n_points[i], c.state[i], c.branch[i],
                    float(c.thrust_mean_n[i]), float(c.thrust_se_n[i]), float(c.thrust_min_n[i]),
                    float(c.thrust_max_n[i]), float(c.thrust_fit_n[i]), float(c.speed_mean_rpm[i]),
-                   float(c.current_mean_a[i])]
+                   float(c.current_mean_a[i]), _volts(sec)]
 
 
 def lut_rows(cal: Calibration) -> Iterable[list[object]]:
@@ -291,14 +337,28 @@ def lut_rows(cal: Calibration) -> Iterable[list[object]]:
             continue
         thrust, command, branch = sec.curve.lut
         for f, c, b in zip(thrust, command, branch, strict=True):
-            yield [_depth(sec), b, sec.curve.branches[b].direction, float(f), float(c)]
+            yield [_depth(sec), b, sec.curve.branches[b].direction, float(f), float(c),
+                   _volts(sec)]
+
+
+def voltage_rows(cal: Calibration) -> Iterable[list[object]]:
+    for law in cal.voltage_laws:
+        for v in law.points:
+            row: list[object] = [math.nan if law.depth_m is None else law.depth_m, v.voltage_v,
+                                 v.bus_v]
+            for c in (v.cp_fwd, v.cp_rev, v.cn, v.ci_fwd, v.ci_rev):
+                row += [math.nan] * 3 if c is None else [c.value, c.lo, c.hi]
+            row.append(float(law.cn_at(v.voltage_v)))
+            yield row
 
 
 # -- manufacturer-style performance table -----------------------------------------------------
 
 def performance_rows(cal: Calibration) -> list[list[float]]:
     """One row per (depth, command) over the 'ok' points: the means of their steady-window
-    means, thrust relative to the sensor zero. Columns: PERFORMANCE_HEADER."""
+    means, thrust relative to the sensor zero; per supply voltage too in a voltage sweep.
+    Columns: performance_header."""
+    swept = _voltage_swept(cal)
     rows = []
     for sec in cal.sections:
         p = sec.points
@@ -313,21 +373,30 @@ def performance_rows(cal: Calibration) -> list[list[float]]:
 
             thrust, power = mean(f), mean(p.power.mean)
             g_per_w = abs(thrust) / power * GRAMS_PER_NEWTON if power > 0 else math.nan
-            rows.append([_depth(sec), float(command), mean(p.speed.mean), mean(p.current.mean),
-                         mean(p.voltage.mean), power, thrust, thrust / 9.80665, g_per_w])
+            row = [_depth(sec), float(command), mean(p.speed.mean), mean(p.current.mean),
+                   mean(p.voltage.mean), power, thrust, thrust / 9.80665, g_per_w]
+            if swept:
+                row.insert(1, _volts(sec))
+            rows.append(row)
     return rows
 
 
-def performance_header(command_unit: str) -> list[str]:
-    """Headers with unit suffixes, in the Tyto/manufacturer style `rigtool import` reads."""
-    return ["Depth (m)", f"ESC ({command_unit})", "Motor Optical Speed (RPM)", "Current (A)",
-            "Voltage (V)", "Electrical Power (W)", "Thrust (N)", "Force (kgf)",
+def performance_header(command_unit: str, voltage_swept: bool = False) -> list[str]:
+    """Headers with unit suffixes, in the Tyto/manufacturer style `rigtool import` reads;
+    `Supply Voltage (V)` (the voltage set) only for a voltage sweep."""
+    supply = ["Supply Voltage (V)"] if voltage_swept else []
+    return ["Depth (m)", *supply, f"ESC ({command_unit})", "Motor Optical Speed (RPM)",
+            "Current (A)", "Voltage (V)", "Electrical Power (W)", "Thrust (N)", "Force (kgf)",
             "Efficiency (g/W)"]
+
+
+def _voltage_swept(cal: Calibration) -> bool:
+    return any(sec.voltage_v is not None for sec in cal.sections)
 
 
 def performance_text(cal: Calibration) -> str:
     """performance.csv: a plain table (no comment lines) that spreadsheets and `rigtool
     import` read as they are (docs/artefacts.md)."""
-    lines = [",".join(performance_header(cal.command_unit))]
+    lines = [",".join(performance_header(cal.command_unit, _voltage_swept(cal)))]
     lines += [",".join(csv_cell(v) for v in row) for row in performance_rows(cal)]
     return "\n".join(lines) + "\n"

@@ -51,9 +51,13 @@ def write_vehicle_artefacts(cal: Calibration, out_dir: str | Path, formats: Sequ
 
 
 def deepest(cal: Calibration) -> DepthSection:
-    """The section the vehicle artefacts describe: the deepest (or the only) depth."""
-    known = [s for s in cal.sections if s.depth_m is not None]
-    return max(known, key=lambda s: s.depth_m) if known else cal.sections[0]
+    """The section the vehicle artefacts describe: the deepest (or the only) depth and, in a
+    voltage sweep, the middle supply voltage (as the Python API's default)."""
+    known = [s.depth_m for s in cal.sections if s.depth_m is not None]
+    depth = max(known) if known else cal.sections[0].depth_m
+    here = sorted((s for s in cal.sections if s.depth_m == depth),
+                  key=lambda s: -math.inf if s.voltage_v is None else s.voltage_v)
+    return here[(len(here) - 1) // 2]
 
 
 def branches(sec: DepthSection) -> list[tuple[str, np.ndarray, np.ndarray]]:
@@ -91,6 +95,8 @@ def lut_command(tables: list[tuple[str, np.ndarray, np.ndarray]], neutral: float
 
 def _head(cal: Calibration, sec: DepthSection, created: str) -> list[str]:
     depth = "not set" if sec.depth_m is None else f"{sec.depth_m:g} m"
+    if sec.voltage_v is not None:
+        depth += f", supply {sec.voltage_v:g} V"
     return [f"rigtool {rigtool.__version__}: thruster calibration of run {cal.run_id} "
             f"({cal.run_name}), thruster {cal.thruster_id or 'not named'}, depth {depth}",
             f"created {created} from calibrations/{cal.run_id}/ (docs/artefacts.md)",

@@ -4,10 +4,16 @@ f_n = C_p |n| n (C_p per direction), f_i = s C_i (|I| - I_0)^(2/3) with s the si
 (|I| - I_0 clamped at 0); both are fused with a prior N(u0, sigma0^2). The consistency test
 compares d = |f_n - f_i| / sqrt(sigma_n^2 + sigma_i^2) with gamma: when d > gamma the current
 estimate (the noisier one) is dropped for that sample. Fitting lives in rigtool.analysis.betm.
+
+A Betm calibrated over supply voltages carries the voltage its C_n and C_i hold at and the
+exponent b of C_n(U) = k U^b; the current estimate then takes the bus voltage as an input,
+with C_i(U) = C_i (U / U_cal)^(-2b/3) (C_p does not depend on U).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -32,20 +38,45 @@ class Betm:
     level_n: tuple[float, ...] = ()  # |f_n| knots (N) of the level-dependent stds below
     sigma_n_level: tuple[float, ...] = ()  # std of f_n's error at each knot (N)
     sigma_i_level: tuple[float, ...] = ()  # std of f_i's error at each knot (N)
+    voltage_v: float = math.nan  # supply voltage c_n and ci_* hold at (NaN: not calibrated)
+    cn_law_b: float = math.nan  # exponent b of C_n(U) = k U^b (NaN: no voltage law)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The fields; the voltage pair only where set, so files without it stay as before."""
+        out = asdict(self)
+        for key in ("voltage_v", "cn_law_b"):
+            if math.isnan(out[key]):
+                del out[key]
+        return out
+
+    def voltage_scale(self, voltage_v: float | np.ndarray | None) -> float | np.ndarray:
+        """(U / U_cal)^b, the factor on C_n at supply voltage U; 1 without a voltage law or
+        without U."""
+        if voltage_v is None or math.isnan(self.voltage_v) or math.isnan(self.cn_law_b):
+            return 1.0
+        return (np.asarray(voltage_v, dtype=float) / self.voltage_v) ** self.cn_law_b
+
+    def at_voltage(self, voltage_v: float) -> Betm:
+        """This Betm with C_n and C_i moved to supply voltage `voltage_v` (V)."""
+        k = float(self.voltage_scale(voltage_v))
+        if k == 1.0:
+            return self
+        return dataclasses.replace(self, c_n=self.c_n * k, ci_fwd=self.ci_fwd * k ** (-2 / 3),
+                                   ci_rev=self.ci_rev * k ** (-2 / 3), voltage_v=float(voltage_v))
 
     def speed_estimate(self, speed_rpm: np.ndarray) -> np.ndarray:
         """f_n = C_p |n| n with the forward or reverse coefficient."""
         n = np.asarray(speed_rpm, dtype=float)
         return np.where(n >= 0, self.cp_fwd, self.cp_rev) * np.abs(n) * n
 
-    def current_estimate(self, current_a: np.ndarray, sign: np.ndarray) -> np.ndarray:
-        """f_i = sign C_i (|I| - I_0)^(2/3); sign from the speed (or command) direction."""
+    def current_estimate(self, current_a: np.ndarray, sign: np.ndarray,
+                         voltage_v: np.ndarray | None = None) -> np.ndarray:
+        """f_i = sign C_i(U) (|I| - I_0)^(2/3); sign from the speed (or command) direction,
+        U the bus voltage per sample (None: the calibration's voltage)."""
         s = np.sign(np.asarray(sign, dtype=float))
         d = np.maximum(np.abs(np.asarray(current_a, dtype=float)) - self.i_0, 0.0)
-        return s * np.where(s >= 0, self.ci_fwd, self.ci_rev) * d ** (2 / 3)
+        scale = np.asarray(self.voltage_scale(voltage_v)) ** (-2 / 3)
+        return s * np.where(s >= 0, self.ci_fwd, self.ci_rev) * scale * d ** (2 / 3)
 
     def variances(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(sigma_n^2, sigma_i^2) at thrust level f: interpolated in |f| when knots exist."""
@@ -57,11 +88,12 @@ class Betm:
                 np.interp(a, knots, np.asarray(self.sigma_i_level)) ** 2)
 
     def fuse(self, speed_rpm: np.ndarray, current_a: np.ndarray,
-             sign: np.ndarray | None = None) -> BetmEstimate:
-        """Fused estimate, its variance and the consistency flag for every sample."""
+             sign: np.ndarray | None = None, voltage_v: np.ndarray | None = None) -> BetmEstimate:
+        """Fused estimate, its variance and the consistency flag for every sample; pass the
+        bus voltage `voltage_v` (V) where the calibration has a voltage law."""
         n = np.asarray(speed_rpm, dtype=float)
         f_n = self.speed_estimate(n)
-        f_i = self.current_estimate(current_a, n if sign is None else sign)
+        f_i = self.current_estimate(current_a, n if sign is None else sign, voltage_v)
         return fuse_estimates(f_n, f_i, *self.variances(f_n), self.u0, self.sigma0**2,
                               self.gamma)
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import matplotlib
 import numpy as np
+from matplotlib import colormaps
 from matplotlib.axes import Axes
 from matplotlib.container import ErrorbarContainer
 from matplotlib.figure import Figure
@@ -24,6 +25,7 @@ from rigtool.analysis.curves import CommandCurve
 from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.quality import Hysteresis, TareDrift
 from rigtool.analysis.steady import PointTable
+from rigtool.analysis.voltage import VoltageLaw
 
 FWD = "#1f5fa8"
 REV = "#c0392b"
@@ -347,6 +349,39 @@ def efficiency(points: PointTable) -> Figure:
     fig.subplots_adjust(wspace=0.3, bottom=(0.48 + _rows(eff_ax, 2)) / WIDE[1])
     _fig_legend(fig, eff_ax, 2)
     return fig
+
+
+def voltage_law(law: VoltageLaw, points_by_voltage: Sequence[tuple[float, PointTable]]) -> Figure:
+    """C_n per supply voltage with the fitted law k U^b, and current vs thrust per voltage."""
+    fig = figure(WIDE)
+    cn_ax, map_ax = fig.subplots(1, 2)
+    use = [v for v in law.points if v.cn is not None and np.isfinite(v.cn.value)]
+    u = np.array([v.voltage_v for v in use])
+    cn = np.array([v.cn.value for v in use])
+    err = np.array([[v.cn.value - v.cn.lo for v in use], [v.cn.hi - v.cn.value for v in use]])
+    cn_ax.errorbar(u, cn, yerr=err, fmt="o", color=FWD, label="C_n per voltage (95 %)")
+    grid = np.linspace(u.min() * 0.95, u.max() * 1.05, 100)
+    cn_ax.plot(grid, law.cn_at(grid), "-", color=GREY,
+               label=f"k U^b, b = {law.b.value:.3f}")
+    cn_ax.set_xlabel("supply voltage U (V)")
+    cn_ax.set_ylabel("C_n (A/(r/min)³)")
+    colors = _colors(len(points_by_voltage))
+    for (volts, p), color in zip(points_by_voltage, colors, strict=True):
+        ok = (p.status == "ok") & ~p.dead & np.isfinite(p.current.mean)
+        order = np.argsort(p.thrust_corrected_n[ok])
+        map_ax.plot(p.thrust_corrected_n[ok][order], p.current.mean[ok][order], ".-", ms=3,
+                    lw=0.8, color=color, label=f"{volts:g} V")
+    map_ax.set_xlabel("thrust (N)")
+    map_ax.set_ylabel("current (A)")
+    fig.subplots_adjust(wspace=0.35, bottom=(0.48 + _rows(map_ax, 5)) / WIDE[1])
+    _fig_legend(fig, map_ax, 5)
+    _legend(cn_ax, fontsize="small")
+    return fig
+
+
+def _colors(n: int) -> list:
+    """`n` colours along a perceptually ordered map (low voltage dark, high light)."""
+    return [colormaps["viridis"](x) for x in np.linspace(0.0, 0.85, max(n, 1))][:n]
 
 
 def tare_drift(drift: TareDrift) -> Figure:

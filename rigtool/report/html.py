@@ -17,6 +17,7 @@ import rigtool
 from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.steady import PointTable
+from rigtool.analysis.voltage import VoltageLaw
 from rigtool.artefacts.write import atomic_write
 from rigtool.report import figures as fg
 from rigtool.run_warnings import run_warnings
@@ -78,6 +79,7 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
     unit = unit_label(run["command_unit"])
     sections: list[SectionView] = []
     drift: FigureItem | None = None
+    voltages: list[VoltageView] = []
     with fg.style():
         if cal is not None:
             step_ids = {int(s["idx"]): int(s["id"]) for s in steps}
@@ -90,6 +92,8 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
                                                  suffix, image_format))
                 sections.append(view)
             drift = _drift_figure(cal, events, image_format)
+            voltages = [_voltage_view(law, cal, i, image_format)
+                        for i, law in enumerate(cal.voltage_laws)]
     cav = None
     if cavitation is not None:
         from rigtool.report.cavitation import cavitation_view
@@ -98,7 +102,7 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
     return _template().render(cav=cav,
         run=run, meta=_meta_rows(run, steps, cal), protocol=_flatten(run.get("protocol") or {}),
         warnings=run_warnings(run, events, cal, extra_warnings), events=_event_counts(events),
-        cal=cal, sections=sections, drift=drift, unit=unit, generated=utc_now(),
+        cal=cal, sections=sections, drift=drift, voltages=voltages, unit=unit, generated=utc_now(),
         version=rigtool.__version__)
 
 
@@ -354,6 +358,36 @@ def _hysteresis_figure(sec: DepthSection, unit: str, suffix: str, at: str,
                           "commands sweeping both up and down.")
     return FigureItem(*base, f"Up-sweep minus down-sweep mean thrust (N) vs command ({unit}), "
                       "95 % error bars.", fg.encode(fg.hysteresis(sec.hysteresis, unit), fmt))
+
+
+@dataclass
+class VoltageView:
+    """The supply-voltage section of one depth: per-voltage coefficients, law, figure."""
+
+    heading: str
+    rows: list[tuple[float, float, Coefficient | None, Coefficient | None, Coefficient | None]]
+    law: list[Coefficient]
+    cp_note: str
+    figure: FigureItem
+
+
+def _voltage_view(law: VoltageLaw, cal: Calibration, i: int, fmt: str) -> VoltageView:
+    at = "" if law.depth_m is None else f" at {law.depth_m:g} m"
+    mine = [(s.voltage_v, s.points) for s in cal.sections
+            if s.depth_m == law.depth_m and s.voltage_v is not None]
+    cp_note = (f"C_p_fwd is consistent across the voltages (reduced χ² {law.cp_chi2_red:.2f})"
+               if law.cp_consistent else
+               f"C_p_fwd differs between voltages beyond its intervals (reduced χ² "
+               f"{law.cp_chi2_red:.2f}): it should not depend on U")
+    figure = FigureItem(
+        "voltage", f"fig-voltage-{i + 1}", f"Supply voltage{at}",
+        "Left: C_n at each supply voltage (bars: 95 % intervals) with the fitted law "
+        "C_n(U) = k U^b (b = −1 expected). Right: current (A) vs thrust (N) per voltage, live "
+        "points, thrust relative to the sensor zero.",
+        fg.encode(fg.voltage_law(law, mine), fmt))
+    rows = [(v.voltage_v, v.bus_v, v.cp_fwd, v.cn, v.ci_fwd) for v in law.points]
+    return VoltageView(f"Supply voltage{at}", rows, [law.k_inverse, law.k, law.b], cp_note,
+                       figure)
 
 
 def _drift_figure(cal: Calibration, events: list[dict], fmt: str) -> FigureItem:
