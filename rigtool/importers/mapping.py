@@ -10,8 +10,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from rigtool.config import load_model
 from rigtool.errors import UsageError
 
-FIELDS = ("time", "command", "thrust", "speed", "current", "voltage", "depth", "thrust_std",
-          "n_samples")
+FIELDS = ("time", "command", "thrust", "speed", "current", "voltage", "depth", "supply",
+          "thrust_std", "n_samples")
 FORMATS = ("auto", "timeseries", "points")
 # Characters a delimiter may not be: the quote, line ends, and what numbers are written with.
 NOT_DELIMITERS = frozenset('"\r\n0123456789.+-eE')
@@ -37,6 +37,7 @@ class Columns(_Strict):
     current: str | int | None = None
     voltage: str | int | None = None
     depth: str | int | None = None
+    supply: str | int | None = None  # supply voltage set (a voltage sweep); `voltage` is measured
     thrust_std: str | int | None = None
     n_samples: str | int | None = None
 
@@ -50,6 +51,7 @@ class Units(_Strict):
     current: str | None = None
     voltage: str | None = None
     depth: str | None = None
+    supply: str | None = None
     thrust_std: str | None = None
 
 

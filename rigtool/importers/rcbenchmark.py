@@ -18,6 +18,7 @@ PATTERNS: dict[str, tuple[str, ...]] = {
     "thrust": (r"thrust",),
     "voltage": (r"voltage",),
     "depth": (r"depth",),  # rigtool's own performance.csv
+    "supply": (r"supply voltage",),  # performance.csv of a voltage sweep
     "current": (r"current",),
     "speed": (r"motor optical speed", r"optical speed", r"motor speed", r"rpm",
               r"motor electrical speed", r"electrical speed"),

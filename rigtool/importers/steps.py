@@ -26,11 +26,13 @@ NO_DEPTH = -1e300  # stands for "no depth" in grouping keys
 class ImportedPoints:
     """Every point of an imported run, column-wise; point i owns samples[bounds[i]:bounds[i + 1]].
 
-    `depth_m` is NaN where a point has no depth; `direction` holds "up" or "down".
+    `depth_m` (`voltage_v`, the supply voltage set) is NaN where a point has none; `direction`
+    holds "up" or "down".
     """
 
     command: np.ndarray
     depth_m: np.ndarray
+    voltage_v: np.ndarray
     repeat: np.ndarray
     direction: np.ndarray
     t_start_s: np.ndarray
@@ -46,7 +48,7 @@ class ImportedPoints:
 
     def columns(self) -> dict[str, np.ndarray]:
         """The per-point fields by steps-table column name."""
-        names = ("command", "depth_m", "repeat", "direction", "t_start_s", "t_acquire_s",
+        names = ("command", "depth_m", "voltage_v", "repeat", "direction", "t_start_s", "t_acquire_s",
                  "t_end_s", "settle_s", "rate_hz")
         return {n: getattr(self, n) for n in names}
 
@@ -62,7 +64,9 @@ def _edges(keys: np.ndarray) -> np.ndarray:
 def _keys(p: Parsed, depth_m: float | None) -> np.ndarray:
     cmd = p.values["command"]
     depth = p.values.get("depth", np.full(cmd.size, np.nan if depth_m is None else depth_m))
-    return np.column_stack([cmd, np.nan_to_num(depth, nan=NO_DEPTH)])
+    supply = p.values.get("supply", np.full(cmd.size, np.nan))
+    return np.column_stack([cmd, np.nan_to_num(depth, nan=NO_DEPTH),
+                            np.nan_to_num(supply, nan=NO_DEPTH)])
 
 
 def choose_format(p: Parsed, requested: str, depth_m: float | None) -> str:
@@ -84,11 +88,20 @@ def _depths(p: Parsed, rows: np.ndarray, depth_m: float | None) -> np.ndarray:
     return np.where(np.isfinite(d[rows]), d[rows], fallback)
 
 
-def _labels(command: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Repeat index per (command, depth) in order of appearance, and the sweep direction."""
+def _supplies(p: Parsed, rows: np.ndarray) -> np.ndarray:
+    """Supply voltage set for each given row (NaN without a supply column or cell)."""
+    s = p.values.get("supply")
+    return np.full(rows.size, np.nan) if s is None else s[rows]
+
+
+def _labels(command: np.ndarray, depth: np.ndarray,
+            voltage: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Repeat index per (command, depth, voltage) in order of appearance, and the sweep
+    direction."""
     if command.size == 0:
         return np.zeros(0, dtype=int), np.zeros(0, dtype=str)
-    keys = np.column_stack([command, np.nan_to_num(depth, nan=NO_DEPTH)])
+    keys = np.column_stack([command, np.nan_to_num(depth, nan=NO_DEPTH),
+                            np.nan_to_num(voltage, nan=NO_DEPTH)])
     group = np.unique(keys, axis=0, return_inverse=True)[1].ravel()
     order = np.argsort(group, kind="stable")
     ordered = group[order]
@@ -160,11 +173,12 @@ def timeseries_steps(p: Parsed, settle_s: float, depth_m: float | None) -> tuple
     first_rows = rows[first]
     command = p.values["command"][a]
     depth = _depths(p, a, depth_m)
-    repeat, direction = _labels(command, depth)
+    voltage = _supplies(p, a)
+    repeat, direction = _labels(command, depth, voltage)
     samples = {"t_s": t[rows], "command": p.values["command"][rows]}
     samples |= {CHANNELS[k]: p.values[k][rows] for k in CHANNELS if k in p.values}
     bounds = np.concatenate((np.flatnonzero(first), [rows.size]))
-    points = ImportedPoints(command, depth, repeat, direction, t[a], t[first_rows], t[b - 1],
+    points = ImportedPoints(command, depth, voltage, repeat, direction, t[a], t[first_rows], t[b - 1],
                             np.full(n_points, float(settle_s)), rate, bounds, samples)
     return points, warnings
 
@@ -210,8 +224,9 @@ def point_steps(p: Parsed, depth_m: float | None) -> tuple[ImportedPoints, list[
         samples["thrust_n"][spread] += _pattern(n)[spread] * std[row][spread]
     command = p.values["command"]
     depth = _depths(p, np.arange(n_rows), depth_m)
-    repeat, direction = _labels(command, depth)
+    voltage = _supplies(p, np.arange(n_rows))
+    repeat, direction = _labels(command, depth, voltage)
     zeros = np.zeros(n_rows)
-    points = ImportedPoints(command.copy(), depth, repeat, direction, t, t, t, zeros, zeros,
+    points = ImportedPoints(command.copy(), depth, voltage, repeat, direction, t, t, t, zeros, zeros,
                             np.concatenate(([0], np.cumsum(n))), samples)
     return points, []

@@ -21,9 +21,10 @@ FACTORS: dict[str, dict[str, float]] = {
     "voltage": {"v": 1.0, "mv": 1e-3},
     "depth": {"m": 1.0, "cm": 1e-2, "mm": 1e-3},
 }
+FACTORS["supply"] = FACTORS["voltage"]
 FACTORS["thrust_std"] = FACTORS["thrust"]
 DEFAULT_UNITS = {"time": "s", "thrust": "n", "speed": "rpm", "current": "a", "voltage": "v",
-                 "depth": "m", "thrust_std": "n"}
+                 "depth": "m", "supply": "v", "thrust_std": "n"}
 # header unit -> rigtool command unit
 COMMAND_UNITS = {"us": "pulse_us", "pulse_us": "pulse_us", "%": "percent", "percent": "percent",
                  "pwm": "pwm_counts", "pwm_counts": "pwm_counts", "counts": "pwm_counts",

@@ -22,7 +22,8 @@ def protocol_for(name: str, command_unit: str, neutral: float | None, points: Im
                  metadata: dict, source: str) -> dict:
     """A protocol-shaped dict describing the imported run (what analysis and report read)."""
     depths = points.depth_m[np.isfinite(points.depth_m)]
-    return {
+    voltages = points.voltage_v[np.isfinite(points.voltage_v)]
+    doc = {
         "rigtool_protocol": 1,
         "name": name,
         "description": f"imported from {source}",
@@ -32,15 +33,22 @@ def protocol_for(name: str, command_unit: str, neutral: float | None, points: Im
                     "order": "as logged", "repeats": int(points.repeat.max(initial=1))},
         "depth": {"unit": "m", "values": np.unique(depths).tolist()},
     }
+    if voltages.size:
+        doc["voltage"] = {"unit": "V", "values": np.unique(voltages).tolist(), "mode": "manual"}
+    return doc
 
 
 def _plan(points: ImportedPoints) -> list[dict]:
-    """The stored plan: one entry per point, in file order."""
+    """The stored plan: one entry per point, in file order (a supply voltage only where set)."""
     depth = [None if d != d else d for d in points.depth_m.tolist()]
-    return [{"idx": i, "command": c, "depth_m": d, "repeat": r, "direction": s}
+    plan = [{"idx": i, "command": c, "depth_m": d, "repeat": r, "direction": s}
             for i, (c, d, r, s) in enumerate(zip(points.command.tolist(), depth,
                                                  points.repeat.tolist(),
                                                  points.direction.tolist(), strict=True))]
+    for step, v in zip(plan, points.voltage_v.tolist(), strict=True):
+        if v == v:
+            step["voltage_v"] = v
+    return plan
 
 
 def write_run(store: Store, *, name: str, protocol: dict, rig: dict, points: ImportedPoints,
