@@ -234,7 +234,8 @@ def test_artefacts_formats(can_cal, tmp_path):
     assert "thrust_mean_n" in header and "speed_se_rpm" in header and "current_max_a" in header
     assert header[header.index("thrust_peak_n"):][:3] == ["thrust_peak_n", "thrust_zero_n",
                                                            "voltage_mean_v"]
-    assert header[-3:] == ["efficiency_n_per_w", "efficiency_se_n_per_w", "efficiency_g_per_w"]
+    assert header[-4:] == ["efficiency_n_per_w", "efficiency_se_n_per_w", "efficiency_g_per_w",
+                           "voltage_set_v"]
     assert "# thrust_mean_n [N]: thrust mean over the steady window" in comments
     assert len(rows) == sum(len(s.points) for s in can_cal.sections)
     assert float(rows[0]["thrust_mean_n"]) == pytest.approx(
@@ -243,11 +244,11 @@ def test_artefacts_formats(can_cal, tmp_path):
     comments, header, rows = _read_csv(paths[2])
     assert header == ["depth_m", "command", "n_points", "state", "branch", "thrust_mean_n",
                       "thrust_se_n", "thrust_min_n", "thrust_max_n", "thrust_fit_n",
-                      "speed_mean_rpm", "current_mean_a"]
+                      "speed_mean_rpm", "current_mean_a", "voltage_set_v"]
     assert {r["state"] for r in rows} == {"dead", "live"}
 
     comments, header, rows = _read_csv(paths[3])
-    assert header == ["depth_m", "branch", "direction", "thrust_n", "command"]
+    assert header == ["depth_m", "branch", "direction", "thrust_n", "command", "voltage_set_v"]
     assert any("[N]" in c for c in comments)
     assert lut_command(rows, 0.5, 20.0) == pytest.approx(
         100 * math.sqrt(20.0 / CP_FWD) / 1800, abs=0.5)
