@@ -71,7 +71,7 @@ def evaluate(result: dict, variant: dict) -> dict:
         cn_err.append(abs(cn["value"] / truth - 1))
         cn_in.append(cn["lo"] <= truth <= cn["hi"])
         cp_err.append(abs(v["C_p_fwd"]["value"] / profile.cp_forward - 1))
-    eff_err = []
+    eff_err, eff_in = [], []
     for row in result["points"]:
         if float(row["command"]) != HALF_COMMAND:
             continue
@@ -80,11 +80,13 @@ def evaluate(result: dict, variant: dict) -> dict:
         twin.set_supply_voltage(0.0, volts)
         _, f, i = twin.steady_state(HALF_COMMAND)
         truth = f / ((volts - profile.supply_resistance_ohm * i) * i)
-        eff_err.append(abs(float(row["efficiency_n_per_w"]) / truth - 1))
+        eff = float(row["efficiency_n_per_w"])
+        eff_err.append(abs(eff / truth - 1))
+        eff_in.append(abs(eff - truth) <= 1.96 * float(row["efficiency_se_n_per_w"]))
     b = law["b"]
     return {"cn_err": max(cn_err), "cn_cover": float(np.mean(cn_in)), "cp_err": max(cp_err),
             "cp_consistent": law["cp_consistent"], "b_covers": b["lo"] <= -1 <= b["hi"],
-            "eff_err": max(eff_err)}
+            "eff_err": max(eff_err), "eff_cover": float(np.mean(eff_in))}
 
 
 def main_() -> None:
@@ -93,7 +95,8 @@ def main_() -> None:
     parser.add_argument("--first-seed", type=int, default=9400)
     args = parser.parse_args()
     print(f"{'variant':16} {'C_n err med/worst':>18} {'C_n cover':>9} {'C_p err worst':>13} "
-          f"{'C_p consistent':>14} {'b covers -1':>11} {'N/W err med/worst':>18}")
+          f"{'C_p consistent':>14} {'b covers -1':>11} {'N/W err med/worst':>18} "
+          f"{'N/W truth in 95%':>16}")
     with tempfile.TemporaryDirectory() as tmp:
         for name, variant in VARIANTS.items():
             res = [evaluate(one_run(Path(tmp), variant, s), variant)
@@ -105,7 +108,8 @@ def main_() -> None:
                   f"{max(r['cp_err'] for r in res):13.2%} "
                   f"{sum(r['cp_consistent'] for r in res):>9}/{len(res)} "
                   f"{sum(r['b_covers'] for r in res):>8}/{len(res)} "
-                  f"{np.median(eff):8.2%} / {max(eff):6.2%}")
+                  f"{np.median(eff):8.2%} / {max(eff):6.2%} "
+                  f"{np.mean([r['eff_cover'] for r in res]):16.0%}")
 
 
 if __name__ == "__main__":

@@ -174,6 +174,43 @@ class Value:
     r2: float = math.nan
 
 
+class StepDynamics:
+    """The identified dynamics (calibration.json `dynamics`): the selected model's
+    parameters as Values, and a simulation from a command time series."""
+
+    def __init__(self, document: dict) -> None:
+        self.document = document
+        self.selected: str = document["selected"]
+        model = document["models"][self.selected]
+        self.parameters: dict[str, Value] = {
+            k: _coefficient_value(k, v) for k, v in model.items() if isinstance(v, dict)}
+        self.levels = {float(x["command"]): float(x["thrust_n"]) for x in document["levels"]}
+
+    def __repr__(self) -> str:
+        tau = self.parameters["tau_n"].value
+        return f"<rigtool dynamics: {self.selected}, tau_n {tau:.3g} s>"
+
+    def simulate(self, t_s: Any, command: Any, steady: Any = None) -> np.ndarray:
+        """Thrust (N) for commands `command[i]` held from `t_s[i]`. `steady` maps a command to
+        its steady thrust (a steady sweep's `cal.thrust` is best); by default the levels of the
+        step run, interpolated in speed."""
+        from rigtool.analysis.dynamics import response, speed_target
+
+        t = np.asarray(t_s, dtype=float)
+        c = np.asarray(command, dtype=float)
+        change = np.concatenate(([True], c[1:] != c[:-1]))
+        if steady is None:
+            known = np.array(sorted(self.levels))
+            speeds = speed_target(np.array([self.levels[k] for k in known]))
+            target = np.interp(c[change], known, speeds)
+        else:
+            target = speed_target(np.nan_to_num(np.asarray(steady(c[change]), dtype=float)))
+        p = self.parameters
+        tau_a = p["tau_a"].value if "tau_a" in p else 1.0
+        gain = p["g"].value if "g" in p else 0.0
+        return response(t, t[change], target, p["tau_n"].value, tau_a, gain, p["delay"].value)
+
+
 @dataclass
 class _Depth:
     """One depth's curve (command -> thrust) and inverse table (thrust -> command)."""
@@ -231,6 +268,12 @@ class Calibration:
     def voltages(self) -> list[float]:
         """Supply voltages (V) the run was swept at, ascending (empty: not swept)."""
         return sorted({d.voltage_v for d in self._depths if d.voltage_v is not None})
+
+    @property
+    def dynamics(self) -> StepDynamics | None:
+        """The thruster dynamics of a step-response run (None for a steady sweep)."""
+        doc = self.document.get("dynamics")
+        return None if doc is None else StepDynamics(doc)
 
     @property
     def voltage_laws(self) -> list[dict]:
@@ -359,11 +402,15 @@ def _depth_from(doc: dict, curve: Columns, lut: Columns) -> _Depth:
         order_f = np.argsort(f)
         direction = str(lut["direction"][rows][0])
         tables.append((direction, f[order_f], c[order_f]))
-    coefficients = {name: Value(name, _float(c.get("value")), _float(c.get("lo")),
-                                _float(c.get("hi")), c.get("unit", ""), int(c.get("n") or 0),
-                                _float(c.get("r2")))
+    coefficients = {name: _coefficient_value(name, c)
                     for name, c in (doc.get("coefficients") or {}).items()}
     return _Depth(depth, volts, coefficients, cmd[ok], fit[ok], tables)
+
+
+def _coefficient_value(name: str, c: dict) -> Value:
+    """A calibration.json coefficient as a Value."""
+    return Value(name, _float(c.get("value")), _float(c.get("lo")), _float(c.get("hi")),
+                 c.get("unit", ""), int(c.get("n") or 0), _float(c.get("r2")))
 
 
 def _value(coef: dict[str, Value], name: str) -> float:

@@ -232,14 +232,19 @@ class Engine:
         t_start = self._now()
         counters = self.rig.counters()
         self.follow.start_point()
-        self._ramp_to(step.command, step)
+        steps = self.protocol.is_steps
+        if steps:  # a step: sent at once, acquired from that instant
+            self._step_to(step.command)
+        else:
+            self._ramp_to(step.command, step)
         self.follow.hold(step.command, self.clock.now())
         settle_s, settled = self._settle(step, rate)
         t_acq = self._now()
         samples = self._acquire(step, timing.acquire.n_samples, rate)
         try:
             self.follow.release()
-            self._ramp_to(self.rig.actuator.info.neutral, step)
+            if not steps or step.idx == self.plan[-1].idx:
+                self._ramp_to(self.rig.actuator.info.neutral, step)
             record = StepRecord(
                 idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
                 repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
@@ -301,6 +306,11 @@ class Engine:
             self.store.finish_run(self.run_id, status, reason)
         except StoreError as exc:
             self.reporter.note(f"WARNING: could not record the end of the run: {exc}")
+
+    def _step_to(self, target: float) -> None:
+        """Send `target` at once (a step-response level), inside the actuator's range."""
+        self.rig.actuator.set_command(target)
+        self._command = target
 
     def _ramp_to(self, target: float, step: PlanStep | None = None) -> None:
         """Move the command to `target`, no faster than the slew limit, checking limits as it goes."""

@@ -35,6 +35,8 @@ class PlanStep:
 def _command_sequence(protocol: Protocol, repeat: int) -> list[tuple[float, str]]:
     axis = protocol.command
     values = axis.command_values()
+    if axis.steps is not None:
+        return [(v, "down" if i and v < values[i - 1] else "up") for i, v in enumerate(values)]
     if axis.order == "up":
         return [(v, "up") for v in values]
     if axis.order == "down":

@@ -86,21 +86,31 @@ class CommandAxis(_Strict):
     unit: CommandUnit
     values: list[Command] | None = Field(default=None, min_length=1, max_length=MAX_COMMAND_VALUES)
     range: CommandRange | None = None
+    # Step responses: levels visited as listed, each a step from the one before (no neutral
+    # in between), acquired from the step on (docs/dynamics.md).
+    steps: list[Command] | None = Field(default=None, min_length=2, max_length=MAX_COMMAND_VALUES)
     order: Literal["up", "down", "up-down", "random"] = "up"
     repeats: Annotated[int, Field(ge=1, le=MAX_POINTS)] = 1
     seed: Seed = 0
 
     @model_validator(mode="after")
     def _one_source(self) -> CommandAxis:
-        if (self.values is None) == (self.range is None):
-            raise ValueError("give exactly one of `values` (a list) or `range` (start/stop/step)")
+        if sum(x is not None for x in (self.values, self.range, self.steps)) != 1:
+            raise ValueError("give exactly one of `values` (a list), `range` (start/stop/step) "
+                             "or `steps` (levels for step responses)")
+        if self.steps is not None and "order" in self.model_fields_set:
+            raise FieldError(("order",), "`steps` are visited as listed; leave `order` out")
         return self
 
     def command_values(self) -> list[float]:
+        if self.steps is not None:
+            return list(self.steps)
         return sorted(self.values) if self.values is not None else self.range.values()  # type: ignore[union-attr]
 
     def n_values(self) -> int:
         """Distinct positions in one pass (duplicates in `values` count), without building them."""
+        if self.steps is not None:
+            return len(self.steps)
         return len(self.values) if self.values is not None else self.range.count()  # type: ignore[union-attr]
 
     def per_repeat(self) -> int:
@@ -296,6 +306,7 @@ class Protocol(_Strict):
                 f"{self.n_voltages()} voltage(s) x "
                 f"{self.command.repeats} repeat(s) x {self.command.per_repeat():,} command(s)); "
                 f"the limit is {MAX_POINTS:,}"))
+        self._steps_timing()
         least = self.min_duration_s()
         if least > MAX_RUN_S:
             where = ("limits", "slew_per_s") if self._ramps_s() > least / 2 else ("timing",)
@@ -304,6 +315,25 @@ class Protocol(_Strict):
                 f"limit is {MAX_RUN_S / 86_400:g} days (single durations are limited to "
                 f"{MAX_DURATION_S:g} s)"))
         return self
+
+    def _steps_timing(self) -> None:
+        """A step response is acquired from the step on, and levels follow each other."""
+        if self.command.steps is None:
+            return
+        if self.timing.settle.seconds != 0:
+            raise FieldError(("timing", "settle"), "with `command.steps` each level is acquired "
+                             "from its step on: set `settle: {seconds: 0}`")
+        if self.timing.rest_s != 0:
+            raise FieldError(("timing", "rest_s"), "with `command.steps` levels follow each "
+                             "other without a rest at neutral: set `rest_s: 0`")
+        if self.timing.tare == "per_point":
+            raise FieldError(("timing", "tare"), "with `command.steps` a tare per point would "
+                             "go to neutral between levels: use `at_start` or `per_depth`")
+
+    @property
+    def is_steps(self) -> bool:
+        """A step-response protocol (`command.steps`)."""
+        return self.command.steps is not None
 
     def n_voltages(self) -> int:
         """Supply voltages in the plan (1 when the protocol sets none)."""

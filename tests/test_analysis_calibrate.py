@@ -234,8 +234,11 @@ def test_artefacts_formats(can_cal, tmp_path):
     assert "thrust_mean_n" in header and "speed_se_rpm" in header and "current_max_a" in header
     assert header[header.index("thrust_peak_n"):][:3] == ["thrust_peak_n", "thrust_zero_n",
                                                            "voltage_mean_v"]
-    assert header[-4:] == ["efficiency_n_per_w", "efficiency_se_n_per_w", "efficiency_g_per_w",
-                           "voltage_set_v"]
+    tail = header[header.index("efficiency_n_per_w"):]
+    assert tail[:5] == ["efficiency_n_per_w", "efficiency_se_n_per_w", "efficiency_g_per_w",
+                        "voltage_set_v", "torque_mean_nm"]
+    assert tail[-4:] == ["mech_power_w", "mech_power_se_w", "overall_efficiency",
+                         "overall_efficiency_se"]
     assert "# thrust_mean_n [N]: thrust mean over the steady window" in comments
     assert len(rows) == sum(len(s.points) for s in can_cal.sections)
     assert float(rows[0]["thrust_mean_n"]) == pytest.approx(

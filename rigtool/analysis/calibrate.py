@@ -10,6 +10,7 @@ import numpy as np
 import rigtool
 from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
+from rigtool.analysis.dynamics import Dynamics, StepSeries, identify
 from rigtool.analysis.fits import SECONDS_PER_HOUR, Coefficient, ZeroLine
 from rigtool.analysis.models import (
     FitParams,
@@ -95,6 +96,7 @@ class Calibration:
     drift: TareDrift | None
     warnings: list[str]
     voltage_laws: list[VoltageLaw] = field(default_factory=list)  # per depth, voltage sweeps
+    dynamics: Dynamics | None = None  # step-response runs
 
     def summary_rows(self) -> list[SummaryRow]:
         """(name, value, lo, hi, unit, note) rows for a CLI table; NaN where not applicable."""
@@ -129,6 +131,12 @@ class Calibration:
             suffix = "" if law.depth_m is None else f" @ {law.depth_m:g} m"
             for c in (law.k_inverse, law.k, law.b):
                 rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, c.note))
+        if self.dynamics is not None:
+            m = self.dynamics.model
+            for c in (m.tau_n_s, m.tau_a_s, m.gain, m.delay_s):
+                if c is not None:
+                    rows.append((c.name, c.value, c.lo, c.hi, c.unit,
+                                 f"{m.name} model (selected by BIC)"))
         return rows
 
 
@@ -159,13 +167,27 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
     for law in laws:
         prefix = "" if law.depth_m is None else f"{law.depth_m:g} m: "
         warnings += [prefix + w for w in law.warnings]
+    dynamics = _dynamics(run) if run.step_response else None
+    if dynamics is not None:
+        warnings += dynamics.warnings
     return Calibration(
         run_id=run.run_id, run_name=run.name, run_status=run.status,
         command_unit=run.command_unit, neutral_command=run.neutral_command,
         thruster_id=run.thruster_id, propeller_diameter_m=run.propeller_diameter_m,
         water_density_kg_m3=run.water_density_kg_m3, tool_version=rigtool.__version__,
         params=p, sections=sections, drift=drift, warnings=warnings, voltage_laws=laws,
+        dynamics=dynamics,
     )
+
+
+def _dynamics(run: RunData) -> Dynamics | None:
+    """Identify the dynamics of a step-response run from its points in time order."""
+    ok = np.flatnonzero(run.steps.status == "ok")
+    s = run.samples
+    keep = np.isin(s.point, ok)
+    series = StepSeries(s.t_s[keep], s.thrust_n[keep], run.steps.t_acquire_s[ok],
+                        run.steps.command[ok], run.neutral_command)
+    return identify(series)
 
 
 def _groups(steps) -> list[np.ndarray]:
@@ -262,6 +284,14 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
     zero = fixed_zero or models.zero or (curve.zero if curve else None)
     if zero is not None:
         points.thrust_zero_n = np.nan_to_num(zero.at(points.t_mid_s))
+    if models.torque_zero is not None:
+        points.torque_zero_nm = np.nan_to_num(models.torque_zero.at(points.t_mid_s))
+        above = int(np.sum(points.overall_efficiency[models.used] > 1.0))
+        if above:
+            models.warnings.append(
+                f"shaft power exceeds electrical power at {above} point(s) (overall efficiency "
+                "> 1): check the torque channel and mount transform, and the current and "
+                "voltage scaling")
     f = points.thrust_corrected_n
     hyst = hysteresis(points.command[ok], points.direction[ok], f[ok], points.thrust.se[ok])
     rep = repeatability(points.command[ok], points.direction[ok], points.repeat[ok], f[ok])

@@ -49,14 +49,29 @@ class Samples:
     point: np.ndarray
     offsets: np.ndarray
     voltage_v: np.ndarray | None = None  # bus voltage (None: not recorded)
+    torque_nm: np.ndarray | None = None  # torque about the thrust axis (None: not measured)
 
     def channel(self, name: str) -> np.ndarray:
         """A per-sample channel; `power_w` is V * I sample by sample (so its mean is the mean
         power, not the product of the means); NaN where a channel was not recorded."""
         if name == "power_w":
-            return self.channel("voltage_v") * np.abs(self.current_a)
+            return self.channel("voltage_v") * self.current_a * self._current_sign()
         value = getattr(self, name)
         return np.full(self.t_s.shape, np.nan) if value is None else value
+
+    def _current_sign(self) -> np.ndarray:
+        """Per sample, the sign of its point's mean current: power is V I with the current
+        taken positive for the point as a whole. Folding each sample (|I|) would bias the mean
+        power upwards wherever the current noise reaches zero."""
+        n_points = self.offsets.size - 1
+        total = np.bincount(self.point, weights=np.nan_to_num(self.current_a),
+                            minlength=n_points)
+        return np.where(total < 0, -1.0, 1.0)[self.point]
+
+    def has(self, name: str) -> bool:
+        """Whether a channel was recorded at all (`power_w` needs voltage)."""
+        return self.voltage_v is not None if name == "power_w" else (
+            getattr(self, name) is not None)
 
 
 @dataclass
@@ -84,6 +99,7 @@ class RunData:
     samples: Samples
     tares: Tares
     events: list[dict] = field(default_factory=list)
+    step_response: bool = False  # a `command.steps` run: levels follow each other
 
 
 def load_run(store: Store, run_id: str) -> RunData:
@@ -99,7 +115,10 @@ def _load_run(store: Store, run_id: str) -> RunData:
     if not step_rows:
         raise UsageError(f"run {run_id} has no recorded points: nothing to calibrate")
     steps = _steps(step_rows)
-    samples = _samples(store.samples(run_id, ("step_id", *SAMPLE_FIELDS)), steps)
+    torque = torque_channel(record.rig, store, step_rows)
+    extra = (torque[0],) if torque else ()
+    samples = _samples(store.samples(run_id, ("step_id", *SAMPLE_FIELDS, *extra)), steps,
+                       torque)
     events = store.events(run_id)
     tare_rows = [e for e in events if e["kind"] == "tare"]
     tares = _tares(store, tare_rows, steps, step_rows)
@@ -116,6 +135,7 @@ def _load_run(store: Store, run_id: str) -> RunData:
         samples=samples,
         tares=tares,
         events=[e for e in events if e["kind"] != "tare"],
+        step_response=bool((record.protocol.get("command") or {}).get("steps")),
     )
 
 
@@ -140,12 +160,30 @@ def _steps(rows: list[dict]) -> Steps:
     )
 
 
-def _samples(data: dict[str, np.ndarray], steps: Steps) -> Samples:
+def torque_channel(rig: dict, store: Store, step_rows: list[dict]) -> tuple[str, int] | None:
+    """The F/T channel that holds torque about the thrust axis, and the thrust sign: `tx`
+    for a thrust on `fx`, and so on, when the run's sensor recorded it (a six-axis sensor;
+    the stored channels are after the mount transform). None otherwise."""
+    axis = (rig.get("resolved") or {}).get("thrust") or rig.get("thrust") or {}
+    channel, sign = axis.get("channel"), axis.get("sign", 1)
+    if channel not in FT_CHANNELS[:3] or sign not in (1, -1) or not step_rows:
+        return None
+    name = "t" + channel[1]
+    probe = store.step_samples(int(step_rows[-1]["id"]), (name,))[name]
+    return (name, int(sign)) if np.isfinite(probe).any() else None
+
+
+def _samples(data: dict[str, np.ndarray], steps: Steps,
+             torque: tuple[str, int] | None = None) -> Samples:
     step_ids = data["step_id"].astype(np.int64)
     order = np.argsort(steps.step_id)
     sorted_ids = steps.step_id[order]
     point = order[np.searchsorted(sorted_ids, step_ids)] if step_ids.size else step_ids
     arrays = {k: data[k] for k in SAMPLE_FIELDS}
+    if torque is not None:
+        arrays["torque_nm"] = data[torque[0]]
+        if torque[1] < 0:
+            np.negative(arrays["torque_nm"], out=arrays["torque_nm"])
     if point.size > 1 and np.any(np.diff(point) < 0):
         perm = np.argsort(point, kind="stable")
         point = point[perm]

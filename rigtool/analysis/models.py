@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rigtool.analysis.fits import (
+    RPM_PER_RPS,
     Coefficient,
     DirectionalFit,
     ZeroLine,
@@ -28,6 +29,7 @@ from rigtool.analysis.fits import (
     derive_thrust_current,
     fit_current_exponent,
     fit_current_speed,
+    fit_directional,
     fit_thrust_current,
     fit_thrust_speed,
     residual_spread,
@@ -74,6 +76,7 @@ class ModelFits:
     coefficients: dict[str, Coefficient] = field(default_factory=dict)
     used: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     zero: ZeroLine | None = None
+    torque_zero: ZeroLine | None = None  # zero of the torque about the thrust axis
     speed_sign: str = "measured"  # or "inferred from command" / "inferred from thrust"
     warnings: list[str] = field(default_factory=list)
 
@@ -242,10 +245,46 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
         (samples.thrust_n - zero[samples.point] - pred_s)[in_fit], "sigma_n_sample",
         "RMS of sample thrust minus zero minus C_p |n| n over the steady windows; no interval "
         "(samples are autocorrelated)", interval=False)
+    if points.torque.measured:
+        out.update(_torque_models(points, n, se_n, t, masks, result, diameter_m,
+                                  density_kg_m3, p))
     if points.current.measured:
         weighted = _current_scatter_weights(points, n, single & result.used)
         out.update(_current_models(weighted, samples, n, masks, thrust_fit, cp, p))
     return result
+
+
+def _torque_models(points: PointTable, n: np.ndarray, se_n: np.ndarray, t: np.ndarray,
+                   masks: dict[str, np.ndarray], result: ModelFits, diameter_m: float | None,
+                   density_kg_m3: float | None, p: FitParams) -> dict[str, Coefficient]:
+    """Q = C_q |n| n per direction about the thrust axis, with its own zero and drift, and
+    K_Q = |Q| / (rho n^2 D^5) where diameter and density are known."""
+    q, se_q = points.torque.mean, points.torque.se
+    ok = np.isfinite(q) & np.isfinite(se_q)
+    fit = fit_directional(np.abs(n) * n, np.where(ok, q, 0.0), np.where(ok, se_q, np.inf),
+                          None if se_n is None else 2 * np.abs(n) * se_n, t,
+                          {k: m & ok for k, m in masks.items()})
+    if fit is None:
+        return {}
+    result.torque_zero = fit.zero
+    out = {}
+    for key in ("fwd", "rev"):
+        if key not in fit.columns:
+            continue
+        c = fit.coefficient(key, f"C_q_{key}", "N m/(r/min)^2",
+                            "Q = C_q |n| n, torque about the thrust axis (sign: right-hand "
+                            "rule about forward thrust)")
+        c = with_systematic(dataclasses.replace(c, rms_unit="N m"), p.rel_systematic)
+        out[c.name] = c
+        if diameter_m and density_kg_m3:
+            k = RPM_PER_RPS**2 / (density_kg_m3 * diameter_m**5)
+            lo, hi = sorted((abs(c.lo) * k, abs(c.hi) * k)) if c.lo * c.hi > 0 else (
+                0.0, max(abs(c.lo), abs(c.hi)) * k)
+            out[f"K_Q_{key}"] = Coefficient(
+                f"K_Q_{key}", abs(c.value) * k, lo, hi, "1", c.n, c.r2, c.rms, "N m",
+                f"K_Q = |C_q| * 3600 / (rho D^5), D = {diameter_m:g} m, "
+                f"rho = {density_kg_m3:g} kg/m^3")
+    return out
 
 
 def _scatter_weights(fit: DirectionalFit, se: np.ndarray, rows: np.ndarray) -> np.ndarray:

@@ -21,7 +21,8 @@ import numpy as np
 from rigtool.analysis.dataset import Samples, Steps
 
 CHANNEL_UNITS = {"thrust_n": "N", "speed_rpm": "r/min", "current_a": "A", "voltage_v": "V",
-                 "power_w": "W"}
+                 "power_w": "W", "torque_nm": "N m"}
+RAD_S_PER_RPM = 2 * np.pi / 60
 
 
 @dataclass(frozen=True)
@@ -94,9 +95,11 @@ class PointTable:
     current: ChannelStats
     voltage: ChannelStats
     power: ChannelStats  # electrical power V * |I|, averaged sample by sample
+    torque: ChannelStats  # torque about the thrust axis (six-axis sensors)
     dead: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     used_in_fits: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     thrust_zero_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    torque_zero_nm: np.ndarray = field(default_factory=lambda: np.zeros(0))
     speed_sign: np.ndarray = field(default_factory=lambda: np.zeros(0))  # set by the fits
 
     @property
@@ -127,6 +130,38 @@ class PointTable:
             rel = np.hypot(self.thrust.se / f, self.power.se / p)
         return self.efficiency_n_per_w * rel
 
+    @property
+    def torque_corrected_nm(self) -> np.ndarray:
+        """Mean torque about the thrust axis minus its estimated zero (N m)."""
+        zero = self.torque_zero_nm if self.torque_zero_nm.size else 0.0
+        return self.torque.mean - zero
+
+    @property
+    def mech_power_w(self) -> np.ndarray:
+        """Shaft power |Q| |omega| from the point means (W); NaN without torque or speed."""
+        return np.abs(self.torque_corrected_nm) * np.abs(self.speed.mean) * RAD_S_PER_RPM
+
+    @property
+    def mech_power_se_w(self) -> np.ndarray:
+        """Standard error of mech_power_w (torque and speed errors combined, first order)."""
+        q, n = np.abs(self.torque_corrected_nm), np.abs(self.speed.mean)
+        return np.hypot(self.torque.se * n, np.nan_to_num(self.speed.se) * q) * RAD_S_PER_RPM
+
+    @property
+    def overall_efficiency(self) -> np.ndarray:
+        """Shaft power over electrical power (motor and driver together), 0..1."""
+        p = self.power.mean
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(p > 0, self.mech_power_w / p, np.nan)
+
+    @property
+    def overall_efficiency_se(self) -> np.ndarray:
+        """Standard error of overall_efficiency, first order."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rel = np.hypot(self.mech_power_se_w / self.mech_power_w,
+                           self.power.se / self.power.mean)
+        return self.overall_efficiency * rel
+
     def __len__(self) -> int:
         return len(self.step_idx)
 
@@ -137,7 +172,7 @@ class PointTable:
 
     def take(self, index: np.ndarray) -> PointTable:
         """Rows `index` (int or bool array) as a new table."""
-        stats = ("thrust", "speed", "current", "voltage", "power")
+        stats = ("thrust", "speed", "current", "voltage", "power", "torque")
         plain = {k: getattr(self, k)[index] for k in self.__dataclass_fields__ if k not in stats}
         return PointTable(**plain, **{k: getattr(self, k).take(index) for k in stats})
 
@@ -165,7 +200,9 @@ class SteadyWindows:
             unsteady=self.unsteady, thrust=self.channels["thrust_n"],
             speed=self.channels["speed_rpm"], current=self.channels["current_a"],
             voltage=self.channels["voltage_v"], power=self.channels["power_w"],
+            torque=self.channels["torque_nm"],
             dead=np.zeros(n, bool), used_in_fits=np.zeros(n, bool), thrust_zero_n=np.zeros(n),
+            torque_zero_nm=np.zeros(n),
             speed_sign=np.zeros(n),
         )
 
@@ -212,6 +249,9 @@ def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None)
         t_mid = np.bincount(win_pid, weights=t[in_window], minlength=n_points) / n_window
     stats = {}
     for name, unit in CHANNEL_UNITS.items():
+        if not samples.has(name):  # not recorded: no per-sample NaN arrays to build
+            stats[name] = ChannelStats(unit, *(np.full(n_points, np.nan) for _ in range(5)))
+            continue
         x = samples.channel(name)[in_window]
         batch_se = _batch_se(block_means.get(name), block_mask)
         stats[name] = _window_stats(x, win_pid, win_offsets, n_points, unit, batch_se)

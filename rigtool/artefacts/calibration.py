@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from rigtool.analysis.calibrate import Calibration, DepthSection
+from rigtool.analysis.dynamics import Dynamics, DynamicsModel
 from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.voltage import VoltageLaw
 from rigtool.artefacts.write import (
@@ -103,6 +104,7 @@ def calibration_document(cal: Calibration, created_utc: str) -> dict:
         },
         "depths": [_section_doc(s) for s in cal.sections],
         "voltage_laws": [_voltage_law_doc(law) for law in cal.voltage_laws],
+        "dynamics": None if cal.dynamics is None else _dynamics_doc(cal.dynamics),
         "tare_drift": None if cal.drift is None else {
             "slope": _coef_doc(cal.drift.slope),
             "n_tares": int(cal.drift.t_s.size),
@@ -138,7 +140,20 @@ def _efficiency_doc(sec: DepthSection) -> dict | None:
             "se_n_per_w": float(p.efficiency_se_n_per_w[i]), "at_command": float(p.command[i]),
             "at_thrust_n": float(p.thrust_corrected_n[i]), "power_w": float(p.power.mean[i]),
             "n_points": int(np.isfinite(eff).sum()),
-            "power": "mean over the steady window of V * |I| sample by sample"}
+            "power": "mean over the steady window of V * |I| sample by sample",
+            "overall": _overall_doc(p)}
+
+
+def _overall_doc(p) -> dict | None:
+    """Best shaft power over electrical power among the live points (None without torque)."""
+    eta = np.where((p.status == "ok") & ~p.dead, p.overall_efficiency, np.nan)
+    if not np.isfinite(eta).any():
+        return None
+    i = int(np.nanargmax(eta))
+    return {"max": float(eta[i]), "se": float(p.overall_efficiency_se[i]),
+            "at_command": float(p.command[i]), "mech_power_w": float(p.mech_power_w[i]),
+            "power_w": float(p.power.mean[i]),
+            "definition": "|Q| omega / (V |I|): shaft power over electrical power"}
 
 
 def _section_doc(sec: DepthSection) -> dict:
@@ -183,6 +198,33 @@ def _section_doc(sec: DepthSection) -> dict:
             "max_std_n": r.max_std_n, "median_std_n": r.median_std_n,
             "n_groups": int(r.command.size)},
         "warnings": list(sec.warnings),
+    }
+
+
+def _model_doc(m: DynamicsModel) -> dict:
+    return {"tau_n": _coef_doc(m.tau_n_s), "delay": _coef_doc(m.delay_s),
+            "tau_a": None if m.tau_a_s is None else _coef_doc(m.tau_a_s),
+            "g": None if m.gain is None else _coef_doc(m.gain),
+            "rms_n": m.rms_n, "bic": m.bic, "aic": m.aic, "n_samples": m.n_samples}
+
+
+def _dynamics_doc(d: Dynamics) -> dict:
+    return {
+        "model": "s' = (s_k - s) / tau_n; m' = (s - m) / tau_a; thrust = s|s| + g (s|s| - m|m|); "
+                 "s in sqrt(N) (s|s| is the steady thrust of the command), the command acts "
+                 "`delay` s after it is sent; one-state: g = 0",
+        "selected": d.selected,
+        "models": {"one-state": _model_doc(d.one_state),
+                   "two-state": None if d.two_state is None else _model_doc(d.two_state)},
+        "time_constant_s": d.model.tau_n_s.value,
+        "zero_n": d.zero_n,
+        "levels": [{"command": c, "thrust_n": f} for c, f in sorted(d.levels.items())],
+        "steps": [{"command_from": s.command_from, "command_to": s.command_to,
+                   "thrust_from_n": s.thrust_from_n, "thrust_to_n": s.thrust_to_n,
+                   "direction": s.direction, "t10_s": s.t10_s, "rise_s": s.rise_s,
+                   "settling_s": s.settling_s, "overshoot_frac": s.overshoot_frac}
+                  for s in d.steps],
+        "warnings": list(d.warnings),
     }
 
 
@@ -238,6 +280,16 @@ POINT_COLUMNS = (
     ("efficiency_se_n_per_w", "N/W", "standard error of efficiency_n_per_w"),
     ("efficiency_g_per_w", "g/W", "efficiency in grams-force per watt (manufacturer tables)"),
     ("voltage_set_v", "V", "supply voltage set for the point (nan: not swept)"),
+    *((f"torque_{stat}_nm", "N m", f"torque about the thrust axis, {text} over the steady "
+       "window (six-axis sensors)")
+      for stat, text in (("mean", "mean"), ("std", "standard deviation"),
+                         ("se", "standard error of the mean"), ("min", "minimum"),
+                         ("max", "maximum"))),
+    ("torque_zero_nm", "N m", "estimated torque zero at t_mid_s (fitted with C_q)"),
+    ("mech_power_w", "W", "shaft power |torque_mean_nm - torque_zero_nm| * |speed| * 2 pi / 60"),
+    ("mech_power_se_w", "W", "standard error of mech_power_w"),
+    ("overall_efficiency", "1", "mech_power_w / power_mean_w (motor and driver together)"),
+    ("overall_efficiency_se", "1", "standard error of overall_efficiency"),
 )
 CURVE_COLUMNS = (
     ("depth_m", "m", "depth (nan: not set)"),
@@ -316,6 +368,11 @@ def _point_rows(cal: Calibration) -> Iterable[list[object]]:
                         float(ch.max[i])]
             eff = float(p.efficiency_n_per_w[i])
             row += [eff, float(p.efficiency_se_n_per_w[i]), eff * GRAMS_PER_NEWTON, _volts(sec)]
+            q = p.torque
+            row += [float(q.mean[i]), float(q.std[i]), float(q.se[i]), float(q.min[i]),
+                    float(q.max[i]), float(p.torque_zero_nm[i]), float(p.mech_power_w[i]),
+                    float(p.mech_power_se_w[i]), float(p.overall_efficiency[i]),
+                    float(p.overall_efficiency_se[i])]
             yield row
 
 

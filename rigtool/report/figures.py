@@ -379,6 +379,24 @@ def voltage_law(law: VoltageLaw, points_by_voltage: Sequence[tuple[float, PointT
     return fig
 
 
+def step_responses(t_s: np.ndarray, measured: np.ndarray, fitted: dict[str, np.ndarray],
+                   switch_s: np.ndarray) -> Figure:
+    """Measured thrust through the steps with each fitted model; command steps marked."""
+    fig = figure(WIDE)
+    ax = fig.subplots()
+    t, f = _decimate(t_s, measured, 20_000)
+    ax.plot(t, f, "-", lw=0.5, color=GREY, label="measured")
+    for (name, y), color in zip(fitted.items(), (FWD, REV), strict=False):
+        tt, yy = _decimate(t_s, y, 20_000)
+        ax.plot(tt, yy, "-", lw=1.0, color=color, label=f"{name} model")
+    for s in switch_s:
+        ax.axvline(s, color=GREY, lw=0.4, ls=":")
+    ax.set_xlabel("run time (s)")
+    ax.set_ylabel("thrust (N)")
+    _legend(ax, fontsize="small")
+    return fig
+
+
 def _colors(n: int) -> list:
     """`n` colours along a perceptually ordered map (low voltage dark, high light)."""
     return [colormaps["viridis"](x) for x in np.linspace(0.0, 0.85, max(n, 1))][:n]

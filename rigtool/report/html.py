@@ -80,6 +80,7 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
     sections: list[SectionView] = []
     drift: FigureItem | None = None
     voltages: list[VoltageView] = []
+    dynamics: DynamicsView | None = None
     with fg.style():
         if cal is not None:
             step_ids = {int(s["idx"]): int(s["id"]) for s in steps}
@@ -94,6 +95,7 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
             drift = _drift_figure(cal, events, image_format)
             voltages = [_voltage_view(law, cal, i, image_format)
                         for i, law in enumerate(cal.voltage_laws)]
+            dynamics = _dynamics_view(store, run_id, cal, image_format)
     cav = None
     if cavitation is not None:
         from rigtool.report.cavitation import cavitation_view
@@ -102,7 +104,8 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
     return _template().render(cav=cav,
         run=run, meta=_meta_rows(run, steps, cal), protocol=_flatten(run.get("protocol") or {}),
         warnings=run_warnings(run, events, cal, extra_warnings), events=_event_counts(events),
-        cal=cal, sections=sections, drift=drift, voltages=voltages, unit=unit, generated=utc_now(),
+        cal=cal, sections=sections, drift=drift, voltages=voltages, dynamics=dynamics, unit=unit,
+        generated=utc_now(),
         version=rigtool.__version__)
 
 
@@ -388,6 +391,39 @@ def _voltage_view(law: VoltageLaw, cal: Calibration, i: int, fmt: str) -> Voltag
     rows = [(v.voltage_v, v.bus_v, v.cp_fwd, v.cn, v.ci_fwd) for v in law.points]
     return VoltageView(f"Supply voltage{at}", rows, [law.k_inverse, law.k, law.b], cp_note,
                        figure)
+
+
+@dataclass
+class DynamicsView:
+    """The dynamics section: both models' parameters, the selection, the step timings."""
+
+    selected: str
+    models: list[tuple[str, list[Coefficient], float, float]]  # name, params, RMS, BIC
+    steps: list
+    figure: FigureItem
+
+
+def _dynamics_view(store: Store, run_id: str, cal: Calibration, fmt: str) -> DynamicsView | None:
+    from rigtool.analysis.dynamics import StepSeries
+
+    d = cal.dynamics
+    if d is None:
+        return None
+    ok = [s for s in store.steps(run_id) if s["status"] == "ok"]
+    data = store.samples(run_id, ("t_s", "thrust_n"))
+    series = StepSeries(data["t_s"], data["thrust_n"],
+                        np.array([s["t_acquire_s"] for s in ok], dtype=float),
+                        np.array([s["command"] for s in ok], dtype=float), cal.neutral_command)
+    models = [m for m in (d.one_state, d.two_state) if m is not None]
+    fitted = {m.name: d.fitted(series, m) for m in models}
+    figure = FigureItem(
+        "dynamics", "fig-dynamics", "Step responses",
+        "Measured thrust (N) through the command steps (dotted lines) with the fitted "
+        f"one-state and two-state models; the {d.selected} model is selected (BIC).",
+        fg.encode(fg.step_responses(series.t_s, series.thrust_n, fitted, series.switch_s), fmt))
+    rows = [(m.name, [c for c in (m.tau_n_s, m.tau_a_s, m.gain, m.delay_s) if c is not None],
+             m.rms_n, m.bic) for m in models]
+    return DynamicsView(d.selected, rows, d.steps, figure)
 
 
 def _drift_figure(cal: Calibration, events: list[dict], fmt: str) -> FigureItem:

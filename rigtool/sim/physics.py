@@ -85,6 +85,7 @@ class ThrusterTwin:
         self._t0 = float(t0)
         self._t = float(t0)  # time of the speed state below
         self._n = 0.0  # speed at self._t
+        self._m = 0.0  # axial inflow state (r/min) at self._t; follows n (profile.inflow_tau_s)
         self._command = float(profile.neutral)
         self._n_target = 0.0
         self._active: VentilationEvent | None = None
@@ -170,17 +171,21 @@ class ThrusterTwin:
         self._cavitate(t1)
         p = self.profile
         n0, nt = self._n, self._n_target
-        if abs(n0 - nt) <= self._settled_rpm:  # settled: scalars keep the block cheap
-            n = nt
+        inflow = p.inflow_gain > 0 and abs(self._m - nt) > self._settled_rpm
+        if abs(n0 - nt) <= self._settled_rpm and not inflow:  # settled: scalars keep it cheap
+            n = m = nt
         else:
-            n = nt + (n0 - nt) * np.exp((self._t - t) / p.tau_s)
+            n, m = self._states_at(t)
         absn = abs(n)
+        nn = n * absn
+        if inflow:
+            nn = nn + p.inflow_gain * (nn - m * abs(m))
         if n0 >= 0 and nt >= 0:
-            thrust = p.cp_forward * n * absn
+            thrust = p.cp_forward * nn
         elif n0 <= 0 and nt <= 0:
-            thrust = p.cp_reverse * n * absn
+            thrust = p.cp_reverse * nn
         else:
-            thrust = np.where(n >= 0, p.cp_forward, p.cp_reverse) * n * absn
+            thrust = np.where(n >= 0, p.cp_forward, p.cp_reverse) * nn
         current = self._cn * absn**3 + self._idle
         thrust_sd = np.hypot(p.vibration_noise_frac * thrust, p.force_noise_n)
         weight, drop = self._ventilation(t)
@@ -193,7 +198,9 @@ class ThrusterTwin:
         z[_THRUST], z[_TIME], z[_SPEED], z[_CURRENT] = thrust, t, n, current
         ft = z[: _ONE + 1].T @ self._ft_mix
         speed, current_fb, voltage = self._fb_mix @ z[_ONE:]
-        self._t, self._n = t1, (float(n[-1]) if isinstance(n, np.ndarray) else n)
+        self._n, self._m = (float(v[-1]) if isinstance(v, np.ndarray) else float(v)
+                            for v in (n, m))
+        self._t = t1
         thrust_true = thrust if isinstance(thrust, np.ndarray) else np.full(size, thrust)
         return TwinSamples(ft, thrust_true, speed, current_fb, voltage)
 
@@ -245,6 +252,20 @@ class ThrusterTwin:
             (self._t - t) / self.profile.tau_s
         )
 
+    def _states_at(self, t: np.ndarray | float) -> tuple:
+        """(speed, inflow) at times t >= self._t: n first order towards the target, the
+        inflow m first order towards n (exact solution of the linear pair)."""
+        p = self.profile
+        c, e = self._n_target, self._n - self._n_target
+        s = np.asarray(t, dtype=float) - self._t
+        tn, ta = p.tau_s, p.inflow_tau_s
+        if abs(tn - ta) < 1e-9 * tn:
+            ta = tn * (1 + 1e-6)  # equal constants: the limit, to rounding
+        fast = np.exp(-s / tn)
+        a = e * tn / (tn - ta)
+        m = c + a * fast + (self._m - c - a) * np.exp(-s / ta)
+        return c + e * fast, m
+
     def _depth_rates(self, depth_m: float) -> tuple[float, float]:
         """(onset rate at the reference speed, mean duration) at a depth; rate 0 if off or deep."""
         p = self.profile
@@ -263,7 +284,8 @@ class ThrusterTwin:
             raise ValueError(f"time {t} lies before the twin's time {self._t}")
         t = max(t, self._t)
         self._cavitate(t)
-        self._n = self._speed_at(t)
+        n, m = self._states_at(t)
+        self._n, self._m = float(n), float(m)
         self._t = t
 
     def _block_rows(self, size: int) -> np.ndarray:

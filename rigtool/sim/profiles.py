@@ -91,6 +91,11 @@ class ThrusterProfile:
     cav_ramp_out_s: float = 0.3  # and recovers over its last ramp_out
     cav_current_drop: float = 0.08  # mean current drops by this * drop_frac
     cav_noise_frac: float = 0.03  # extra thrust noise std per newton of unventilated thrust
+    # Axial inflow (Healey-type second state): the inflow speed m follows the propeller speed
+    # n with time constant inflow_tau_s, and thrust is C_p (n|n| + inflow_gain (n|n| - m|m|)):
+    # a step overshoots while the inflow builds up. inflow_gain 0 is the first-order thruster.
+    inflow_gain: float = 0.0
+    inflow_tau_s: float = 0.5
 
     def __post_init__(self) -> None:
         problems = _problems(self)
@@ -101,10 +106,10 @@ class ThrusterProfile:
 _NON_NEGATIVE = (
     "cn", "idle_current_a", "speed_noise_rpm", "current_noise_a", "force_noise_n",
     "torque_noise_nm", "vibration_noise_frac", "voltage_noise_v", "supply_resistance_ohm",
-    "cav_noise_frac", "cav_current_drop", "cav_ramp_in_s", "cav_ramp_out_s",
+    "cav_noise_frac", "cav_current_drop", "cav_ramp_in_s", "cav_ramp_out_s", "inflow_gain",
 )  # fmt: skip
 _POSITIVE = ("cp_forward", "cp_reverse", "max_speed_rpm", "tau_s", "supply_voltage_v", "cav_ref_speed_rpm",
-             "cav_duration_shape")  # fmt: skip
+             "cav_duration_shape", "inflow_tau_s")  # fmt: skip
 _PWM_BREAKPOINTS = ("pwm_fwd_start", "pwm_fwd_sat_end", "pwm_fwd_end", "pwm_rev_creep_start",
                     "pwm_rev_breakaway", "pwm_rev_sat_start")  # fmt: skip
 
