@@ -351,7 +351,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         _print_warnings(store, res.run_id, cal, res.notes)
         if args.export:
             paths = workflows.export_calibration(store, res.run_id, args.out, args.export,
-                                                 results=res)
+                                                 results=res, dynamics_run=args.dynamics)
             out.print(f"vehicle artefacts: {', '.join(str(p) for p in paths)}")
         if args.report:
             out.print(f"report: {workflows.report(store, res.run_id, args.out, results=res)}")
@@ -410,7 +410,8 @@ def cmd_export_cal(args: argparse.Namespace) -> int:
     from rigtool import workflows
 
     with Store(resolve_db_path(args.db), read_only=True) as store:
-        for path in workflows.export_calibration(store, args.run, args.out, args.format):
+        for path in workflows.export_calibration(store, args.run, args.out, args.format,
+                                                 dynamics_run=args.dynamics):
             out.print(str(path))
     return 0
 
@@ -480,6 +481,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--export", metavar="FORMAT", action="append", default=[],
                    choices=VEHICLE_FORMATS, help="also write a vehicle artefact: "
                    f"{', '.join(VEHICLE_FORMATS)} (repeatable; docs/artefacts.md)")
+    p.add_argument("--dynamics", metavar="RUN", help="calibrated step-response run of the same "
+                   "thruster whose time constants the vehicle artefacts carry (default: the "
+                   "run's own, when it is one)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_calibrate)
 
@@ -489,6 +493,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", action="append", required=True, choices=VEHICLE_FORMATS,
                    help="artefact to write (repeatable)")
     p.add_argument("--out", default="calibrations", help="output folder (default: ./calibrations)")
+    p.add_argument("--dynamics", metavar="RUN", help="calibrated step-response run of the same "
+                   "thruster whose time constants the vehicle artefacts carry (default: the "
+                   "run's own, when it is one)")
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_export_cal)
 

@@ -19,6 +19,7 @@ from rigtool.store import Store, utc_now
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration
     from rigtool.analysis.cavitation import CavitationResult
+    from rigtool.artefacts.vehicle import DynamicsSource
     from rigtool.compare import CompareResult
 
 # Analysis, artefact and comparison modules are imported by the workflow that needs them:
@@ -166,13 +167,37 @@ def compare(store: Store, run_refs: Sequence[str], reference: str | None = None,
 
 
 def export_calibration(store: Store, run_ref: str, out_dir: str | Path, formats: Sequence[str],
-                       *, results: Results | None = None) -> list[Path]:
+                       *, results: Results | None = None,
+                       dynamics_run: str | None = None) -> list[Path]:
     """Write vehicle artefacts (c-header, ros2, gazebo, csv-lut) of a calibrated run from
-    its stored results (or `results`, just computed); return their paths."""
-    from rigtool.artefacts.vehicle import write_vehicle_artefacts
+    its stored results (or `results`, just computed); return their paths. The time constants
+    come from the run itself when it is a step-response run, else from `dynamics_run`."""
+    from rigtool.artefacts.vehicle import DynamicsSource, write_vehicle_artefacts
 
     run_id = store.resolve_run_id(run_ref)
     res = results or stored_results(store, run_id)
-    if res.calibration is None:
+    cal = res.calibration
+    if cal is None:
         raise UsageError(f"run {run_id} has no points: nothing to export")
-    return write_vehicle_artefacts(res.calibration, out_dir, formats, res.created_utc)
+    source = None if cal.dynamics is None else DynamicsSource(run_id, cal.dynamics)
+    if dynamics_run is not None:
+        source = _dynamics_source(store, dynamics_run, cal)
+    return write_vehicle_artefacts(cal, out_dir, formats, res.created_utc, source)
+
+
+def _dynamics_source(store: Store, run_ref: str, cal: Calibration) -> DynamicsSource:
+    """The identified dynamics of a calibrated step-response run of the same thruster."""
+    from rigtool.artefacts.vehicle import DynamicsSource
+
+    run_id = store.resolve_run_id(run_ref)
+    other = stored_results(store, run_id).calibration
+    if other is None or other.dynamics is None:
+        raise UsageError(f"run {run_id} has no identified dynamics: --dynamics takes a "
+                         "calibrated step-response run (a protocol with command.steps)")
+    if cal.thruster_id and other.thruster_id and cal.thruster_id != other.thruster_id:
+        raise UsageError(f"run {run_id} is thruster {other.thruster_id!r}, run {cal.run_id} is "
+                         f"thruster {cal.thruster_id!r}: their artefacts would mix two thrusters")
+    if other.command_unit != cal.command_unit:
+        raise UsageError(f"run {run_id} commands in {other.command_unit}, run {cal.run_id} in "
+                         f"{cal.command_unit}: not the same driver")
+    return DynamicsSource(run_id, other.dynamics)

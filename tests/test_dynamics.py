@@ -32,7 +32,8 @@ CASES = [
     ("can-bldc", "percent", CAN_STEPS, 2201, {"tau_s": 0.25, "inflow_gain": 0.3,
                                               "inflow_tau_s": 0.7}),
     ("esc-1100-1900", "pulse_us", ESC_STEPS, 2202, {"tau_s": 0.12, "inflow_gain": 0.45,
-                                                    "inflow_tau_s": 0.35}),
+                                                    "inflow_tau_s": 0.35,
+                                                    "command_delay_s": 0.025}),
     ("can-bldc", "percent", CAN_STEPS, 2203, {"tau_s": 0.4, "inflow_gain": 0.0}),
 ]
 
@@ -63,10 +64,42 @@ def test_models_are_recovered_and_selected(tmp_path, case):
     for key, value in checks:
         c = model[key]
         assert c["value"] == pytest.approx(value, rel=0.05), key
-    assert model["delay"]["lo"] <= 0.002 + 1e-9 and model["delay"]["value"] < 0.01
+        assert c["lo"] <= value <= c["hi"], key
+    delay = model["delay"]
+    assert delay["value"] == pytest.approx(truth.get("command_delay_s", 0.0), abs=1e-3)
+    assert delay["lo"] <= truth.get("command_delay_s", 0.0) <= delay["hi"]
     assert doc["steps"] and all(s["rise_s"] > 0 for s in doc["steps"])
     html = (folder / "report.html").read_text()
     assert 'id="fig-dynamics"' in html and 'id="dynamics-steps"' in html
+
+
+def test_twin_command_delay_shifts_the_response():
+    """A delayed twin gives the undelayed twin's thrust, shifted by the delay, also when two
+    commands are sent at the same instant (the last one holds)."""
+    from rigtool.sim.physics import ThrusterTwin
+    from rigtool.sim.profiles import profile_with_overrides
+
+    delay, t = 0.03, np.arange(0.0, 3.0, 0.002)
+    over = {"inflow_gain": 0.3}
+    late = ThrusterTwin(profile_with_overrides("can-bldc", {**over, "command_delay_s": delay}), 1)
+    now = ThrusterTwin(profile_with_overrides("can-bldc", over), 1)
+
+    def run(twin, shift):
+        out, prev = [], 0.0
+        for when, commands in [(1.0, [60]), (1.5, [20, -20]), (2.2, [0])]:
+            out.append(twin.sample(t[(t >= prev + shift) & (t < when + shift)]).thrust_true_n)
+            for c in commands:
+                twin.set_command(when + shift, c)
+            prev = when
+        out.append(twin.sample(t[t >= prev + shift]).thrust_true_n)
+        return np.concatenate(out)
+
+    delayed, shifted = run(late, 0.0), run(now, delay)
+    lead = delayed.size - shifted.size
+    assert lead == round(delay / 0.002)
+    assert np.all(delayed[:lead] == 0.0)
+    np.testing.assert_allclose(delayed[lead:], shifted, atol=1e-9)
+    assert late.command == 0.0 and np.min(delayed) < -1.0
 
 
 def test_held_out_steps_are_predicted_within_two_percent(tmp_path):

@@ -128,3 +128,74 @@ def test_export_cal_from_the_stored_calibration_and_clear_errors(exported, capsy
     assert main(["export-cal", "last", "--format", "gazebo", "--db", db,
                  "--out", str(tmp / "bare")]) == 2
     assert "propeller diameter and water density" in capsys.readouterr().err
+
+
+STEPS = {"esc": "[1500, 1700, 1500, 1300, 1500]", "can": "[0, 60, 0, -60, 0]"}
+
+
+def test_time_constants_come_from_a_step_run_of_the_same_thruster(exported, capsys):
+    """`--dynamics RUN` puts the identified time constants into every vehicle artefact; a run
+    without dynamics or of another thruster is refused with exit 2."""
+    tmp, db, steady, cal = exported
+    rig = next(k for k, v in RIGS.items() if v["unit"] == cal.command_unit)
+    text = (tmp / "p.yaml").read_text().replace("seed: 41}", "seed: 43, overrides: {tau_s: 0.2, "
+                                                "inflow_gain: 0.3, inflow_tau_s: 0.6}}")
+    text = text.split("command:")[0] + (
+        f"command: {{unit: {RIGS[rig]['unit']}, steps: {STEPS[rig]}}}\n"
+        "depth: {unit: m, values: [1.0]}\n"
+        "timing: {settle: {seconds: 0}, acquire: {seconds: 2.0, rate_hz: 500}, rest_s: 0,"
+        " tare: at_start}\n")
+    (tmp / "steps.yaml").write_text(text)
+    assert main(["sweep", str(tmp / "steps.yaml"), "--sim", "--db", db]) == 0
+    assert main(["calibrate", "last", "--db", db, "--out", str(tmp / "steps")]) == 0
+    step_cal = rigtool.load_calibration(next((tmp / "steps").iterdir()))
+    dyn = step_cal.dynamics.parameters
+    out = tmp / "with-dynamics"
+    args = ["export-cal", cal.run_id, "--dynamics", step_cal.run_id, "--db", db, "--out",
+            str(out)]
+    assert main([*args, *(a for f in vehicle.FORMATS for a in ("--format", f))]) == 0
+    folder = out / cal.run_id
+    p = yaml.safe_load((folder / vehicle.FORMATS["ros2"]).read_text())["/**"][
+        "ros__parameters"]["rigtool"]
+    assert p["dynamics_source_run"] == step_cal.run_id
+    assert p["dynamics_model"] == step_cal.dynamics.selected == "two-state"
+    assert p["time_constant_s"] == pytest.approx(dyn["tau_n"].value, rel=1e-9)
+    assert p["inflow_time_constant_s"] == pytest.approx(dyn["tau_a"].value, rel=1e-9)
+    assert p["inflow_gain"] == pytest.approx(dyn["g"].value, rel=1e-9)
+    assert p["command_delay_s"] == pytest.approx(dyn["delay"].value, rel=1e-9)
+    assert p["time_constant_s"] == pytest.approx(0.2, rel=0.05)
+    sdf = (folder / vehicle.FORMATS["gazebo"]).read_text()
+    tau = float(sdf.split("<rigtool_time_constant_s>")[1].split("<")[0])
+    assert tau == pytest.approx(dyn["tau_n"].value, rel=1e-8)
+    assert float(sdf.split("<max_thrust_cmd>")[1].split("<")[0]) > 0
+    assert float(sdf.split("<min_thrust_cmd>")[1].split("<")[0]) < 0
+    header = folder / vehicle.FORMATS["c-header"]
+    if CC is not None:
+        (tmp / "dyn.c").write_text(f'''#include <stdio.h>
+#include "{header}"
+int main(void) {{
+    printf("%d %.17g %.17g %.17g %.17g\\n", RIGTOOL_HAS_DYNAMICS, RIGTOOL_TAU_N_S,
+           RIGTOOL_TAU_A_S, RIGTOOL_INFLOW_GAIN, RIGTOOL_DELAY_S);
+    return 0;
+}}
+''')
+        subprocess.run([CC, "-std=c99", "-Wall", "-Werror", str(tmp / "dyn.c"), "-o",
+                        str(tmp / "dyn"), "-lm"], check=True)
+        got = subprocess.run([str(tmp / "dyn")], capture_output=True, text=True,
+                             check=True).stdout.split()
+        assert got[0] == "1"
+        np.testing.assert_allclose([float(x) for x in got[1:]],
+                                   [dyn[k].value for k in ("tau_n", "tau_a", "g", "delay")],
+                                   rtol=1e-9)
+    no_dyn = yaml.safe_load((steady / vehicle.FORMATS["ros2"]).read_text())["/**"][
+        "ros__parameters"]["rigtool"]
+    assert no_dyn["dynamics_model"] == "none" and "time_constant_s" not in no_dyn
+    capsys.readouterr()
+    assert main([*args[:3], cal.run_id, *args[4:], "--format", "ros2"]) == 2
+    assert "no identified dynamics" in capsys.readouterr().err
+    (tmp / "other.yaml").write_text(text.replace("thruster_id: stern-1", "thruster_id: bow-9"))
+    assert main(["sweep", str(tmp / "other.yaml"), "--sim", "--db", db]) == 0
+    assert main(["calibrate", "last", "--db", db, "--out", str(tmp / "steps")]) == 0
+    capsys.readouterr()
+    assert main([*args[:3], "last", *args[4:], "--format", "ros2"]) == 2
+    assert "would mix two thrusters" in capsys.readouterr().err

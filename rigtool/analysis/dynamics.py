@@ -10,12 +10,16 @@ response is evaluated in closed form on every sample (no ODE solver).
 
 Fits are nonlinear least squares (scipy `least_squares`, bounded) over every sample of every
 step, with the steady level of each command and the sensor zero as nuisance parameters. The
-covariance is the larger of s^2 (J'J)^-1 inflated for serially correlated residuals (AR(1))
-and the cluster-robust sandwich with one cluster per step, which also holds when the model
-misses the same way through a whole step (intervals then use Student's t with one degree of
-freedom fewer than the steps). The two-state
-model is selected when its BIC is lower by more than BIC_MARGIN and its gain g is positive
-with 95 % confidence.
+covariance is the largest of three estimates, each inflated for serially correlated
+residuals (AR(1)): s^2 (J'J)^-1; the heteroscedasticity-consistent sandwich (thrust noise grows
+with thrust, so the first alone is too narrow where the transients are large); and the
+cluster-robust sandwich with one cluster per step, for a model that misses the same way
+through a whole step (used with Student's t, one degree of freedom fewer than the steps).
+Both models' information criteria use one effective sample size (from the two-state
+residuals), so they differ only by the fit and the parameter count. The two-state model is
+selected when its BIC is lower by more than BIC_MARGIN and its inflow gain is at least
+MIN_GAIN with 95 % confidence that it is positive: a smaller gain changes a step response by
+less than about that fraction of the step, which the one-state model describes as well.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from rigtool.analysis.fits import Coefficient
 
 Z95 = 1.959963984540054
 BIC_MARGIN = 10.0
+MIN_GAIN = 0.01
 TAIL_FRAC = 0.3  # last part of each hold taken as its steady level (starting values, metrics)
 MIN_STEP_FRAC = 0.05  # steps smaller than this fraction of full scale get no timing metrics
 BAND = 0.05  # settling band, fraction of the step
@@ -59,9 +64,11 @@ class DynamicsModel:
     tau_a_s: Coefficient | None
     gain: Coefficient | None
     rms_n: float
-    bic: float
-    aic: float
     n_samples: int
+    lag1_corr: float  # lag-1 autocorrelation of the residuals
+    n_params: int
+    bic: float = math.nan  # set by identify, on an effective sample size common to both models
+    aic: float = math.nan
 
     def params(self) -> tuple[float, float, float, float]:
         """(tau_n, tau_a, g, delay) for `response`."""
@@ -173,8 +180,13 @@ def identify(series: StepSeries, full_scale_n: float | None = None) -> Dynamics 
     tau0 = _first_time_constant(series, level, tails)
     one = _fit(series, commands, start_levels, zero, tau0, two_state=False)
     two = _fit(series, commands, start_levels, zero, tau0, two_state=True)
+    n_eff = _effective_samples((two or one)[0])
+    for fit in (one, two):
+        if fit is not None:
+            _set_criteria(fit[0], n_eff)
     best = one
-    if two is not None and two[0].bic < one[0].bic - BIC_MARGIN and two[0].gain.lo > 0:
+    if (two is not None and two[0].bic < one[0].bic - BIC_MARGIN and two[0].gain.lo > 0
+            and two[0].gain.value >= MIN_GAIN):
         best = two
     model, levels, zero_fit = best
     scale = full_scale_n or float(np.max(np.abs(tails - zero))) or 1.0
@@ -185,6 +197,19 @@ def identify(series: StepSeries, full_scale_n: float | None = None) -> Dynamics 
                         " neither model describes these steps well")
     return Dynamics(one[0], two[0] if two else None, model.name, steps, levels, zero_fit,
                     warnings)
+
+
+def _effective_samples(model: DynamicsModel) -> float:
+    """Independent samples worth of the residuals, from their lag-1 autocorrelation."""
+    r1 = model.lag1_corr
+    return max(model.n_samples * (1 - r1) / (1 + r1), model.n_params + 1.0)
+
+
+def _set_criteria(model: DynamicsModel, n_eff: float) -> None:
+    """BIC and AIC of a Gaussian fit on `n_eff` effective samples."""
+    fit = n_eff * math.log(max(model.rms_n, 1e-300) ** 2)
+    model.bic = fit + model.n_params * math.log(n_eff)
+    model.aic = fit + 2 * model.n_params
 
 
 def _tail_means(series: StepSeries, level: np.ndarray) -> np.ndarray:
@@ -256,11 +281,12 @@ def _fit(series: StepSeries, commands: np.ndarray, start_levels: dict[float, flo
     score = np.zeros((series.switch_s.size, p))
     np.add.at(score, series.level_of_sample(), jac * r[:, None])
     clustered = bread @ (score.T @ score) @ bread
+    jr = jac * r[:, None]
+    cov = np.maximum(cov, bread @ (jr.T @ jr) @ bread * inflate)
     n_clusters = series.switch_s.size
     from scipy import special
 
     t_crit = float(special.stdtrit(max(n_clusters - 1, 1), 0.975))
-    n_eff = max(n * (1 - r1) / (1 + r1), p + 1.0)
     rms = math.sqrt(rss / n)
 
     def coef(i: int, name: str, unit: str, note: str) -> Coefficient:
@@ -270,8 +296,6 @@ def _fit(series: StepSeries, commands: np.ndarray, start_levels: dict[float, flo
         return Coefficient(name, v, v - hw, v + hw, unit, n, math.nan, rms, "N", note)
 
     name = "two-state" if two_state else "one-state"
-    bic = n_eff * math.log(rss / n) + p * math.log(n_eff)
-    aic = n_eff * math.log(rss / n) + 2 * p
     model = DynamicsModel(
         name=name,
         tau_n_s=coef(0, "tau_n", "s", "time constant of propeller speed"),
@@ -279,7 +303,7 @@ def _fit(series: StepSeries, commands: np.ndarray, start_levels: dict[float, flo
         tau_a_s=coef(2, "tau_a", "s", "time constant of the axial inflow") if two_state else None,
         gain=coef(3, "g", "1", "inflow gain: thrust overshoot per unit of s|s| - m|m|")
         if two_state else None,
-        rms_n=rms, bic=bic, aic=aic, n_samples=n)
+        rms_n=rms, n_samples=n, lag1_corr=r1, n_params=p)
     levels = {float(c): float(sol.x[-(n_lv + 1) + i]) for i, c in enumerate(commands)}
     levels[float(series.neutral)] = 0.0
     return model, levels, float(sol.x[-1])

@@ -2,7 +2,8 @@
 parameters, gz-sim Thruster parameters, and the CSV lookup table (docs/artefacts.md).
 
 Each is built from the deepest depth of a calibration (the thruster's own thrust; shallower
-points may ventilate) and states its units and source run.
+points may ventilate) and states its units and source run; the time constants come from a
+step-response run (the calibrated run itself, or one given with --dynamics).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +19,7 @@ import yaml
 
 import rigtool
 from rigtool.analysis.calibrate import Calibration, DepthSection
+from rigtool.analysis.dynamics import Dynamics
 from rigtool.artefacts.calibration import FILES, write_artefacts
 from rigtool.artefacts.write import atomic_write, csv_cell
 from rigtool.errors import UsageError
@@ -28,9 +31,34 @@ RAD_S_PER_RPM = 2.0 * math.pi / 60.0
 N_TEST = 9  # test-vector thrusts per branch
 
 
+@dataclass(frozen=True)
+class DynamicsSource:
+    """Identified thruster dynamics and the step-response run they come from."""
+
+    run_id: str
+    dynamics: Dynamics
+
+    def params(self) -> dict[str, float | str]:
+        """The selected model's parameters in SI units, as the artefacts name them."""
+        m = self.dynamics.model
+        return {"dynamics_model": m.name, "dynamics_source_run": self.run_id,
+                "time_constant_s": m.tau_n_s.value,
+                "inflow_time_constant_s": m.tau_a_s.value if m.tau_a_s else math.nan,
+                "inflow_gain": m.gain.value if m.gain else 0.0,
+                "command_delay_s": m.delay_s.value}
+
+
+DYNAMICS_MODEL = ("speed s follows its steady value (s|s| = the steady thrust) with "
+                  "time_constant_s; the inflow m follows s with inflow_time_constant_s; thrust = "
+                  "s|s| + inflow_gain (s|s| - m|m|); a command acts command_delay_s after it is "
+                  "sent (docs/dynamics.md)")
+
+
 def write_vehicle_artefacts(cal: Calibration, out_dir: str | Path, formats: Sequence[str],
-                            created_utc: str) -> list[Path]:
-    """Write the requested formats into `out_dir`/<run-id>/ and return their paths."""
+                            created_utc: str, dynamics: DynamicsSource | None = None
+                            ) -> list[Path]:
+    """Write the requested formats into `out_dir`/<run-id>/ and return their paths;
+    `dynamics` gives the time constants (none: the artefacts say they have none)."""
     unknown = sorted(set(formats) - set(FORMATS))
     if unknown:
         raise UsageError(f"unknown export format(s) {', '.join(unknown)}; choose from "
@@ -45,7 +73,7 @@ def write_vehicle_artefacts(cal: Calibration, out_dir: str | Path, formats: Sequ
                       if p.name == FORMATS["csv-lut"]]
             continue
         text = {"c-header": c_header, "ros2": ros2_params, "gazebo": gazebo_sdf}[fmt](
-            cal, sec, created_utc)
+            cal, sec, created_utc, dynamics)
         paths.append(atomic_write(folder / FORMATS[fmt], text))
     return paths
 
@@ -112,9 +140,11 @@ def _c_array(name: str, values: Sequence[float]) -> str:
     return f"static const double {name}[] = {{{body}}};"
 
 
-def c_header(cal: Calibration, sec: DepthSection, created: str) -> str:
-    """A C99 header: coefficients, dead zones, the inverse table of every branch, a lookup
-    function and a test vector (thrust -> command) computed by `lut_command`."""
+def c_header(cal: Calibration, sec: DepthSection, created: str,
+             dynamics: DynamicsSource | None = None) -> str:
+    """A C99 header: coefficients, dead zones, the time constants, the inverse table of every
+    branch, a lookup function and a test vector (thrust -> command) computed by
+    `lut_command`."""
     tables = branches(sec)
     if not tables:
         raise UsageError(f"run {cal.run_id}: no command curve with a live branch, so there is "
@@ -144,6 +174,7 @@ def c_header(cal: Calibration, sec: DepthSection, created: str) -> str:
              _c_array("rigtool_lut_thrust", np.concatenate([f for _, f, _ in tables]))
              + " /* N, ascending per branch */",
              _c_array("rigtool_lut_command", np.concatenate([c for _, _, c in tables])),
+             "", *_c_dynamics(dynamics),
              "",
              "/* The command giving thrust_n (N): the neutral command for 0 N, linear",
              "   interpolation in the first branch whose thrust range holds thrust_n, NAN",
@@ -178,6 +209,23 @@ def c_header(cal: Calibration, sec: DepthSection, created: str) -> str:
     return "\n".join(lines)
 
 
+def _c_dynamics(dynamics: DynamicsSource | None) -> list[str]:
+    if dynamics is None:
+        return ["#define RIGTOOL_HAS_DYNAMICS 0 /* no step-response run: no time constants */"]
+    d = dynamics.params()
+    return ["/* Dynamics, " + DYNAMICS_MODEL.replace("time_constant_s", "RIGTOOL_TAU_N_S")
+            .replace("inflow_time_constant_s", "RIGTOOL_TAU_A_S")
+            .replace("inflow_gain", "RIGTOOL_INFLOW_GAIN")
+            .replace("command_delay_s", "RIGTOOL_DELAY_S") + ". Seconds. */",
+            "#define RIGTOOL_HAS_DYNAMICS 1",
+            f'#define RIGTOOL_DYNAMICS_RUN "{_c_string(str(d["dynamics_source_run"]))}"',
+            f'#define RIGTOOL_DYNAMICS_MODEL "{d["dynamics_model"]}"',
+            f"#define RIGTOOL_TAU_N_S {_c(d['time_constant_s'])}",
+            f"#define RIGTOOL_TAU_A_S {_c(d['inflow_time_constant_s'])} /* NAN: one-state */",
+            f"#define RIGTOOL_INFLOW_GAIN {_c(d['inflow_gain'])}",
+            f"#define RIGTOOL_DELAY_S {_c(d['command_delay_s'])}"]
+
+
 def _c_string(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.:+\- ]", "_", text)
 
@@ -188,9 +236,10 @@ def _first(tables: list, direction: str) -> tuple[list[float], list[float]]:
                                            [float(v) for v in table[1]])
 
 
-def ros2_params(cal: Calibration, sec: DepthSection, created: str) -> str:
+def ros2_params(cal: Calibration, sec: DepthSection, created: str,
+                dynamics: DynamicsSource | None = None) -> str:
     """ROS 2 parameters (`/**: ros__parameters:` applies them to any node that loads the file):
-    coefficients per direction, dead band, command range and mapping."""
+    coefficients per direction, dead band, time constants, command range and mapping."""
     tables = branches(sec)
     fwd_f, fwd_c = _first(tables, "forward")
     rev_f, rev_c = _first(tables, "reverse")
@@ -206,11 +255,14 @@ def ros2_params(cal: Calibration, sec: DepthSection, created: str) -> str:
         "thrust_coefficient_unit": "N/(r/min)^2, f = C |n| n",
         "map_forward_thrust_n": fwd_f, "map_forward_command": fwd_c,
         "map_reverse_thrust_n": rev_f, "map_reverse_command": rev_c,
+        **(dynamics.params() if dynamics else {"dynamics_model": "none"}),
     }
     head = "".join(f"# {line}\n" for line in _head(cal, sec, created))
     head += ("# map_*: thrust (N, ascending) -> command; interpolate linearly; neutral for 0 N.\n"
-             "# NaN (.nan) marks a value this run could not give. No time constant yet: the\n"
-             "# dynamics are not identified by this calibration.\n")
+             "# NaN (.nan) marks a value this run could not give.\n")
+    head += (f"# dynamics: {DYNAMICS_MODEL}.\n" if dynamics else
+             "# dynamics_model none: no step-response run was given (--dynamics RUN), so there"
+             " are\n# no time constants.\n")
     return head + yaml.safe_dump({"/**": {"ros__parameters": {"rigtool": params}}},
                                  sort_keys=False, default_flow_style=None, width=100)
 
@@ -220,9 +272,12 @@ def _coef(sec: DepthSection, name: str) -> float:
     return math.nan if c is None else float(c.value)
 
 
-def gazebo_sdf(cal: Calibration, sec: DepthSection, created: str) -> str:
+def gazebo_sdf(cal: Calibration, sec: DepthSection, created: str,
+               dynamics: DynamicsSource | None = None) -> str:
     """A gz-sim Thruster system block. The plugin computes thrust = C_T rho D^4 w|w| with w the
-    propeller speed in rad/s, so C_T = C_p / (rho D^4 (2 pi / 60)^2), C_p in N/(r/min)^2."""
+    propeller speed in rad/s, so C_T = C_p / (rho D^4 (2 pi / 60)^2), C_p in N/(r/min)^2; it
+    clamps thrust commands to the measured range. The system has no thrust lag, so the time
+    constants are extra elements it ignores, for a filter on its command."""
     cp = _coef(sec, "C_p_fwd")
     rho, d = cal.water_density_kg_m3, cal.propeller_diameter_m
     if not math.isfinite(cp):
@@ -238,13 +293,34 @@ def gazebo_sdf(cal: Calibration, sec: DepthSection, created: str) -> str:
                 f" Reverse: C_T = {rev / (rho * d**4 * RAD_S_PER_RPM**2):.6g} (the plugin "
                 "takes one coefficient).")
     comment = " ".join(_head(cal, sec, created)).replace("--", "-")
+    tables = branches(sec)
+    thrusts = [float(v) for _, f, _ in tables for v in (f[0], f[-1])]
+    clamp = "" if not thrusts else (f"  <max_thrust_cmd>{max(thrusts):.9g}</max_thrust_cmd>\n"
+                                    f"  <min_thrust_cmd>{min(thrusts):.9g}</min_thrust_cmd>\n")
+    if dynamics is None:
+        lag_note, lag = " No time constant: no step-response run was given (--dynamics RUN).", ""
+    else:
+        dp = dynamics.params()
+        lag_note = (f" The rigtool_* elements are the dynamics of run "
+                    f"{dp['dynamics_source_run']} ({dp['dynamics_model']}): {DYNAMICS_MODEL}. "
+                    "The Thruster system has no lag and ignores them; with use_angvel_cmd, a "
+                    "first-order filter of time constant rigtool_time_constant_s on the "
+                    "angular-velocity command is the one-state model.")
+        lag = "".join(f"  <rigtool_{k}>{_xml_num(dp[k])}</rigtool_{k}>\n" for k in (
+            "time_constant_s", "inflow_time_constant_s", "inflow_gain", "command_delay_s"))
     return (f"<!-- {comment} -->\n"
             f"<!-- thrust = C_T rho D^4 w|w|, w in rad/s; C_T from C_p_fwd = {cp:.6g} "
-            f"N/(r/min)^2.{rev_note} No time constant: the dynamics are not identified. -->\n"
+            f"N/(r/min)^2.{rev_note} Thrust commands are clamped to the measured range (N)."
+            f"{lag_note.replace('--', '-')} -->\n"
             '<plugin filename="gz-sim-thruster-system" name="gz::sim::systems::Thruster">\n'
             "  <namespace>thruster</namespace>\n"
             "  <joint_name>propeller_joint</joint_name>\n"
             f"  <thrust_coefficient>{c_t:.9g}</thrust_coefficient>\n"
             f"  <fluid_density>{rho:.9g}</fluid_density>\n"
             f"  <propeller_diameter>{d:.9g}</propeller_diameter>\n"
+            f"{clamp}{lag}"
             "</plugin>\n")
+
+
+def _xml_num(x: float | str) -> str:
+    return "nan" if isinstance(x, float) and not math.isfinite(x) else f"{float(x):.9g}"

@@ -9,6 +9,7 @@ same seed and the same call sequence give identical output.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,6 +89,7 @@ class ThrusterTwin:
         self._m = 0.0  # axial inflow state (r/min) at self._t; follows n (profile.inflow_tau_s)
         self._command = float(profile.neutral)
         self._n_target = 0.0
+        self._pending: deque[tuple[float, float]] = deque()  # (due time, command) under delay
         self._active: VentilationEvent | None = None
         self._live = 0  # index of the first event that may still overlap future samples
         self._hazard = self._rng.standard_exponential()  # integrated onset rate left until onset
@@ -116,12 +118,22 @@ class ThrusterTwin:
         return self._command
 
     def set_command(self, t: float, command: float) -> None:
-        """Advance to `t`, then apply `command` (clipped to the profile's range) from `t` on."""
+        """Advance to `t`, then apply `command` (clipped to the profile's range) from
+        `t` + the profile's command delay on."""
         if not math.isfinite(command):
             raise ValueError(f"command must be finite, got {command!r}")
         self._advance(float(t))
         p = self.profile
-        self._command = min(max(float(command), p.command_min), p.command_max)
+        clipped = min(max(float(command), p.command_min), p.command_max)
+        if p.command_delay_s > 0:
+            self._pending.append((self._t + p.command_delay_s, clipped))
+        else:
+            self._apply_command(clipped)
+
+    def _apply_command(self, command: float) -> None:
+        """Make `command` the one in force from the twin's time on."""
+        p = self.profile
+        self._command = command
         self._n_target = self.target_speed_rpm(self._command)
         if abs(self._n_target) < p.cav_min_speed_rpm:
             self._end_active_event()
@@ -167,6 +179,12 @@ class ThrusterTwin:
             return TwinSamples(np.empty((0, 6)), e, e.copy(), e.copy(), e.copy())
         if t[0] < self._t - _TIME_SLACK_S:
             raise ValueError(f"sample time {t[0]} lies before the twin's time {self._t}")
+        if self._pending and self._pending[0][0] <= t[-1]:  # a delayed command falls due
+            cut = int(np.searchsorted(t, self._pending[0][0], side="left"))
+            head = self.sample(t[:cut]) if cut else None
+            self._advance(self._pending[0][0])
+            tail = self.sample(t[cut:])
+            return tail if head is None else _concat(head, tail)
         t1 = float(t[-1])
         self._cavitate(t1)
         p = self.profile
@@ -279,10 +297,19 @@ class ThrusterTwin:
         self._base_rate, self._mean_duration = self._depth_rates(self.depth_m)
 
     def _advance(self, t: float) -> None:
-        """Run cavitation and speed state forward to t."""
+        """Run cavitation and speed state forward to t, applying delayed commands as they
+        fall due."""
         if t < self._t - _TIME_SLACK_S:
             raise ValueError(f"time {t} lies before the twin's time {self._t}")
         t = max(t, self._t)
+        while self._pending and self._pending[0][0] <= t:
+            due, command = self._pending.popleft()
+            self._run_to(max(due, self._t))
+            self._apply_command(command)
+        self._run_to(t)
+
+    def _run_to(self, t: float) -> None:
+        """Cavitation and speed state from the twin's time to t under the command in force."""
         self._cavitate(t)
         n, m = self._states_at(t)
         self._n, self._m = float(n), float(m)
@@ -348,6 +375,14 @@ class ThrusterTwin:
             weight = w if weight is None else weight + w
             drop = ev.drop_frac * w if drop is None else drop + ev.drop_frac * w
         return weight, drop
+
+
+def _concat(a: TwinSamples, b: TwinSamples) -> TwinSamples:
+    """Two consecutive blocks of samples as one."""
+    return TwinSamples(*(np.concatenate((x, y)) for x, y in
+                         zip((a.ft, a.thrust_true_n, a.speed_rpm, a.current_a, a.voltage_v),
+                             (b.ft, b.thrust_true_n, b.speed_rpm, b.current_a, b.voltage_v),
+                             strict=True)))
 
 
 def pwm_thrust_n(p: ThrusterProfile, command: float) -> float:

@@ -96,6 +96,7 @@ class ThrusterProfile:
     # a step overshoots while the inflow builds up. inflow_gain 0 is the first-order thruster.
     inflow_gain: float = 0.0
     inflow_tau_s: float = 0.5
+    command_delay_s: float = 0.0  # dead time between a command reaching the driver and acting
 
     def __post_init__(self) -> None:
         problems = _problems(self)
@@ -107,6 +108,7 @@ _NON_NEGATIVE = (
     "cn", "idle_current_a", "speed_noise_rpm", "current_noise_a", "force_noise_n",
     "torque_noise_nm", "vibration_noise_frac", "voltage_noise_v", "supply_resistance_ohm",
     "cav_noise_frac", "cav_current_drop", "cav_ramp_in_s", "cav_ramp_out_s", "inflow_gain",
+    "command_delay_s",
 )  # fmt: skip
 _POSITIVE = ("cp_forward", "cp_reverse", "max_speed_rpm", "tau_s", "supply_voltage_v", "cav_ref_speed_rpm",
              "cav_duration_shape", "inflow_tau_s")  # fmt: skip
