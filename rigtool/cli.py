@@ -298,7 +298,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from rigtool.sim.server import start_sim
 
     server = start_sim(args.profile, seed=args.seed, sensor=args.sensor, netft=args.netft,
-                       can_channel=args.can_channel, depth_m=args.depth, bind=args.bind)
+                       can_channel=args.can_channel, depth_m=args.depth, bind=args.bind,
+                       rate_hz=args.rate)
     try:
         for spec in args.fault or ():
             server.set_fault(spec)
@@ -527,6 +528,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="multicast group (239.x.y.z) of the CAN personalities' bus (default: a "
                         "random group and a free port, so every simulator has its own bus)")
     p.add_argument("--depth", type=float, default=1.0, help="initial propeller depth (m)")
+    p.add_argument("--rate", type=float, default=1000.0, metavar="HZ",
+                   help="samples per second of the twin, and the Net F/T's RDT rate (default "
+                        "1000; the real box goes up to 7000)")
     p.add_argument("--fault", action="append", metavar="PART.SWITCH=VALUE",
                    help="inject a fault, e.g. netft.drop=0.01, netft.silent=true, bridge.garbage=true, "
                         "bridge.no_replies=true, vesc.fault_code=4, vesc.deaf=true, stage.stalled=true "

@@ -9,6 +9,7 @@ import sys
 import time
 
 import can
+import numpy as np
 import pytest
 import yaml
 from can.interfaces.udp_multicast.utils import pack_message
@@ -134,3 +135,26 @@ def test_bad_can_channel_and_bind_are_usage_errors(capsys) -> None:
     assert main(["sim", "--profile", "can-bldc", "--can-channel", "10.0.0.1:5"]) == 2
     assert "239." in capsys.readouterr().err
     assert main(["sim", "--profile", "stm32-pwm", "--bind", "no.such.host.invalid"]) == 2
+
+
+def test_sim_rate_sets_the_net_ft_rdt_rate(capsys) -> None:
+    """`--rate` runs the twin and the Net F/T's RDT stream at that rate; the box's XML says so
+    (the driver reads it), and a rate out of range is a usage error."""
+    from rigtool.devices.netft import NetFTConfig, NetFTSensor
+    from rigtool.sim.server import start_sim
+
+    server = start_sim("stm32-pwm", netft="127.0.0.1:0", rate_hz=7000.0)
+    try:
+        host, port = server.parts["netft"].address
+        sensor = NetFTSensor(NetFTConfig(driver="ati-netft", host=host, port=port,
+                                         http_port=server.parts["netft"].http_port))
+        try:
+            block = sensor.read(1400, 7000.0)
+        finally:
+            sensor.close()
+        assert sensor.calibration.rate_hz == 7000.0
+        assert len(block) == 1400 and np.all(np.diff(block.seq) >= 1)
+    finally:
+        server.stop()
+    assert main(["sim", "--profile", "stm32-pwm", "--rate", "0"]) == 2
+    assert "1 to 10000" in capsys.readouterr().err

@@ -65,8 +65,8 @@ class DynamicsModel:
     gain: Coefficient | None
     rms_n: float
     n_samples: int
-    lag1_corr: float  # lag-1 autocorrelation of the residuals
-    n_params: int
+    lag1_corr: float = 0.0  # lag-1 autocorrelation of the residuals
+    n_params: int = 0  # (defaults: stored by an older rigtool, which kept only bic and aic)
     bic: float = math.nan  # set by identify, on an effective sample size common to both models
     aic: float = math.nan
 

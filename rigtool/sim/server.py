@@ -101,12 +101,13 @@ class SimServer:
 
 def start_sim(profile_name: str, seed: int = 1, sensor: str = "netft",
               netft: str | None = None, can_channel: str | None = None,
-              depth_m: float = 1.0, bind: str = LOOPBACK) -> SimServer:
+              depth_m: float = 1.0, bind: str = LOOPBACK, rate_hz: float = 1000.0) -> SimServer:
     """Start the twin and its personalities; the caller must stop() the result.
 
     Every network personality serves on `bind` (loopback by default, so nothing on the LAN
     reaches the simulator); `netft` (HOST:PORT or PORT) overrides it for the Net F/T. The
     CAN personality gets its own channel (`can_channel`: GROUP or GROUP:PORT, else random).
+    The twin runs at `rate_hz` samples per second (the Net F/T's RDT rate).
     """
     from rigtool.sim.gauge_twin import GaugeTwin
     from rigtool.sim.netft_twin import NetFTTwin
@@ -117,7 +118,9 @@ def start_sim(profile_name: str, seed: int = 1, sensor: str = "netft",
         raise UsageError(f"unknown sensor personality {sensor!r}; choose one of {', '.join(SENSORS)}")
     host, loopback = resolve_bind(bind)
     profile = profile_with_overrides(profile_name, {})
-    live = LiveTwin(ThrusterTwin(profile, seed=seed, depth_m=depth_m)).start()
+    if not 1.0 <= rate_hz <= 10_000.0:
+        raise UsageError(f"--rate {rate_hz:g}: the twin runs at 1 to 10000 samples/s")
+    live = LiveTwin(ThrusterTwin(profile, seed=seed, depth_m=depth_m), rate_hz=rate_hz).start()
     server = SimServer(live)
     try:
         rig: dict = {"rigtool_rig": 1, "name": f"rigtool-sim-{profile.name}",
