@@ -94,7 +94,8 @@ def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
     if order is not None and dof > 1:
         sort = np.argsort(order, kind="stable")
         r = (resid * w)[sort]
-        r1 = float(np.sum(r[1:] * r[:-1]) / np.sum(r * r))
+        rss = float(np.sum(r * r))
+        r1 = float(np.sum(r[1:] * r[:-1]) / rss) if rss > 0 else 0.0  # exact fit: no correlation
         r1 = float(np.clip(r1 + (1 + 3 * r1) / len(y), 0.0, MAX_R1)) if r1 > 0 else 0.0
         if r1 > 0:
             a_t = a_s[sort]
