@@ -170,6 +170,8 @@ def test_time_constants_come_from_a_step_run_of_the_same_thruster(exported, caps
     assert float(sdf.split("<max_thrust_cmd>")[1].split("<")[0]) > 0
     assert float(sdf.split("<min_thrust_cmd>")[1].split("<")[0]) < 0
     header = folder / vehicle.FORMATS["c-header"]
+    assert "_RIGTOOL_" not in header.read_text()
+    assert "m follows s with RIGTOOL_TAU_A_S" in header.read_text()
     if CC is not None:
         (tmp / "dyn.c").write_text(f'''#include <stdio.h>
 #include "{header}"

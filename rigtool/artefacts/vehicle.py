@@ -213,8 +213,8 @@ def _c_dynamics(dynamics: DynamicsSource | None) -> list[str]:
     if dynamics is None:
         return ["#define RIGTOOL_HAS_DYNAMICS 0 /* no step-response run: no time constants */"]
     d = dynamics.params()
-    return ["/* Dynamics, " + DYNAMICS_MODEL.replace("time_constant_s", "RIGTOOL_TAU_N_S")
-            .replace("inflow_time_constant_s", "RIGTOOL_TAU_A_S")
+    return ["/* Dynamics, " + DYNAMICS_MODEL.replace("inflow_time_constant_s", "RIGTOOL_TAU_A_S")
+            .replace("time_constant_s", "RIGTOOL_TAU_N_S")
             .replace("inflow_gain", "RIGTOOL_INFLOW_GAIN")
             .replace("command_delay_s", "RIGTOOL_DELAY_S") + ". Seconds. */",
             "#define RIGTOOL_HAS_DYNAMICS 1",
