@@ -1,8 +1,12 @@
 """Benchmark: `calibrate_run` vs a bare sqlite3 + numpy read of the same samples.
 
 Builds (or reuses, with --db) a synthetic 401-point x 3000-sample percent sweep written through
-the Store (true C_p 1.926e-5 forward), then times both in this process, interleaved, and prints
-the times and their ratio (target <= 3). --run times an existing run of --db instead.
+the Store (true C_p 1.926e-5 forward), then times, in this process and interleaved:
+calibrate_run; a bare read of the columns it needs as rigtool stores them (one SELECT of the
+column BLOBs, np.frombuffer); and a bare read of the same samples from the row table of
+schema v7 (one SELECT, fetchall, np.array), the baseline the performance issue was set
+against. Then it times `rigtool calibrate` as a whole process. Prints the times and ratios
+(goal: <= 1.3x in-process, <= 1.5x as a process). --run times an existing run of --db instead.
 
     python benchmarks/bench_calibrate.py [--db bench.sqlite] [--repeats 5] [--run RUN_ID]
 """
@@ -12,6 +16,8 @@ from __future__ import annotations
 import argparse
 import sqlite3
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -20,7 +26,10 @@ import numpy as np
 
 import rigtool
 from rigtool.analysis.calibrate import calibrate_run
-from rigtool.store import StepRecord, Store
+from rigtool.store import BLOB_DTYPE, StepRecord, Store
+
+sys.path.insert(0, str(Path(__file__).parent))
+import rowtable  # noqa: E402  (the v7 row table: the issue's baseline)
 
 RUN_NAME = "bench-calibrate"
 COLUMNS = ("step_id", "t_s", "thrust_n", "speed_rpm", "current_a")
@@ -72,8 +81,22 @@ def find_run(store: Store, n_points: int, n_samples: int) -> str | None:
     return None
 
 
-def bare_read(db: Path, run_id: str) -> np.ndarray:
-    """The reference: one SELECT of the sample columns joined to steps, into a numpy array."""
+def bare_read(db: Path, run_id: str) -> dict[str, np.ndarray]:
+    """The reference: one SELECT of the needed column BLOBs joined to steps, into numpy."""
+    conn = sqlite3.connect(str(db))
+    try:
+        rows = conn.execute(
+            f"SELECT b.n, {', '.join('b.' + c for c in COLUMNS[1:])} FROM sample_blocks b "
+            "JOIN steps st ON st.id = b.step_id WHERE st.run_id = ? ORDER BY st.idx, b.chunk",
+            (run_id,)).fetchall()
+        return {c: np.concatenate([np.frombuffer(r[i], BLOB_DTYPE) for r in rows])
+                for i, c in enumerate(COLUMNS[1:], start=1)}
+    finally:
+        conn.close()
+
+
+def bare_row_read(db: Path, run_id: str) -> np.ndarray:
+    """The issue's reference: one SELECT of the sample rows of a v7 row table, into numpy."""
     conn = sqlite3.connect(str(db))
     try:
         cur = conn.execute(
@@ -82,6 +105,11 @@ def bare_read(db: Path, run_id: str) -> np.ndarray:
         return np.array(cur.fetchall(), dtype=float)
     finally:
         conn.close()
+
+
+def calibrate_process(db: Path, run_id: str, out: Path) -> None:
+    subprocess.run([sys.executable, "-m", "rigtool", "calibrate", run_id, "--db", str(db),
+                    "--out", str(out)], check=True, capture_output=True)
 
 
 def timed(fns, repeats: int) -> list[list[float]]:
@@ -116,16 +144,26 @@ def main(argv: list[str] | None = None) -> int:
                   f"in {time.perf_counter() - t0:.1f} s")
         else:
             print(f"reusing run {run_id} in {db}")
-        n = len(bare_read(db, run_id))
+        n = len(bare_read(db, run_id)["t_s"])
+        rows_db = Path(tmp) / "rows.sqlite"
+        rowtable.copy_run(store, run_id, rows_db)
         cal = calibrate_run(store, run_id)  # warm-up (imports, page cache)
-        t_read, t_cal = timed([lambda: bare_read(db, run_id),
-                               lambda: calibrate_run(store, run_id)], args.repeats)
+        t_read, t_rows, t_cal, t_proc = timed([
+            lambda: bare_read(db, run_id), lambda: bare_row_read(rows_db, run_id),
+            lambda: calibrate_run(store, run_id),
+            lambda: calibrate_process(db, run_id, Path(tmp) / "cal")], args.repeats)
         store.close()
-    read_s, cal_s = statistics.median(t_read), statistics.median(t_cal)
+    read_s, rows_s = statistics.median(t_read), statistics.median(t_rows)
+    cal_s, proc_s = statistics.median(t_cal), statistics.median(t_proc)
     print(f"samples: {n}")
-    print(f"bare sqlite3 + numpy read: median {read_s:.3f} s (min {min(t_read):.3f})")
-    print(f"calibrate_run:             median {cal_s:.3f} s (min {min(t_cal):.3f})")
-    print(f"ratio: {cal_s / read_s:.2f}x (target <= 3x)")
+    print(f"bare read of the stored column BLOBs: median {read_s:.3f} s (min {min(t_read):.3f})")
+    print(f"bare read of v7 rows (the old layout): median {rows_s:.3f} s (min {min(t_rows):.3f})")
+    print(f"calibrate_run, in-process:            median {cal_s:.3f} s (min {min(t_cal):.3f})")
+    print(f"`rigtool calibrate` as a process:     median {proc_s:.3f} s (min {min(t_proc):.3f})")
+    print(f"ratio to the v7 row read: in-process {cal_s / rows_s:.2f}x (goal <= 1.3x), "
+          f"process {proc_s / rows_s:.2f}x (goal <= 1.5x)")
+    print(f"ratio to the BLOB read:   in-process {cal_s / read_s:.1f}x, process "
+          f"{proc_s / read_s:.1f}x (the read is no longer the cost: analysis is)")
     cp = cal.sections[0].fits.get("C_p_fwd")
     if cp is not None:
         print(f"C_p_fwd = {cp.value:.5g} [{cp.lo:.5g}, {cp.hi:.5g}] N/(r/min)^2")

@@ -14,8 +14,8 @@ both alike.
 from __future__ import annotations
 
 import argparse
-import sqlite3
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -23,7 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from rigtool.importers import Mapping, import_file, with_overrides
-from rigtool.store import SAMPLE_COLUMNS, Store, create_schema
+from rigtool.store import Store
+
+sys.path.insert(0, str(Path(__file__).parent))
+import rowtable  # noqa: E402  (the v7 row table: the baseline)
 
 
 def write_ramp_log(path: Path, rows: int, hold: int = 1, seed: int = 0) -> None:
@@ -52,25 +55,15 @@ def time_import(csv_path: Path, db: Path) -> tuple[float, str]:
     return elapsed, str(result.run_id)
 
 
-def stored_rows(db: Path) -> list[tuple]:
-    conn = sqlite3.connect(db)
-    rows = conn.execute(f"SELECT {', '.join(SAMPLE_COLUMNS)} FROM samples").fetchall()
-    conn.close()
-    return rows
+def stored_rows(db: Path, run_id: str) -> list[tuple]:
+    with Store(db, read_only=True) as store:
+        return [row for rows in rowtable.point_rows(store, run_id) for row in rows]
 
 
 def time_bare_insert(rows: list[tuple], db: Path) -> float:
-    conn = sqlite3.connect(db, isolation_level=None)
-    conn.execute("PRAGMA journal_mode=WAL")
-    conn.execute("PRAGMA synchronous=NORMAL")
-    create_schema(conn)
-    sql = (f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}) "
-           f"VALUES ({', '.join('?' * len(SAMPLE_COLUMNS))})")
-    t0 = time.perf_counter()
-    conn.execute("BEGIN IMMEDIATE")
-    conn.executemany(sql, rows)
-    conn.execute("COMMIT")
-    elapsed = time.perf_counter() - t0
+    """The baseline: the same rows into the v7 row table, in one transaction."""
+    conn = rowtable.connect(db)
+    elapsed = rowtable.timed_insert(conn, [rows])
     conn.close()
     return elapsed
 
@@ -88,9 +81,9 @@ def main() -> None:
         ours, bare = [], []
         for i in range(args.repeats):
             db = folder / f"import{i}.sqlite"
-            elapsed, _ = time_import(log, db)
+            elapsed, run_id = time_import(log, db)
             ours.append(elapsed)
-            rows = stored_rows(db)
+            rows = stored_rows(db, run_id)
             assert len(rows) == args.rows, len(rows)
             bare.append(time_bare_insert(rows, folder / f"bare{i}.sqlite"))
         t_ours, t_bare = statistics.median(ours), statistics.median(bare)

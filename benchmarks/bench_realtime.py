@@ -14,14 +14,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sqlite3
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+from rigtool.store import Store
 
 PROTOCOL = """\
 rigtool_protocol: 1
@@ -70,17 +69,15 @@ def sweep(root: Path, rig: Path, rate: float, minutes: float) -> tuple[float, fl
 def losses(db: Path) -> tuple[int, int, int]:
     """(points, samples stored, samples missing from the points' sequence numbers, packets the
     driver counted lost during points)."""
-    conn = sqlite3.connect(db)
-    points = conn.execute("SELECT id, counters_json FROM steps ORDER BY idx").fetchall()
-    stored = gaps = lost = 0
-    for step_id, counters in points:
-        seq = np.array([r[0] for r in conn.execute(
-            "SELECT seq FROM samples WHERE step_id = ? ORDER BY rowid", (step_id,))], dtype=float)
-        stored += seq.size
-        if seq.size:
-            gaps += int(seq[-1] - seq[0] + 1 - seq.size)
-        lost += int((json.loads(counters or "{}").get("sensor") or {}).get("lost_packets", 0))
-    conn.close()
+    with Store(db, read_only=True) as store:
+        points = store.conn.execute("SELECT id, counters_json FROM steps ORDER BY idx").fetchall()
+        stored = gaps = lost = 0
+        for step_id, counters in points:
+            seq = store.step_samples(step_id, ["seq"])["seq"]
+            stored += seq.size
+            if seq.size:
+                gaps += int(seq[-1] - seq[0] + 1 - seq.size)
+            lost += int((json.loads(counters or "{}").get("sensor") or {}).get("lost_packets", 0))
     return len(points), stored, gaps, lost
 
 

@@ -1,9 +1,9 @@
 """Hold one point's samples until the store commits them, in bounded memory.
 
-A point may have up to MAX_SAMPLES_PER_POINT samples (about 1 GiB as arrays, several
-as SQLite rows). The spool keeps the first IN_MEMORY_SAMPLES in memory, exactly as
-before; beyond that it appends rows to an unlinked temporary file and keeps running
-statistics, so memory stays bounded by the block size whatever the point's length.
+A point may have up to MAX_SAMPLES_PER_POINT samples (about 1 GiB as arrays). The spool
+keeps the first IN_MEMORY_SAMPLES in memory; beyond that it appends rows to an unlinked
+temporary file and keeps running statistics, so memory stays bounded by the block size
+whatever the point's length. The store takes the samples back as column chunks.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 IN_MEMORY_SAMPLES = 250_000  # about 30 MB of rows; larger points spill to disk
-ROWS_PER_BLOCK = 50_000  # rows handed to SQLite per executemany
+SAMPLES_PER_CHUNK = 65_536  # samples per stored block: 512 KiB per float64 column
 
 
 class _Running:
@@ -134,21 +134,31 @@ class SampleSpool:
         values = self._joined(name)
         return None if values is None else float(np.mean(values))
 
-    def row_blocks(self) -> Iterator[np.ndarray]:
-        """The samples as float64 rows in `columns` order, at most ROWS_PER_BLOCK at a time."""
+    def column_chunks(self) -> Iterator[dict[str, np.ndarray | None]]:
+        """The samples as float64 columns (None: the channel is absent), at most
+        SAMPLES_PER_CHUNK at a time, in acquisition order."""
         if not self.spilled:
-            for block in self._blocks:
-                rows = self._rows(block)
-                for start in range(0, len(rows), ROWS_PER_BLOCK):
-                    yield rows[start:start + ROWS_PER_BLOCK]
+            joined = {c: self._column(c) for c in self.columns}
+            for start in range(0, self.n, SAMPLES_PER_CHUNK):
+                yield {c: None if v is None else v[start:start + SAMPLES_PER_CHUNK]
+                       for c, v in joined.items()}
             return
         self._file.seek(0)
         width = len(self.columns)
         while True:
-            rows = np.fromfile(self._file, count=ROWS_PER_BLOCK * width)
+            rows = np.fromfile(self._file, count=SAMPLES_PER_CHUNK * width)
             if rows.size == 0:
                 return
-            yield rows.reshape(-1, width)
+            rows = rows.reshape(-1, width)
+            yield {c: rows[:, i] for i, c in enumerate(self.columns)}
+
+    def _column(self, name: str) -> np.ndarray | None:
+        """One in-memory column over all blocks (NaN where a block lacks it); None if none has it."""
+        if all(b.get(name) is None for b in self._blocks):
+            return None
+        parts = [np.full(len(b["t_s"]), np.nan) if b.get(name) is None
+                 else np.asarray(b[name], dtype=float) for b in self._blocks]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def close(self) -> None:
         """Drop the samples and delete the spill file."""

@@ -1,8 +1,10 @@
 """SQLite run store: schema, migrations, the single writer, and queries.
 
-Fixed tables (runs, steps, samples, events, calibrations) in WAL mode; the schema
-version lives in PRAGMA user_version. Samples are inserted with the step they
-belong to in one transaction, so a crash never leaves half a point.
+Fixed tables (runs, steps, sample_blocks, events, calibrations) in WAL mode; the schema
+version lives in PRAGMA user_version. A point's samples are stored as column BLOBs
+(little-endian float64, NaN for a missing value, NULL for an absent channel) in blocks of
+at most SAMPLES_PER_CHUNK, inserted with the step they belong to in one transaction, so a
+crash never leaves half a point. docs/performance.md has the measurements behind the layout.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from rigtool.errors import StoreError, UsageError
-from rigtool.spool import SampleSpool
+from rigtool.spool import SAMPLES_PER_CHUNK, SampleSpool
 
 log = logging.getLogger(__name__)
 
@@ -89,11 +91,12 @@ class RunRecord:
     protocol: dict
     rig: dict
 
-# Bulk writes (imports): sample rows per executemany call, and per transaction, so a big
-# import holds the write lock for about a second at a time and never builds all rows at once.
+# Bulk writes (imports): point rows per executemany call, and samples per transaction, so a
+# big import holds the write lock briefly and never builds all blocks at once.
 BATCH_ROWS = 10_000
-IMPORT_ROWS_PER_TRANSACTION = 200_000
-READ_ROWS = 20_000  # sample rows fetched from SQLite at a time (a batch of tuples: ~10 MB)
+IMPORT_ROWS_PER_TRANSACTION = 1_000_000
+READ_SAMPLES = 262_144  # samples per chunk `iter_samples` yields (13 columns: ~27 MB)
+BLOB_DTYPE = np.dtype("<f8")
 
 # Transport counters that count ordinary traffic; every other counter a driver keeps
 # (garbage, lost_packets, timeouts, error_frames...) is a problem a reader should see.
@@ -197,6 +200,8 @@ MIGRATIONS: list[Callable[[sqlite3.Connection], None]] = [
     lambda conn: conn.execute("ALTER TABLE calibrations ADD COLUMN state BLOB"),
     # v7: the supply voltage set for a point (NULL when the protocol sweeps none)
     lambda conn: conn.execute("ALTER TABLE steps ADD COLUMN voltage_v REAL"),
+    # v8: samples as per-point column BLOBs instead of one row per sample
+    lambda conn: _samples_to_blocks(conn),
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
 
@@ -485,13 +490,8 @@ class Store:
                 list(row.values()),
             )
             step_id = cur.lastrowid
-            for rows in spool.row_blocks():
-                # SQLite stores a bound NaN as NULL, so missing channels read back as NULL.
-                self.conn.executemany(
-                    f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}) "
-                    f"VALUES ({', '.join('?' * len(SAMPLE_COLUMNS))})",
-                    ((step_id, *r) for r in rows.tolist()),
-                )
+            self.conn.executemany(INSERT_BLOCK, (_block_row(step_id, k, chunk) for k, chunk
+                                                 in enumerate(spool.column_chunks())))
         return step_id
 
     def add_points(self, run_id: str, points: dict[str, np.ndarray], bounds: np.ndarray,
@@ -500,8 +500,8 @@ class Store:
 
         Point i owns samples[c][bounds[i]:bounds[i + 1]]; `points` holds the StepRecord fields
         command, depth_m (NaN = none), repeat, direction, t_*_s, settle_s and rate_hz as
-        arrays. Rows go in with executemany in batches of BATCH_ROWS, in transactions of at most
-        IMPORT_ROWS_PER_TRANSACTION sample rows (one point never splits).
+        arrays. Points go in with executemany in batches of BATCH_ROWS, in transactions of at
+        most IMPORT_ROWS_PER_TRANSACTION samples (one point never splits).
         """
         bounds = np.asarray(bounds, dtype=np.int64)
         n_points = bounds.size - 1
@@ -536,20 +536,12 @@ class Store:
                 range(first_id + a - start, first_id + b - start), itertools.repeat(run_id),
                 range(a, b), itertools.repeat(command_unit), itertools.repeat(1),
                 itertools.repeat("ok"), *(values[a:b] for values in filled.values())))
-        step_ids = np.repeat(np.arange(first_id, first_id + stop - start),
-                             np.diff(bounds[start:stop + 1]))
-        sql = (f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}) "
-               f"VALUES ({', '.join('?' * len(SAMPLE_COLUMNS))})")
-        lo = int(bounds[start])
-        for a in range(lo, int(bounds[stop]), BATCH_ROWS):
-            b = min(int(bounds[stop]), a + BATCH_ROWS)
-            matrix = np.empty((b - a, len(SAMPLE_COLUMNS)))
-            matrix[:, 0] = step_ids[a - lo:b - lo]
-            for i, c in enumerate(SAMPLE_COLUMNS[1:], start=1):
-                values = samples.get(c)
-                matrix[:, i] = np.nan if values is None else values[a:b]
-            # SQLite stores a bound NaN as NULL, so missing channels read back as NULL.
-            self.conn.executemany(sql, matrix.tolist())
+        names = [c for c in SAMPLE_COLUMNS[1:] if samples.get(c) is not None]
+        self.conn.executemany(INSERT_BLOCK, (
+            _block_row(first_id + i - start, k, {
+                c: samples[c][a:min(a + SAMPLES_PER_CHUNK, int(bounds[i + 1]))] for c in names})
+            for i in range(start, stop)
+            for k, a in enumerate(range(int(bounds[i]), int(bounds[i + 1]), SAMPLES_PER_CHUNK))))
 
     def add_events(self, run_id: str, events: list[tuple[str, dict]]) -> None:
         """Insert several (kind, detail) events of a run in one transaction."""
@@ -725,20 +717,28 @@ class Store:
         return {c: np.concatenate([ch[c] for ch in chunks]) for c in chunks[0]}
 
     def iter_samples(self, run_id: str, columns: Iterable[str] | None = None,
-                     steps: Iterable[int] | None = None, batch: int = READ_ROWS
+                     steps: Iterable[int] | None = None, batch: int = READ_SAMPLES
                      ) -> Iterator[dict[str, np.ndarray]]:
-        """`sample_arrays` in chunks of at most `batch` rows, for exports of any size."""
+        """`sample_arrays` in chunks of about `batch` samples (stored blocks never split, so
+        a chunk holds at most batch + SAMPLES_PER_CHUNK), for exports of any size."""
         cols = self._sample_names(columns)
-        sql = (f"SELECT st.idx{''.join(', s.' + c for c in cols[1:])} FROM samples s "
-               "JOIN steps st ON st.id = s.step_id WHERE st.run_id = ?")
+        sql = (f"SELECT st.idx, b.n{''.join(', b.' + c for c in cols[1:])} FROM sample_blocks b "
+               "JOIN steps st ON st.id = b.step_id WHERE st.run_id = ?")
         args: list[Any] = [run_id]
         if steps is not None:
             wanted = sorted({int(i) for i in steps})
             sql += f" AND st.idx IN ({', '.join('?' * len(wanted))})"
             args += wanted
-        cur = self.conn.execute(sql + " ORDER BY st.idx, s.rowid", args)  # index order: no sort
-        while rows := cur.fetchmany(batch):
-            yield self._sample_columns(rows, cols)
+        pending: list[tuple] = []
+        held = 0
+        for row in self.conn.execute(sql + " ORDER BY st.idx, b.chunk", args):
+            pending.append(row)
+            held += row[1]
+            if held >= batch:
+                yield self._sample_columns(pending, cols)
+                pending, held = [], 0
+        if pending:
+            yield self._sample_columns(pending, cols)
 
     @staticmethod
     def _sample_names(columns: Iterable[str] | None) -> list[str]:
@@ -746,16 +746,26 @@ class Store:
         _checked_columns(cols[1:])
         return cols
 
-    @staticmethod
-    def _sample_columns(rows: list[tuple], cols: list[str]) -> dict[str, np.ndarray]:
-        data = np.array(rows, dtype=float).reshape(len(rows), len(cols))
-        out = {}
-        for i, c in enumerate(cols):
+    def _sample_columns(self, blocks: list[tuple], cols: list[str]) -> dict[str, np.ndarray]:
+        """Rows (step idx, n, BLOB per column) decoded into columns, ints as INT_SAMPLE_COLUMNS."""
+        out = {"step_idx": np.repeat(np.array([b[0] for b in blocks], dtype=np.int64),
+                                     [b[1] for b in blocks])}
+        for i, c in enumerate(cols[1:], start=2):
+            values = np.concatenate([self._decode(b[i], b[1], c) for b in blocks]) if blocks \
+                else np.empty(0)
             if c in INT_SAMPLE_COLUMNS:
-                out[c] = np.where(np.isnan(data[:, i]), MISSING_INT, data[:, i]).astype(np.int64)
-            else:
-                out[c] = np.ascontiguousarray(data[:, i])
+                values = np.where(np.isnan(values), MISSING_INT, values).astype(np.int64)
+            out[c] = values
         return out
+
+    def _decode(self, blob: bytes | None, n: int, column: str) -> np.ndarray:
+        """One stored column block as float64 (an absent channel: NaN)."""
+        if blob is None:
+            return np.full(n, np.nan)
+        if len(blob) != n * BLOB_DTYPE.itemsize:
+            raise StoreError(f"run database {self.path}: a block of column {column} holds "
+                             f"{len(blob)} bytes for {n} samples; the file is damaged")
+        return np.frombuffer(blob, dtype=BLOB_DTYPE)
 
     def _dicts(self, sql: str, args: Iterable[Any] = ()) -> list[dict]:
         """Rows of a query as dicts keyed by column name."""
@@ -823,36 +833,32 @@ class Store:
 
     def step_samples(self, step_id: int, columns: Iterable[str] = ("t_s", "thrust_n")
                      ) -> dict[str, np.ndarray]:
-        """The samples of one stored point as float arrays (NULL -> NaN), in time order."""
+        """The samples of one stored point as float arrays (missing -> NaN), in time order."""
         cols = _checked_columns(columns)
-        rows = self.conn.execute(f"SELECT {', '.join(cols)} FROM samples WHERE step_id = ? "
-                                 "ORDER BY rowid", (step_id,)).fetchall()
-        data = np.array(rows, dtype=float).reshape(len(rows), len(cols))
-        return {c: data[:, i] for i, c in enumerate(cols)}
+        blocks = self.conn.execute(f"SELECT n, {', '.join(cols)} FROM sample_blocks WHERE "
+                                   "step_id = ? ORDER BY chunk", (step_id,)).fetchall()
+        return {c: np.concatenate([self._decode(b[i], b[0], c) for b in blocks])
+                if blocks else np.empty(0) for i, c in enumerate(cols, start=1)}
 
     def samples(self, run_id: str, columns: Iterable[str] = SAMPLE_COLUMNS) -> dict[str, np.ndarray]:
-        """All samples of a run as float arrays (NULL -> NaN), in plan order, each point's in
-        acquisition order (the order the indexes give: no sort, no memory beyond the arrays)."""
+        """All samples of a run as float arrays (missing -> NaN), in plan order, each point's
+        in acquisition order; one snapshot, so a sweep appending points is not half seen."""
         cols = _checked_columns(columns)
-        join = "FROM samples s JOIN steps st ON st.id = s.step_id WHERE st.run_id = ?"
-        n = self.conn.execute(f"SELECT count(*) {join}", (run_id,)).fetchone()[0]
-        out = {c: np.empty(n) for c in cols}  # filled in place: 8 bytes per value, no copies
-        cur = self.conn.execute(f"SELECT {', '.join('s.' + c for c in cols)} {join} "
-                                "ORDER BY st.idx, s.rowid", (run_id,))
-        filled, extra = 0, []
-        while rows := cur.fetchmany(READ_ROWS):  # tuples cost ~10x the floats: never all at once
-            block = np.array(rows, dtype=float).reshape(len(rows), len(cols))
-            take = min(len(block), n - filled)
-            for i, c in enumerate(cols):
-                out[c][filled:filled + take] = block[:take, i]
-            filled += take
-            if take < len(block):  # rows appended since the count (a sweep is writing)
-                extra.append(block[take:])
-        if extra:
-            more = np.concatenate(extra)
-            return {c: np.concatenate([out[c], more[:, i]]) for i, c in enumerate(cols)}
-        return {c: v[:filled] for c, v in out.items()}
-
+        names = ["st.id" if c == "step_id" else "b." + c for c in cols]
+        join = "FROM sample_blocks b JOIN steps st ON st.id = b.step_id WHERE st.run_id = ?"
+        with self.snapshot():
+            n = self.conn.execute(f"SELECT COALESCE(SUM(b.n), 0) {join}", (run_id,)).fetchone()[0]
+            out = {c: np.empty(n) for c in cols}  # filled in place: 8 bytes per value, no copies
+            cur = self.conn.execute(f"SELECT b.n, {', '.join(names)} {join} "
+                                    "ORDER BY st.idx, b.chunk", (run_id,))
+            filled = 0
+            for row in cur:
+                size = row[0]
+                for i, c in enumerate(cols, start=1):
+                    out[c][filled:filled + size] = (row[i] if c == "step_id"
+                                                    else self._decode(row[i], size, c))
+                filled += size
+        return out
 
 def _columns_of(conn: sqlite3.Connection, table: str) -> list[str]:
     return [r[1] for r in conn.execute(f"PRAGMA main.table_info({table})")]
@@ -869,13 +875,62 @@ def _copy_run(conn: sqlite3.Connection, run_id: str) -> None:
     copy("steps", "WHERE run_id = ?")
     copy("events", "WHERE run_id = ?")
     copy("calibrations", "WHERE run_id = ?")
-    sample_cols = [c for c in _columns_of(conn, "samples") if c != "step_id"]
+    block_cols = [c for c in _columns_of(conn, "sample_blocks") if c not in ("id", "step_id")]
     conn.execute(
-        f"INSERT INTO main.samples (step_id, {', '.join(sample_cols)}) "
-        f"SELECT m.id, {', '.join('s.' + c for c in sample_cols)} FROM src.samples s "
-        "JOIN src.steps ss ON ss.id = s.step_id "
+        f"INSERT INTO main.sample_blocks (step_id, {', '.join(block_cols)}) "
+        f"SELECT m.id, {', '.join('b.' + c for c in block_cols)} FROM src.sample_blocks b "
+        "JOIN src.steps ss ON ss.id = b.step_id "
         "JOIN main.steps m ON m.run_id = ss.run_id AND m.idx = ss.idx "
-        "WHERE ss.run_id = ? ORDER BY ss.idx, s.rowid", (run_id,))
+        "WHERE ss.run_id = ? ORDER BY ss.idx, b.chunk", (run_id,))
+
+
+INSERT_BLOCK = (f"INSERT INTO sample_blocks (step_id, chunk, n, {', '.join(SAMPLE_COLUMNS[1:])}) "
+                f"VALUES (?, ?, ?{', ?' * (len(SAMPLE_COLUMNS) - 1)})")
+
+
+def _encode(values: np.ndarray | None) -> bytes | None:
+    """A column block as little-endian float64 bytes; None (NULL) when it holds no value."""
+    if values is None:
+        return None
+    array = np.ascontiguousarray(values, dtype=BLOB_DTYPE)
+    return None if np.isnan(array).all() else array.tobytes()
+
+
+def _block_row(step_id: int, chunk: int, columns: dict[str, np.ndarray | None]) -> tuple:
+    """The INSERT_BLOCK parameters of one block of a point's samples (t_s is required)."""
+    n = len(columns["t_s"])
+    return (step_id, chunk, n, *(_encode(columns.get(c)) for c in SAMPLE_COLUMNS[1:]))
+
+
+SAMPLE_BLOCKS_SCHEMA = f"""
+CREATE TABLE sample_blocks (
+    id INTEGER PRIMARY KEY,
+    step_id INTEGER NOT NULL REFERENCES steps(id),
+    chunk INTEGER NOT NULL,
+    n INTEGER NOT NULL,
+    {', '.join(c + ' BLOB' for c in SAMPLE_COLUMNS[1:])},
+    UNIQUE (step_id, chunk)
+)
+"""
+
+
+def _samples_to_blocks(conn: sqlite3.Connection) -> None:
+    """Migration v8: every point's sample rows become column blocks; the rows table goes.
+
+    Each point is read in SAMPLES_PER_CHUNK rows at a time, so memory stays bounded; the
+    freed pages are reused by later runs (VACUUM returns them to the disk)."""
+    conn.execute(SAMPLE_BLOCKS_SCHEMA)
+    cols = SAMPLE_COLUMNS[1:]
+    for (step_id,) in conn.execute("SELECT id FROM steps ORDER BY id").fetchall():
+        cur = conn.execute(f"SELECT {', '.join(cols)} FROM samples WHERE step_id = ? "
+                           "ORDER BY rowid", (step_id,))
+        chunk = 0
+        while rows := cur.fetchmany(SAMPLES_PER_CHUNK):
+            data = np.array(rows, dtype=float).reshape(len(rows), len(cols))
+            conn.execute(INSERT_BLOCK, _block_row(step_id, chunk, {
+                c: data[:, i] for i, c in enumerate(cols)}))
+            chunk += 1
+    conn.execute("DROP TABLE samples")
 
 
 def _opt_float(value: object) -> float | None:

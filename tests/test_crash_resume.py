@@ -50,8 +50,7 @@ def _check_whole(store: Store, run_id: str) -> list[dict]:
     assert store.conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     steps = store.steps(run_id)
     for s in steps:
-        count = store.conn.execute("SELECT count(*) FROM samples WHERE step_id = ?", (s["id"],)).fetchone()[0]
-        assert count == s["n"] == 200
+        assert len(store.step_samples(s["id"], ["t_s", "thrust_n"])["thrust_n"]) == s["n"] == 200
     return steps
 
 
@@ -132,7 +131,7 @@ def test_force_takes_over_a_run_left_running(write_yaml, tmp_path, capsys):
     store = Store(db)
     run_id = store.resolve_run_id("last")
     last = store.steps(run_id)[-1]["id"]
-    store.conn.execute("DELETE FROM samples WHERE step_id = ?", (last,))
+    store.conn.execute("DELETE FROM sample_blocks WHERE step_id = ?", (last,))
     store.conn.execute("DELETE FROM steps WHERE id = ?", (last,))
     store.conn.execute("UPDATE runs SET status = 'running', pid = 1 WHERE id = ?", (run_id,))
     store.close()
@@ -147,7 +146,7 @@ def _cut_last_point(db: Path, ref: str = "last") -> str:
     store = Store(db)
     run_id = store.resolve_run_id(ref)
     last = store.steps(run_id)[-1]["id"]
-    store.conn.execute("DELETE FROM samples WHERE step_id = ?", (last,))
+    store.conn.execute("DELETE FROM sample_blocks WHERE step_id = ?", (last,))
     store.conn.execute("DELETE FROM steps WHERE id = ?", (last,))
     store.conn.execute("UPDATE runs SET status = 'interrupted' WHERE id = ?", (run_id,))
     store.close()

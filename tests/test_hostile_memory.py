@@ -29,16 +29,17 @@ def _blocks(rng, sizes):
 @pytest.mark.parametrize("limit", [10**9, 1000])
 def test_spilled_and_in_memory_spools_agree_with_numpy(tmp_path, monkeypatch, limit):
     monkeypatch.setattr(rigtool.spool, "IN_MEMORY_SAMPLES", limit)
-    monkeypatch.setattr(rigtool.spool, "ROWS_PER_BLOCK", 333)
+    monkeypatch.setattr(rigtool.spool, "SAMPLES_PER_CHUNK", 333)
     blocks = list(_blocks(np.random.default_rng(1), [400, 1, 900, 250]))
     spool = SampleSpool(SAMPLE_COLUMNS[1:], STAT_FIELDS, spill_dir=tmp_path)
     for block in blocks:
         spool.add(block)
     assert spool.spilled == (limit < 1551) and spool.n == 1551
-    rows = np.concatenate(list(spool.row_blocks()))
-    assert all(len(r) <= 333 for r in spool.row_blocks())
-    for i, c in enumerate(SAMPLE_COLUMNS[1:]):
-        np.testing.assert_array_equal(rows[:, i], np.concatenate([b[c] for b in blocks]))
+    chunks = list(spool.column_chunks())
+    assert [len(ch["t_s"]) for ch in chunks] == [333] * 4 + [219]
+    for c in SAMPLE_COLUMNS[1:]:
+        np.testing.assert_array_equal(np.concatenate([ch[c] for ch in chunks]),
+                                      np.concatenate([b[c] for b in blocks]))
     for name in STAT_FIELDS:
         v = np.concatenate([b[name] for b in blocks])
         v = v[np.isfinite(v)]

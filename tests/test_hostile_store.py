@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rigtool.cli import main
@@ -197,7 +198,7 @@ def test_export_reads_one_snapshot_while_a_sweep_appends(swept, tmp_path):
     appended = []
 
     def append_a_point(statement: str) -> None:
-        if "FROM samples" in statement and not appended:
+        if "FROM sample_blocks" in statement and not appended:
             with writer:
                 (last,) = writer.execute("SELECT max(idx) FROM steps WHERE run_id = ?",
                                          (run_id,)).fetchone()
@@ -209,8 +210,9 @@ def test_export_reads_one_snapshot_while_a_sweep_appends(swept, tmp_path):
                 cur = writer.execute(
                     f"INSERT INTO steps ({', '.join(values)}) VALUES "
                     f"({', '.join('?' * len(values))})", tuple(values.values()))
-                writer.execute("INSERT INTO samples (step_id, t_s, thrust_n) VALUES (?, 0, 1)",
-                               (cur.lastrowid,))
+                writer.execute("INSERT INTO sample_blocks (step_id, chunk, n, t_s, thrust_n) "
+                               "VALUES (?, 0, 1, ?, ?)", (cur.lastrowid, np.zeros(1).tobytes(),
+                                                          np.ones(1).tobytes()))
             appended.append(True)
 
     store.conn.set_trace_callback(append_a_point)
@@ -226,9 +228,9 @@ def test_export_reads_one_snapshot_while_a_sweep_appends(swept, tmp_path):
     writer.close()
 
 
-def test_samples_read_outside_a_snapshot_keep_rows_added_after_the_count(swept):
-    """samples() counts, then fills arrays in place; rows a sweep adds between the two are
-    kept, not dropped or overflowing."""
+def test_samples_are_one_snapshot_while_a_sweep_appends(swept):
+    """samples() sizes its arrays, then fills them; blocks a sweep commits between the two
+    are neither half seen nor overflowing, and the next read has them."""
     _, db, run_id = swept
     store = Store(db, read_only=True)
     before = len(store.samples(run_id, ["t_s"])["t_s"])
@@ -237,16 +239,18 @@ def test_samples_read_outside_a_snapshot_keep_rows_added_after_the_count(swept):
     added = []
 
     def add_samples(statement: str) -> None:
-        if statement.startswith("SELECT s.") and not added:  # after the count, before the rows
+        if statement.startswith("SELECT b.n") and not added:  # after the count, before the blocks
             with writer:
-                writer.executemany("INSERT INTO samples (step_id, t_s, thrust_n) VALUES (?, ?, 1)",
-                                   [(step_id, 1e6 + i) for i in range(3)])
+                writer.execute("INSERT INTO sample_blocks (step_id, chunk, n, t_s, thrust_n) "
+                               "VALUES (?, 99, 3, ?, ?)", (step_id, (1e6 + np.arange(3)).tobytes(),
+                                                          np.ones(3).tobytes()))
             added.append(True)
 
     store.conn.set_trace_callback(add_samples)
     got = store.samples(run_id, ["t_s", "thrust_n"])
     store.conn.set_trace_callback(None)
-    assert added and len(got["t_s"]) == before + 3 and len(got["thrust_n"]) == before + 3
-    assert set(got["t_s"][-3:]) == {1e6, 1e6 + 1, 1e6 + 2}
+    assert added and len(got["t_s"]) == before == len(got["thrust_n"])
+    again = store.samples(run_id, ["t_s", "thrust_n"])
+    assert len(again["t_s"]) == before + 3 and set(again["t_s"][-3:]) == {1e6, 1e6 + 1, 1e6 + 2}
     store.close()
     writer.close()

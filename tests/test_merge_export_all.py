@@ -3,8 +3,6 @@ point by point and sample by sample."""
 
 from __future__ import annotations
 
-import sqlite3
-
 import numpy as np
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
@@ -33,15 +31,12 @@ def _sweeps(tmp_path, write_yaml, name: str, text: str, n: int) -> tuple[str, li
 
 def _counts(db: str) -> dict[str, tuple[int, int, float, int]]:
     """Per run: points, samples, sum of thrust over samples, events."""
-    conn = sqlite3.connect(db)
     out = {}
-    for (run_id,) in conn.execute("SELECT id FROM runs"):
-        points, samples, thrust = conn.execute(
-            "SELECT count(DISTINCT st.id), count(s.rowid), total(s.thrust_n) FROM steps st "
-            "LEFT JOIN samples s ON s.step_id = st.id WHERE st.run_id = ?", (run_id,)).fetchone()
-        events = conn.execute("SELECT count(*) FROM events WHERE run_id = ?", (run_id,)).fetchone()
-        out[run_id] = (points, samples, round(thrust, 6), events[0])
-    conn.close()
+    with Store(db, read_only=True) as store:
+        for run_id in store.run_ids():
+            thrust = store.samples(run_id, ["thrust_n"])["thrust_n"]
+            out[run_id] = (len(store.steps(run_id)), thrust.size, round(float(np.nansum(thrust)), 6),
+                           len(store.events(run_id)))
     return out
 
 

@@ -28,7 +28,8 @@ def test_new_store_has_current_schema_and_wal(db_path):
     assert store.version == SCHEMA_VERSION
     assert store.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     tables = {r[0] for r in store.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-    assert {"runs", "steps", "samples", "events", "calibrations"} <= tables
+    assert {"runs", "steps", "sample_blocks", "events", "calibrations"} <= tables
+    assert "samples" not in tables  # rows became column blocks in v8
 
 
 def test_reopening_does_not_migrate_again(db_path):
@@ -75,7 +76,7 @@ def test_failed_step_insert_leaves_nothing(db_path):
     store.add_step(run_id, _step(0), {"t_s": np.zeros(3)})
     with pytest.raises(sqlite3.IntegrityError):  # same idx twice violates UNIQUE(run_id, idx)
         store.add_step(run_id, _step(0), {"t_s": np.zeros(3)})
-    assert store.conn.execute("SELECT count(*) FROM samples").fetchone()[0] == 3
+    assert store.conn.execute("SELECT sum(n) FROM sample_blocks").fetchone()[0] == 3
 
 
 def test_resolve_last_prefix_and_errors(db_path):
@@ -149,6 +150,52 @@ def test_migration_from_v1_keeps_data_and_adds_seq(db_path):
     assert run["actuator"] is None and run["started_utc"] == run["created_utc"] == "2026-01-01"
     new = _run(store)  # a run started after the migration is `last`
     assert store.resolve_run_id("last") == new
+
+
+def test_migration_to_blocks_keeps_every_sample_in_order(db_path, monkeypatch):
+    """v7 -> v8: rows become column blocks per point, chunked, with NULLs as NaN and absent
+    channels as NULL blocks; the rows table is gone."""
+    import rigtool.store
+    from rigtool.store import MIGRATIONS
+
+    monkeypatch.setattr(rigtool.store, "SAMPLES_PER_CHUNK", 4)
+    conn = sqlite3.connect(db_path, isolation_level=None)
+    for migrate in MIGRATIONS[:7]:
+        migrate(conn)
+    conn.execute("PRAGMA user_version = 7")
+    conn.execute("INSERT INTO runs (id, name, status, created_utc, tool_version, host, pid, "
+                 "protocol_json, rig_json, plan_json, metadata_json, n_planned, command_unit) "
+                 "VALUES ('r1','old','completed','2026-01-01','0.0','h',1,'{}','{}','[]','{}',2,"
+                 "'percent')")
+    sizes = {0: 9, 1: 3}
+    rng = np.random.default_rng(3)
+    rows = []
+    for idx, n in sizes.items():
+        step_id = conn.execute(
+            "INSERT INTO steps (run_id, idx, command, command_unit, repeat, direction, "
+            "t_start_s, t_acquire_s, t_end_s, settle_s, settled, rate_hz, status, n) "
+            "VALUES ('r1',?,5,'percent',0,'up',0,0,1,0,1,10,'ok',?)", (idx, n)).lastrowid
+        for k in range(n):
+            row = (step_id, idx * 100 + k, float(rng.normal()), None if k % 3 == 0 else k * 2.0,
+                   idx * 1000 + k)
+            rows.append(row)
+    conn.executemany("INSERT INTO samples (step_id, t_s, thrust_n, speed_rpm, seq) "
+                     "VALUES (?, ?, ?, ?, ?)", rows)
+    conn.close()
+    store = Store(db_path)
+    tables = {r[0] for r in store.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    assert "samples" not in tables and store.version == SCHEMA_VERSION
+    assert [tuple(r) for r in store.conn.execute(
+        "SELECT step_id, chunk, n, fx IS NULL FROM sample_blocks ORDER BY id")] == [
+        (1, 0, 4, 1), (1, 1, 4, 1), (1, 2, 1, 1), (2, 0, 3, 1)]
+    back = store.samples("r1", ["t_s", "thrust_n", "speed_rpm", "fx"])
+    np.testing.assert_array_equal(back["t_s"], [r[1] for r in rows])
+    np.testing.assert_array_equal(back["thrust_n"], [r[2] for r in rows])
+    np.testing.assert_array_equal(back["speed_rpm"], [np.nan if r[3] is None else r[3] for r in rows])
+    assert np.isnan(back["fx"]).all()
+    arrays = store.sample_arrays("r1", ["seq"])
+    assert arrays["seq"].tolist() == [r[4] for r in rows]
+    assert arrays["step_idx"].tolist() == [0] * 9 + [1] * 3
 
 
 def test_transport_counters_are_stored_with_each_point_and_summed(db_path):
