@@ -17,7 +17,6 @@ from rich.text import Text
 
 from rigtool import __version__
 from rigtool.errors import RigtoolError, UsageError
-from rigtool.plan import estimate_duration_s
 from rigtool.progress import default_reporter, stage
 from rigtool.store import DB_ENV, Store, resolve_db_path
 from rigtool.units import unit_label
@@ -105,7 +104,7 @@ def _report_outcome(outcome, n_plan: int, store: Store) -> int:
 
 def _print_plan(setup, neutral: float) -> None:
     """The plan's size, timing and first and last steps, all counted without expanding it."""
-    from rigtool.plan import step_at
+    from rigtool.plan import estimate_duration_s, step_at
 
     p = setup.protocol
     n = p.n_points()

@@ -7,7 +7,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from rich.console import Console
 from rich.progress import (
@@ -20,8 +20,10 @@ from rich.progress import (
 )
 from rich.text import Text
 
-from rigtool.plan import PlanStep
 from rigtool.units import unit_label
+
+if TYPE_CHECKING:  # the plan's pydantic models cost 0.25 s to import: not at start-up
+    from rigtool.plan import PlanStep
 
 
 def _live_text(step: PlanStep, unit: str, thrust_n: float | None) -> str:
