@@ -6,6 +6,7 @@ The twin streams real-time LiveTwin samples, so assertions are on ranges and cou
 from __future__ import annotations
 
 import socket
+import sys
 import threading
 import time
 
@@ -163,6 +164,29 @@ def test_rate_is_the_boxs_not_the_callers(box):
         block = sensor.read(500, 10.0)  # 50 s at the advisory rate; 0.5 s at the box's 1 kHz
         assert time.monotonic() - t0 < 2.0
         assert 0.3 < block.t_s[-1] - block.t_s[0] < 1.0
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="kernel arrival stamps are read on Linux")
+def test_batched_receiver_keeps_each_records_own_arrival_time(box):
+    """The receiver wakes every few ms, not per datagram, yet every datagram keeps the
+    kernel's stamp of its own arrival, not the time the receiver woke to take it."""
+    with sensor_for(box()) as sensor:
+        assert sensor._batch_s > 0
+        before = time.monotonic()
+        block = sensor.read(1000, 1000.0)
+        after = time.monotonic()
+    dt = np.diff(block.t_s)
+    assert np.all(dt >= 0) and before - 0.5 < block.t_s[0] and block.t_s[-1] <= after
+    assert np.mean(dt == 0) < 0.05  # stamps taken at wake-up would repeat for a whole batch
+    assert 0.8 < block.t_s[-1] - block.t_s[0] < 1.3  # the box's 1 kHz
+
+
+def test_receiver_without_kernel_stamps_falls_back_to_per_datagram_times(box):
+    with sensor_for(box()) as sensor:
+        before = time.monotonic()
+        t = sensor._arrival([], 0.0)
+        assert sensor._batch_s == 0.0 and before <= t <= time.monotonic()
+        assert len(sensor.read(200, 1000.0).t_s) == 200
 
 
 @pytest.mark.slow
