@@ -1,8 +1,9 @@
-"""Cost as runs grow: calibrate, report and Parquet export of runs of 0.1, 1.2 (and, with
---big, 12) million samples, each command a process, with its wall time and peak memory.
+"""Cost as runs grow: sweep, calibrate, report and Parquet export of runs of 0.1, 1.2 (and,
+with --big, 12) million samples, each command a process, with its wall time and peak memory.
 
-The runs are the synthetic Luo-style sweep of bench_calibrate.py (400 points, more samples
-per point as the run grows), written through the Store. For each size the script prints time
+The sweep is `rigtool sweep --sim` of a 400-point protocol on the twin (more samples per
+point as the run grows). The other commands work on the synthetic Luo-style sweep of
+bench_calibrate.py (400 points), written through the Store. For each size the script prints time
 and peak RSS per command, and between sizes the marginal cost: seconds and bytes per added
 sample. Linear cost shows as a constant marginal time per sample; bounded memory as a
 constant (stated) number of bytes per sample.
@@ -28,7 +29,21 @@ POINTS = 400
 RUNNER = ("import resource, sys; from rigtool.cli import main; rc = main(sys.argv[1:]); "
           "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); "
           "sys.exit(rc)")
+SWEEP_PROTOCOL = """\
+rigtool_protocol: 1
+name: scaling-{n}
+simulator: {{profile: can-bldc, seed: 7}}
+command: {{unit: percent, range: {{start: -100, stop: 99.5, step: 0.5}}}}
+depth: {{unit: m, values: [1.0]}}
+timing:
+  settle: {{seconds: 0.2}}
+  acquire: {{samples: {per_point}, rate_hz: 10000}}
+  rest_s: 0
+  tare: at_start
+limits: {{max_thrust_n: 200}}
+"""
 COMMANDS = {
+    "sweep": ["sweep", "{tmp}/scaling-{n}.yaml", "--sim"],
     "calibrate": ["calibrate", "last", "--out", "{tmp}/cal"],
     "report": ["report", "last", "--out", "{tmp}/cal"],
     "export": ["export", "last", "--format", "parquet", "--out", "{tmp}/exp"],
@@ -55,7 +70,9 @@ def main() -> int:
             db = Path(tmp) / f"run{n}.sqlite"
             with Store(db) as store:
                 build_run(store, POINTS, n // POINTS)
-            results[n] = {name: _run([a.format(tmp=tmp) for a in cmd], db)
+            Path(tmp, f"scaling-{n}.yaml").write_text(SWEEP_PROTOCOL.format(n=n, per_point=n // POINTS))
+            results[n] = {name: _run([a.format(tmp=tmp, n=n) for a in cmd],
+                                     Path(tmp) / f"sweep{n}.sqlite" if name == "sweep" else db)
                           for name, cmd in COMMANDS.items()}
             row = "  ".join(f"{k} {t:6.2f} s {m:6.0f} MB" for k, (t, m) in results[n].items())
             print(f"{n / 1e6:5.1f} M samples: {row}", flush=True)

@@ -66,7 +66,6 @@ _TIMESPEC = struct.Struct("@qq")  # the stamp: seconds and nanoseconds since the
 _STAMP_SPACE = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 64
 MAX_DATAGRAM = 4096  # RDT sends 36-byte records; longer datagrams are counted as bad size
 _MSG_TRUNC = int(getattr(socket, "MSG_TRUNC", 0))  # a plain int: enum `&` costs 8 us a datagram
-_RECORD_DTYPE = np.dtype([("rdt", ">u4"), ("ft", ">u4"), ("status", ">u4"), ("counts", ">i4", 6)])
 
 # One unit of each, in N or N m. Keys are normalised by _unit_key (lower case, no separators).
 FORCE_UNITS_N = {
@@ -252,7 +251,8 @@ class NetFTSensor:
         self._first = threading.Event()
         self._closed = False
         self._sock = self._open_socket()
-        self._batch_s = RECEIVE_BATCH_S if self._kernel_stamps() else 0.0
+        self._batched = self._kernel_stamps()
+        self._batch_s = RECEIVE_BATCH_S
         self._thread = threading.Thread(target=self._receive_loop, name="rigtool-netft", daemon=True)
         self._thread.start()
         try:
@@ -415,7 +415,7 @@ class NetFTSensor:
         return True
 
     def _receive_loop(self) -> None:
-        if self._batch_s:
+        if self._batched:
             self._receive_batches()
             return
         while not self._stop.is_set():
@@ -495,39 +495,8 @@ class NetFTSensor:
         return False
 
     def _handle(self, datagrams: list[tuple[bytes, float]]) -> None:
-        """Check and buffer (datagram, arrival time) pairs. The usual batch (one record per
-        datagram, sequence in order, status clear) is decoded at once with numpy; anything
-        else goes datagram by datagram."""
-        if not self._handle_clean(datagrams):
-            self._handle_each(datagrams)
-
-    def _handle_clean(self, datagrams: list[tuple[bytes, float]]) -> bool:
-        """Buffer a batch in one step when it needs no per-datagram judgement; else False."""
-        n = len(datagrams)
-        if (n < 2 or self._last_seq is None or self._stats.last_status
-                or any(len(d) != RECORD.size for d, _ in datagrams)):
-            return False
-        rec = np.frombuffer(b"".join(d for d, _ in datagrams), dtype=_RECORD_DTYPE)
-        t = [t for _, t in datagrams]
-        seq = rec["rdt"].astype(np.int64)
-        if rec["status"].any() or t[0] < self._discard_until:
-            return False
-        with self._lock:
-            ahead = np.diff(seq, prepend=self._last_seq) % _SEQ_MOD
-            if not np.all((ahead > 0) & (ahead <= MAX_SEQUENCE_JUMP)):
-                return False
-            self._stats.lost_packets += int(ahead.sum()) - n
-            self._last_seq, self._suspect_seq = int(seq[-1]), None
-            self._since_start += n
-        zeros = [0] * n
-        self._buffer.put_many(zip(t, seq.tolist(), zeros, *rec["counts"].T.tolist(), strict=True))
-        self._stats.datagrams += n
-        self._stats.records += n
-        self._first.set()
-        return True
-
-    def _handle_each(self, datagrams: list[tuple[bytes, float]]) -> None:
-        """Check and buffer datagrams one by one (bad sizes, sequence faults, status words)."""
+        """Check (size, sequence, status word) and buffer (datagram, arrival time) pairs,
+        with one buffer put and one wake-up of a waiting read for them all."""
         s = self._stats
         items: list[tuple] = []
         for data, t in datagrams:
