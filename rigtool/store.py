@@ -95,7 +95,7 @@ class RunRecord:
 # big import holds the write lock briefly and never builds all blocks at once.
 BATCH_ROWS = 10_000
 IMPORT_ROWS_PER_TRANSACTION = 1_000_000
-READ_SAMPLES = 262_144  # samples per chunk `iter_samples` yields (13 columns: ~27 MB)
+READ_SAMPLES = SAMPLES_PER_CHUNK  # samples per chunk `iter_samples` yields (13 columns: ~7 MB)
 BLOB_DTYPE = np.dtype("<f8")
 
 # Transport counters that count ordinary traffic; every other counter a driver keeps
