@@ -181,6 +181,21 @@ def test_batched_receiver_keeps_each_records_own_arrival_time(box):
     assert 0.8 < block.t_s[-1] - block.t_s[0] < 1.3  # the box's 1 kHz
 
 
+def test_receiver_on_another_clock_wakes_per_datagram_and_stamps_with_that_clock(box):
+    """No kernel stamps where the driver's clock is not the monotonic one (a test's clock,
+    or an OS without them): each datagram is timed by the driver's clock as it is taken."""
+    twin = box(faults=NetFTFaults(garbage=0.05, oversized=0.05))
+    host, port = twin.address
+    config = {"driver": "ati-netft", "host": host, "port": port, "http_port": twin.http_port}
+    with NetFTSensor(config, now=lambda: time.monotonic() + 1000.0) as sensor:
+        assert not sensor._batched
+        block = sensor.read(300, 1000.0)
+        stats = sensor.stats
+    assert len(block.t_s) == 300 and np.all(np.diff(block.t_s) >= 0)
+    assert block.t_s[0] > time.monotonic() + 900.0
+    assert stats["bad_size"] > 0 and stats["records"] >= 300
+
+
 def test_receiver_without_kernel_stamps_falls_back_to_per_datagram_times(box):
     with sensor_for(box()) as sensor:
         before = time.monotonic()

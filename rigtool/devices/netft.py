@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import select
+import selectors
 import socket
 import struct
 import sys
@@ -372,7 +372,7 @@ class NetFTSensor:
         except OSError as exc:
             sock.close()
             raise DeviceError(f"{self.name}: cannot reach the box: {exc}") from None
-        sock.settimeout(0.1)
+        sock.setblocking(False)  # the receive loop waits with a selector and drains
         return sock
 
     def _send(self, command: int, count: int = 0) -> None:
@@ -411,53 +411,49 @@ class NetFTSensor:
             self._sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
         except OSError:
             return False
-        self._sock.setblocking(False)
         return True
 
     def _receive_loop(self) -> None:
-        if self._batched:
-            self._receive_batches()
-            return
-        while not self._stop.is_set():
+        """Wait for datagrams, take every one queued, check and buffer them. With kernel
+        stamps, sleep RECEIVE_BATCH_S between batches; without, wake for each datagram."""
+        ready = selectors.DefaultSelector()
+        ready.register(self._sock, selectors.EVENT_READ)
+        try:
+            while not self._stop.is_set():
+                if not ready.select(0.1):
+                    continue
+                batch = self._take_queued()
+                if batch is None:
+                    return
+                self._handle(batch)
+                if self._batched:
+                    time.sleep(self._batch_s)
+        finally:
+            ready.close()
+
+    def _take_queued(self) -> list[tuple[bytes, float]] | None:
+        """Every queued (datagram, arrival time); None once the socket failed or closed."""
+        batch = []
+        wall_minus_mono = time.time() - time.monotonic()
+        while True:
             try:
-                data = self._sock.recv(65536)
-            except TimeoutError:
-                continue
+                if self._batched:
+                    data, ancillary, flags, _ = self._sock.recvmsg(MAX_DATAGRAM, _STAMP_SPACE)
+                else:
+                    data, ancillary, flags = self._sock.recv(MAX_DATAGRAM + 1), None, 0
+            except BlockingIOError:
+                return batch
             except ConnectionRefusedError:
                 self._stats.refused += 1
                 continue
             except OSError as exc:
                 if not self._stop.is_set():
                     self._buffer.fail(DeviceError(f"{self.name}: receive failed: {exc}"))
-                return
-            self._handle([(data, self._now())])
-
-    def _receive_batches(self) -> None:
-        """Wake every RECEIVE_BATCH_S, take every queued datagram with its arrival stamp."""
-        poller = select.poll()
-        poller.register(self._sock, select.POLLIN)
-        while not self._stop.is_set():
-            if not poller.poll(100):
-                continue
-            batch = []
-            wall_minus_mono = time.time() - time.monotonic()
-            while True:
-                try:
-                    data, ancillary, flags, _ = self._sock.recvmsg(MAX_DATAGRAM, _STAMP_SPACE)
-                except BlockingIOError:
-                    break
-                except ConnectionRefusedError:
-                    self._stats.refused += 1
-                    continue
-                except OSError as exc:
-                    if not self._stop.is_set():
-                        self._buffer.fail(DeviceError(f"{self.name}: receive failed: {exc}"))
-                    return
-                if flags & _MSG_TRUNC:
-                    data = b""  # longer than any RDT datagram: a bad size, not a cut record
-                batch.append((data, self._arrival(ancillary, wall_minus_mono)))
-            self._handle(batch)
-            time.sleep(self._batch_s)
+                return None
+            if flags & _MSG_TRUNC or len(data) > MAX_DATAGRAM:
+                data = b""  # longer than any RDT datagram: a bad size, not a cut record
+            t = self._now() if ancillary is None else self._arrival(ancillary, wall_minus_mono)
+            batch.append((data, t))
 
     def _arrival(self, ancillary: list, wall_minus_mono: float) -> float:
         """A datagram's arrival time on the monotonic clock, from its kernel stamp. Without
