@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from rigtool.analysis.fits import (
+    _ar1_correlate,
     derive_thrust_current,
     fit_current_exponent,
     fit_current_speed,
@@ -87,6 +88,14 @@ def test_serial_correlation_widens_interval():
         c = _cp(n, f, np.full(n.size, 0.01), t=t)
         hits += c.lo < CP < c.hi
     assert hits >= 88
+
+
+@pytest.mark.parametrize("n", [1, 2, 9, 300])
+@pytest.mark.parametrize("r1", [0.0, 0.4, 0.98])
+def test_ar1_correlation_product_matches_the_dense_matrix(n, r1):
+    a = np.random.default_rng(n).normal(size=(n, 3))
+    dense = r1 ** np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    np.testing.assert_allclose(_ar1_correlate(a, r1), dense @ a, rtol=1e-10, atol=1e-12)
 
 
 def test_interval_is_honest_when_scatter_exceeds_standard_errors():

@@ -137,12 +137,19 @@ def coefficient_correlation(fit_a: LinearFit, i: int, rows_a: np.ndarray, fit_b:
 
 
 def _ar1_correlate(a: np.ndarray, r1: float) -> np.ndarray:
-    """R @ a for the AR(1) correlation R_ij = r1^|i - j|, in O(n) by two recursive filters."""
-    from scipy import signal
+    """R @ a for the AR(1) correlation R_ij = r1^|i - j|, in O(n): R's inverse is tridiagonal
+    ((1 + r1^2) inside, 1 at both ends, -r1 beside the diagonal, all over 1 - r1^2), so R @ a
+    is one banded solve (scipy.signal's recursive filters cost 0.8 s to import)."""
+    from scipy.linalg import solve_banded
 
-    fwd = signal.lfilter([1.0], [1.0, -r1], a, axis=0)
-    bwd = signal.lfilter([1.0], [1.0, -r1], a[::-1], axis=0)[::-1]
-    return fwd + bwd - a
+    n = len(a)
+    if n < 2:
+        return np.array(a, dtype=float)
+    bands = np.empty((3, n))
+    bands[0], bands[2] = -r1, -r1
+    bands[1] = 1.0 + r1 * r1
+    bands[1, [0, -1]] = 1.0
+    return solve_banded((1, 1), bands, (1.0 - r1 * r1) * a)
 
 
 def _floor_sigma(sigma: np.ndarray, y: np.ndarray) -> np.ndarray:

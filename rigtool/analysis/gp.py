@@ -199,7 +199,8 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
     """Exact GP with heteroscedastic noise: (1) homoscedastic hyperparameters, (2) residuals
     of a 2-fold cross-fit (`fold`: 0/1 per row; hold out whole points, since blocks of one
     point, or of one ventilation event, are autocorrelated and leak), (3) noise model on
-    their logs, (4) length scales and signal variance again with the noise fixed, (5) the
+    their logs, (4) length scales and signal variance again with the noise fixed (skipped when
+    every candidate of (5) is 0: a zero signal has no length scales to fit), (5) the
     signal variance scaled down by cross-validation over the same folds (`cv_signal_scale`:
     maximum likelihood reads the autocorrelated rows of one event as signal; `groups`, a
     label per point, sets the error's standard error), (6) the noise bias calibrated on the
@@ -227,7 +228,10 @@ def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
     st = Standardiser(x)
     y_std = float(np.std(y)) or 1.0
     alpha = noise.var_n2(x) / w / y_std**2
-    h1 = fit_hyper_fixed_noise(st(x), (y - np.mean(y)) / y_std, alpha, p)
+    if max(p.signal_scales) > 0:
+        h1 = fit_hyper_fixed_noise(st(x), (y - np.mean(y)) / y_std, alpha, p)
+    else:  # every candidate scales the signal to 0: its length scales cannot matter
+        h1 = Hyper(h0.length_scales, h0.signal_var, 0.0)
     scale = cv_signal_scale(x, y, w, fold, h1, noise, p, groups)
     h1 = Hyper(h1.length_scales, scale * h1.signal_var, h1.noise_var)
     noise = calibrate_bias(x, y, w, fold, h1, noise, p)

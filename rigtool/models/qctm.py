@@ -52,9 +52,12 @@ FEATURES = ("speed_rpm", "shortfall_thrust_n", "depth_m")
 
 
 def matern52(a: np.ndarray, b: np.ndarray, length_scales: np.ndarray) -> np.ndarray:
-    """Matern nu=5/2 correlation between rows of a and b (already standardised)."""
-    d = (a[:, None, :] - b[None, :, :]) / length_scales
-    s = SQRT5 * np.sqrt(np.sum(d * d, axis=-1))
+    """Matern nu=5/2 correlation between rows of a and b (already standardised).
+
+    Squared distances as |a|^2 + |b|^2 - 2 a.b (one matrix product, no (n, m, 3) array)."""
+    a_s, b_s = np.asarray(a, float) / length_scales, np.asarray(b, float) / length_scales
+    d2 = np.einsum("ij,ij->i", a_s, a_s)[:, None] + np.einsum("ij,ij->i", b_s, b_s) - 2.0 * (a_s @ b_s.T)
+    s = SQRT5 * np.sqrt(np.maximum(d2, 0.0))
     return (1.0 + s + s * s / 3.0) * np.exp(-s)
 
 
