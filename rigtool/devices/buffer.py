@@ -6,7 +6,9 @@ sample with its arrival time and puts it here; `read()` takes the next ones. Rea
 follow each other closely get a contiguous stream. After a pause longer than the
 driver's `max_gap_s`, what arrived in the pause is dropped, so readings taken while the
 engine ramped a command or moved the truss are never passed off as settle or
-acquisition data (the in-process simulator behaves the same way).
+acquisition data (the in-process simulator behaves the same way). Samples that arrived in
+the pause but reach the buffer only after the read began (a reader thread that takes its
+socket's queue every few milliseconds) are dropped too: their arrival time gives them away.
 """
 
 from __future__ import annotations
@@ -27,12 +29,19 @@ class SampleBuffer:
         self.overflowed = 0  # oldest samples discarded because nobody read them in time
         self.stale = 0  # samples dropped because they arrived during a pause between reads
         self._read_end: float | None = None
+        self._floor = float("-inf")  # samples that arrived before this belong to a pause
 
     def __len__(self) -> int:
         return len(self._items)
 
     def put_many(self, items: Iterable[tuple]) -> None:
         with self._cond:
+            floor = self._floor
+            if floor > float("-inf"):
+                items = list(items)
+                kept = [item for item in items if item[0] >= floor]
+                self.stale += len(items) - len(kept)
+                items = kept
             self._items.extend(items)
             excess = len(self._items) - self._max
             for _ in range(max(0, excess)):
@@ -55,6 +64,7 @@ class SampleBuffer:
         if self._read_end is not None and now - self._read_end <= max_gap_s:
             return
         with self._cond:
+            self._floor = now
             while self._items and self._items[0][0] < now:
                 self._items.popleft()
                 self.stale += 1
