@@ -257,6 +257,38 @@ def test_buffered_datagrams_mixed_with_single_records_and_oversized_ones():
     assert stats["bad_size"] == 6 and stats["records"] == 399  # all sent: 8 * 49 + 7
 
 
+def test_sequence_wrapping_past_2_32_with_gaps_is_counted_not_rejected():
+    """rdt_sequence is 32-bit: across its wrap to 0 the stream goes on, and the two records
+    skipped (one each side of the wrap) are counted as lost packets."""
+    box = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    box.bind(("127.0.0.1", 0))
+    box.settimeout(2.0)
+    seqs = [q % (1 << 32) for q in range((1 << 32) - 60, (1 << 32) + 60)
+            if q not in ((1 << 32) - 10, (1 << 32) + 3)]
+
+    def serve() -> None:
+        _, host = box.recvfrom(64)
+        for i, q in enumerate(seqs):
+            box.sendto(RECORD.pack(q, q, 0, 100, 0, 0, 0, 0, 0), host)
+            time.sleep(0.0005 if i % 30 else 0.05)
+
+    server = threading.Thread(target=serve, daemon=True)
+    server.start()
+    config = {"driver": "ati-netft", "host": "127.0.0.1", "port": box.getsockname()[1],
+              "counts_per_force": 100.0, "counts_per_torque": 100.0}
+    try:
+        with NetFTSensor(config) as sensor:
+            sensor.read(5, 1000.0)
+            block = sensor.read(100, 1000.0)
+            stats = sensor.stats
+    finally:
+        server.join(5.0)
+        box.close()
+    first = seqs.index(int(block.seq[0]))
+    assert block.seq.tolist() == seqs[first:first + 100]
+    assert stats["lost_packets"] == 2 and stats["bad_sequence"] == 0
+
+
 @pytest.mark.slow
 def test_lost_reordered_and_malformed_datagrams_are_counted_and_kept_out(box):
     faults = NetFTFaults(drop=0.1, reorder=0.05, garbage=0.05, short=0.02, oversized=0.02,

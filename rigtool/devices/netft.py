@@ -490,7 +490,7 @@ class NetFTSensor:
             if self._last_seq is None:
                 return False
             ahead = np.empty(n, np.uint32)  # steps modulo 2^32, as uint32 arithmetic wraps
-            ahead[0] = seq[0] - np.uint32(self._last_seq)
+            ahead[0] = (int(seq[0]) - self._last_seq) % _SEQ_MOD
             np.subtract(seq[1:], seq[:-1], out=ahead[1:])
             if (ahead - np.uint32(1)).max() >= MAX_SEQUENCE_JUMP:  # 0 (a repeat) wraps too
                 return False
