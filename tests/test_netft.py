@@ -5,10 +5,12 @@ The twin streams real-time LiveTwin samples, so assertions are on ranges and cou
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -218,39 +220,48 @@ def test_receiver_without_kernel_stamps_falls_back_to_per_datagram_times(box):
         assert len(sensor.read(200, 1000.0).t_s) == 200
 
 
-def test_buffered_datagrams_mixed_with_single_records_and_oversized_ones():
-    """A box in buffered mode sends several records per datagram: each record is kept, in
-    order, whether it shares a receive with single-record datagrams or with one too long
-    to be RDT (counted as a bad size, not a crash)."""
+@contextlib.contextmanager
+def scripted_box(send: Callable[[Callable[[bytes], object]], None]):
+    """A hand-written box on loopback UDP: after the start request, `send(sendto)` sends
+    its datagrams from a thread. Yields (sensor config with counts, no HTTP; the thread)."""
     box = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     box.bind(("127.0.0.1", 0))
     box.settimeout(2.0)
 
     def serve() -> None:
         _, host = box.recvfrom(64)  # the start request
-        seq = 1
-        for k in range(60):
-            per = (1, 2, 1, 3, 1, 1, 40)[k % 7]
-            box.sendto(b"".join(RECORD.pack(seq + i, seq + i, 0, 100 * (seq + i), 0, 0, 0, 0, 0)
-                                for i in range(per)), host)
-            seq += per
-            if k % 10 == 5:
-                box.sendto(b"\0" * 5000, host)
-            time.sleep(0.002 if k % 20 else 0.05)
+        send(lambda data: box.sendto(data, host))
 
     server = threading.Thread(target=serve, daemon=True)
     server.start()
-    config = {"driver": "ati-netft", "host": "127.0.0.1", "port": box.getsockname()[1],
-              "counts_per_force": 100.0, "counts_per_torque": 100.0}
     try:
-        with NetFTSensor(config) as sensor:
-            block = sensor.read(300, 1000.0)
-            server.join(5.0)
-            time.sleep(0.1)  # for the receiver to take the last datagrams
-            stats = sensor.stats
+        yield ({"driver": "ati-netft", "host": "127.0.0.1", "port": box.getsockname()[1],
+                "counts_per_force": 100.0, "counts_per_torque": 100.0}, server)
     finally:
         server.join(5.0)
         box.close()
+
+
+def test_buffered_datagrams_mixed_with_single_records_and_oversized_ones():
+    """A box in buffered mode sends several records per datagram: each record is kept, in
+    order, whether it shares a receive with single-record datagrams or with one too long
+    to be RDT (counted as a bad size, not a crash)."""
+    def send(sendto) -> None:
+        seq = 1
+        for k in range(60):
+            per = (1, 2, 1, 3, 1, 1, 40)[k % 7]
+            sendto(b"".join(RECORD.pack(seq + i, seq + i, 0, 100 * (seq + i), 0, 0, 0, 0, 0)
+                            for i in range(per)))
+            seq += per
+            if k % 10 == 5:
+                sendto(b"\0" * 5000)
+            time.sleep(0.002 if k % 20 else 0.05)
+
+    with scripted_box(send) as (config, server), NetFTSensor(config) as sensor:
+        block = sensor.read(300, 1000.0)
+        server.join(5.0)
+        time.sleep(0.1)  # for the receiver to take the last datagrams
+        stats = sensor.stats
     assert np.all(np.diff(block.seq) == 1) and block.seq[0] <= 41  # the first read drops
     # what came before it (here the first datagram or two)
     np.testing.assert_allclose(block.ft[:, 0], block.seq)  # 100 counts per N
@@ -260,30 +271,18 @@ def test_buffered_datagrams_mixed_with_single_records_and_oversized_ones():
 def test_sequence_wrapping_past_2_32_with_gaps_is_counted_not_rejected():
     """rdt_sequence is 32-bit: across its wrap to 0 the stream goes on, and the two records
     skipped (one each side of the wrap) are counted as lost packets."""
-    box = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    box.bind(("127.0.0.1", 0))
-    box.settimeout(2.0)
     seqs = [q % (1 << 32) for q in range((1 << 32) - 60, (1 << 32) + 60)
             if q not in ((1 << 32) - 10, (1 << 32) + 3)]
 
-    def serve() -> None:
-        _, host = box.recvfrom(64)
+    def send(sendto) -> None:
         for i, q in enumerate(seqs):
-            box.sendto(RECORD.pack(q, q, 0, 100, 0, 0, 0, 0, 0), host)
+            sendto(RECORD.pack(q, q, 0, 100, 0, 0, 0, 0, 0))
             time.sleep(0.0005 if i % 30 else 0.05)
 
-    server = threading.Thread(target=serve, daemon=True)
-    server.start()
-    config = {"driver": "ati-netft", "host": "127.0.0.1", "port": box.getsockname()[1],
-              "counts_per_force": 100.0, "counts_per_torque": 100.0}
-    try:
-        with NetFTSensor(config) as sensor:
-            sensor.read(5, 1000.0)
-            block = sensor.read(100, 1000.0)
-            stats = sensor.stats
-    finally:
-        server.join(5.0)
-        box.close()
+    with scripted_box(send) as (config, _), NetFTSensor(config) as sensor:
+        sensor.read(5, 1000.0)
+        block = sensor.read(100, 1000.0)
+        stats = sensor.stats
     first = seqs.index(int(block.seq[0]))
     assert block.seq.tolist() == seqs[first:first + 100]
     assert stats["lost_packets"] == 2 and stats["bad_sequence"] == 0
