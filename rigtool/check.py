@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rigtool.devices.scpi_supply import ScpiSupply, ScpiSupplyConfig
 from rigtool.rig import RigSet
 from rigtool.units import FT_CHANNELS
 
@@ -88,3 +89,28 @@ def run_check(rigset: RigSet, seconds: float = 3.0, rate_hz: float = 1000.0,
         channels=channels, feedback=fb_stats,
         feedback_rate_hz=(fb_t.size - 1) / fb_span if fb_span > 0 else 0.0, counters=counters,
     )
+
+
+def supply_lines(config: ScpiSupplyConfig) -> list[str]:
+    """What `rigtool check` says of a rig's SCPI supply: identity, the state it was found in,
+    and which protections it has. Only queries are sent; the supply is left as found."""
+    supply = ScpiSupply(config)
+    try:
+        found, have = supply.found, supply.protection
+        lines = [f"supply: {supply.identity} on {config.url}",
+                 f"  found: output {'ON' if found.output_on else 'off'}, setpoint "
+                 f"{found.setpoint_v:g} V, current limit {found.current_limit_a:g} A (rig "
+                 f"max_voltage_v {config.max_voltage_v:g} V; a sweep programs the limit and "
+                 "0 V with the output off before switching it on)"]
+        ovp = ("yes: a sweep sets it to max_voltage_v" if have.over_voltage
+               else "no (VOLT:PROT not answered)")
+        lines.append(f"  over-voltage protection: {ovp}")
+        if have.watchdog and config.watchdog != "off":
+            lines.append(f"  output watchdog: yes: a sweep arms it at {config.watchdog_s:g} s, "
+                         "so the output goes off if rigtool is killed (kill -9) or the host hangs")
+        else:
+            lines.append("  output watchdog: NO: after kill -9 or a host crash the output stays "
+                         "on at the last voltage until switched off by hand (docs/safety.md)")
+        return lines
+    finally:
+        supply.close()

@@ -75,7 +75,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError("give a protocol file (or --resume RUN_ID)")
     setup = resolve(args.protocol, args.rig, args.sim, args.seed)
     if args.dry_run:
-        rigset = open_checked(setup)
+        rigset = open_checked(setup, dry_run=True)
         rigset.close()
         _print_plan(setup, rigset.actuator.info.neutral)
         return 0
@@ -263,7 +263,7 @@ def stop_on_signals():
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from rigtool.check import run_check
+    from rigtool.check import run_check, supply_lines
     from rigtool.rig import load_rig, open_rig
 
     if args.rate <= 0 or args.seconds <= 0:
@@ -287,6 +287,9 @@ def cmd_check(args: argparse.Namespace) -> int:
     out.print(table)
     for role, counters in report.counters.items():
         out.print(f"  {role}: " + ", ".join(f"{k}={v}" for k, v in counters.items()))
+    if rig.supply is not None:
+        for line in supply_lines(rig.supply):
+            out.print(line)
     return 0
 
 

@@ -22,7 +22,7 @@ from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
 from rigtool.rig import RigSet, counter_delta
-from rigtool.safety import FollowMonitor, LimitMonitor
+from rigtool.safety import BUS_WINDOWS, BusVoltageMonitor, FollowMonitor, LimitMonitor
 from rigtool.spool import SampleSpool
 from rigtool.store import SAMPLE_COLUMNS, STAT_FIELDS, StepRecord, Store
 from rigtool.units import FT_CHANNELS
@@ -100,6 +100,7 @@ class Engine:
         self.limits = LimitMonitor(protocol.limits)
         self.follow = FollowMonitor(rig.actuator.info,
                                     getattr(rig.actuator, "expected_speed_rpm", None))
+        self.bus = BusVoltageMonitor(protocol.voltage.tolerance_frac if protocol.voltage else 0.25)
         self.unit = rig.actuator.info.command_unit
         self._command = rig.actuator.info.neutral
         self._t0 = 0.0
@@ -193,6 +194,8 @@ class Engine:
         self._event("voltage", {"target_v": step.voltage_v, "measured_v": reached,
                                 "by": supply.reached_by}, step.idx)
         self._voltage = step.voltage_v
+        for _ in range(BUS_WINDOWS):  # the voltage reached is judged before anything is labelled
+            self._check_supply(step.voltage_v, reached)
         settle = self.protocol.voltage.settle_s if self.protocol.voltage else 0.0
         if settle > 0:
             self._read_for(settle, self.protocol.timing.acquire.rate_hz, step)
@@ -356,9 +359,29 @@ class Engine:
         self.limits.check({"thrust_n": out["thrust_n"], "current_a": feedback.current_a,
                            "speed_rpm": feedback.speed_rpm})
         self.follow.check(feedback)
+        self._check_bus(step, feedback)
         if step is not None and self.reporter.wants_live:
             self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
         return out
+
+    def _check_bus(self, step: PlanStep | None, feedback: FeedbackBlock) -> None:
+        """The bus voltage must be the one the point is labelled with (BusVoltageMonitor)."""
+        if step is None or step.voltage_v is None or step.voltage_v != self._voltage:
+            return
+        if feedback.voltage_v is not None and len(feedback.voltage_v):
+            self.bus.check(step.voltage_v, float(np.nanmedian(feedback.voltage_v)), "actuator")
+        if self.bus.supply_due(self.clock.now()):
+            self._check_supply(step.voltage_v)
+
+    def _check_supply(self, set_v: float, volts: float | None = None) -> None:
+        """The supply's own measurement of the bus, where it has one."""
+        supply = self.rig.supply
+        measure = getattr(supply, "measure", None)
+        if measure is None:
+            return
+        measured_v, amps = measure()
+        self.bus.check(set_v, measured_v if volts is None else volts, supply.reached_by, amps,
+                       getattr(supply, "current_limit_a", None))
 
     def _device_warnings(self, step: PlanStep | None) -> None:
         """Store warnings a driver has queued (e.g. a Net F/T status word, a stream restart)."""

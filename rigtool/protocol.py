@@ -149,6 +149,8 @@ class VoltageAxis(_Strict):
     mode: Literal["preset", "manual"] = "preset"
     settle_s: Seconds = 1.0  # wait at neutral after a voltage change
     seed: Seed = 0
+    # the measured bus voltage must stay within this fraction of the set one (at least 0.5 V)
+    tolerance_frac: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.25
 
     def voltages_v(self) -> list[float]:
         """The voltages in the order they are visited."""

@@ -155,14 +155,15 @@ def check_supply(setup: SweepSetup) -> None:
                            f"({rig.supply.max_voltage_v:g} V) in rig {rig.name!r}"])
 
 
-def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
-    """Open the rig's devices and check the protocol against them (closing them on failure)."""
+def open_checked(setup: SweepSetup, start_idx: int = 0, dry_run: bool = False) -> RigSet:
+    """Open the rig's devices and check the protocol against them (closing them on failure).
+    A dry run never opens the supply: it is checked against the rig file only."""
     check_depth_source(setup)
     check_supply(setup)
     voltage = setup.protocol.voltage
     rigset = open_rig(setup.rig, start_depth_m=step_at(setup.protocol, start_idx).depth_m,
                       depth_mode=setup.protocol.depth.mode,
-                      voltage_mode=voltage.mode if voltage else None,
+                      voltage_mode=voltage.mode if voltage and not dry_run else None,
                       current_limit_a=setup.protocol.limits.max_current_a)
     try:
         check_compatible(setup, rigset)

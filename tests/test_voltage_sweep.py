@@ -173,14 +173,20 @@ def test_preset_voltage_needs_a_supply_in_the_rig(tmp_path, capsys):
     assert "20 V is above the supply's max_voltage_v (15 V)" in capsys.readouterr().err
 
 
-def _scpi_run(tmp_path, supply_twin, *, die_above_12v: bool = False):
+def _scpi_run(tmp_path, supply_twin, *, die_above_12v: bool = False,
+              current_limit_a: float | None = None):
     """A sweep over 12 and 16 V on the in-process thruster twin, with the voltage set by the
     real SCPI driver on its twin over a pty."""
-    setup = resolve(_protocol(tmp_path, volts=[12.0, 16.0], order="up"), sim=True)
+    # the SCPI twin does not power the thruster twin, so the thruster reports no bus voltage
+    # of its own here (it would read its nominal 16 V at a 12 V point and trip)
+    no_bus = {"feedback": "[speed_rpm, current_a]"}
+    setup = resolve(_protocol(tmp_path, volts=[12.0, 16.0], order="up", overrides=no_bus),
+                    sim=True)
     rigset = open_checked(setup)
     rigset.supply = ScpiSupply(ScpiSupplyConfig(
         driver="scpi-supply", url=supply_twin.pty_path, slew_v_per_s=1000.0, timeout_s=0.3,
-        current_limit_a=setup.protocol.limits.max_current_a))
+        current_limit_a=current_limit_a or setup.protocol.limits.max_current_a,
+        max_voltage_v=24.0))
     if die_above_12v:
         inner = rigset.supply.set_voltage
 

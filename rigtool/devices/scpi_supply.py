@@ -1,13 +1,18 @@
-"""Programmable bench power supply over SCPI (Keysight E36xx, Rigol DP8xx, R&S HMP, Korad in
-SCPI mode): the supply-voltage axis of a sweep (docs/drivers/scpi-supply.md).
+"""Programmable bench power supply over SCPI (Keysight E36xx/N67xx, Rigol DP8xx, R&S HMP,
+Korad in SCPI mode): the supply-voltage axis of a sweep (docs/drivers/scpi-supply.md).
 
 Talks over any pyserial URL: a serial port, or `socket://host:port` for a LAN supply's raw
-SCPI socket (port 5025 on most). Every setting is confirmed: after `VOLT`, `CURR` or `OUTP`
-the driver reads `SYST:ERR?` and the setting back, so a refused or lost command is an error,
-not a silent difference. Voltage changes are ramped at `slew_v_per_s`. `safe()` (and
-`close()`) turns the output off or goes to `safe_voltage_v`, as the rig file asks; it is
-idempotent. Lines that are not ASCII or not a number where one is expected are counted as
-garbage and skipped.
+SCPI socket (port 5025 on most). Opening the supply only asks (identity, output state,
+setpoints, which protections it has) and commands nothing, unless its output is already on
+outside the rig's limits, which is switched off at once. Every setting is confirmed: after
+`VOLT`, `CURR` or `OUTP` the driver reads `SYST:ERR?` and the setting back. An output is only
+switched on after the current limit, the over-voltage protection (where the supply has one)
+and a setpoint within the rig's limits have been programmed with the output off and read back;
+voltage changes are then ramped at `slew_v_per_s`. `safe()` (and `close()`) turns the output
+off or ramps it to `safe_voltage_v` as the rig file asks, and never switches an output on.
+Where the supply has an output watchdog (`OUTP:PROT:WDOG`), it is armed, so the output goes
+off by itself when the host stops talking (kill -9); a keep-alive thread talks meanwhile. Lines
+that are not ASCII or not a number where one is expected are counted as garbage and skipped.
 """
 
 from __future__ import annotations
@@ -15,12 +20,14 @@ from __future__ import annotations
 import contextlib
 import math
 import re
+import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Annotated, Literal
 
 import serial
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, PositiveSeconds
 from rigtool.devices.framing import LineFramer
@@ -31,6 +38,7 @@ _ERROR_REPLY = re.compile(r"[+-]?\d+,")  # SYST:ERR? answers `code,"message"`
 _RAMP_STEP_S = 0.05  # a ramp sends a new setpoint this often
 Volts = Annotated[float, Field(ge=0, le=1000, allow_inf_nan=False)]
 Amps = Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]
+Protection = Literal["auto", "required", "off"]
 
 
 class ScpiSupplyConfig(BaseModel):
@@ -47,6 +55,33 @@ class ScpiSupplyConfig(BaseModel):
     on_exit: Literal["off", "safe_voltage"] = "off"  # what safe() leaves the output at
     safe_voltage_v: Volts = 0.0
     line_end: Literal["\n", "\r\n"] = "\n"
+    over_voltage_protection: Protection = "auto"  # VOLT:PROT at max_voltage_v where it exists
+    watchdog: Protection = "auto"  # OUTP:PROT:WDOG: output off when the host goes silent
+    watchdog_s: Annotated[float, Field(ge=1, le=3600, allow_inf_nan=False)] = 10.0
+
+    @model_validator(mode="after")
+    def _safe_voltage_within_limit(self) -> ScpiSupplyConfig:
+        if self.safe_voltage_v > self.max_voltage_v:
+            raise ValueError(f"safe_voltage_v ({self.safe_voltage_v:g} V) is above "
+                             f"max_voltage_v ({self.max_voltage_v:g} V)")
+        return self
+
+
+@dataclass(frozen=True)
+class SupplyState:
+    """What the supply was doing when it was opened (a shared bench keeps its last settings)."""
+
+    output_on: bool
+    setpoint_v: float
+    current_limit_a: float
+
+
+@dataclass(frozen=True)
+class SupplyProtection:
+    """Which protections the supply answered for when it was opened."""
+
+    over_voltage: bool  # answers VOLT:PROT?
+    watchdog: bool  # answers OUTP:PROT:WDOG?
 
 
 class ScpiSupply:
@@ -60,7 +95,12 @@ class ScpiSupply:
         self.stats = dict.fromkeys(("lines", "garbage", "timeouts", "errors"), 0)
         self._framer = LineFramer(_MAX_LINE)
         self._closed = False
-        self._setpoint_v: float | None = None
+        self._lock = threading.RLock()  # the port, between the caller and the keep-alive
+        self._keepalive_stop = threading.Event()
+        self._keepalive: threading.Thread | None = None
+        self._last_io = time.monotonic()
+        self._armed = False  # limits, protection and a safe setpoint programmed this session
+        self._watchdog_armed = False
         try:
             self._ser = serial.serial_for_url(config.url, baudrate=config.baudrate, timeout=0.02,
                                               write_timeout=config.timeout_s)
@@ -68,20 +108,129 @@ class ScpiSupply:
             raise DeviceError(f"cannot open {config.url} (SCPI supply): {exc}") from None
         try:
             self.identity = self._query("*IDN?")
-            self._set(f"CURR {config.current_limit_a:.4f}", "CURR?", config.current_limit_a)
+            self._output_on = self._number("OUTP?") != 0.0
             self._setpoint_v = self._number("VOLT?")
+            self.found = SupplyState(self._output_on, self._setpoint_v, self._number("CURR?"))
+            self.protection = SupplyProtection(self._answers("VOLT:PROT?"),
+                                               self._answers("OUTP:PROT:WDOG?"))
+            self._check_found_state()
+            self._require_protection()
         except BaseException:
             self._release()
             raise
 
     # -- what the engine uses -----------------------------------------------------------------
     def set_voltage(self, volts: float) -> float:
-        """Ramp the setpoint to `volts` at the slew limit, switch the output on, and return
-        the output voltage measured at the end."""
+        """Bring the output to `volts` and return the voltage measured there. An output that is
+        off is first armed (current limit, protection, 0 V setpoint, each read back) and only
+        then switched on; the setpoint is ramped at the slew limit."""
+        self._check_setpoint(volts)
+        with self._lock:
+            if not self._output_on:
+                self._arm(0.0)
+                self.output(True)
+            elif not self._armed:
+                self._arm(self._setpoint_v)
+            self._ramp(volts)
+            return self.measure()[0]
+
+    def output(self, on: bool) -> None:
+        """Switch the output on or off (confirmed). On only once armed, at a setpoint within
+        the limits read back from the supply."""
+        with self._lock:
+            if on:
+                if not self._armed:
+                    raise DeviceError(f"{self.name}: output on refused: limits not programmed")
+                setpoint = self._number("VOLT?")
+                self._check_setpoint(setpoint, what="setpoint read back")
+            self._set(f"OUTP {'ON' if on else 'OFF'}", "OUTP?", 1.0 if on else 0.0)
+            self._output_on = on
+            if on:
+                self._start_keepalive()
+
+    def measure(self) -> tuple[float, float]:
+        """(volts, amps) the supply measures at its output."""
+        with self._lock:
+            return self._number("MEAS:VOLT?"), self._number("MEAS:CURR?")
+
+    @property
+    def current_limit_a(self) -> float:
+        """The current limit programmed (constant-current mode begins there)."""
+        return self.config.current_limit_a
+
+    def is_on(self) -> bool:
+        """Whether the output is on, as the supply says now."""
+        with self._lock:
+            self._output_on = self._number("OUTP?") != 0.0
+            return self._output_on
+
+    def safe(self) -> None:
+        """Output off (or ramped to safe_voltage_v if it is on), as the rig file asks; never
+        switches an output on. Idempotent, quiet after close. DeviceError when the supply does
+        not confirm it."""
+        if self._closed:
+            return
+        with self._lock:
+            if self.config.on_exit == "off":
+                self.output(False)
+            elif self.is_on():
+                self._ramp(self.config.safe_voltage_v)
+
+    def close(self) -> None:
+        """Safe state if this session programmed the supply, the watchdog disarmed (a bench
+        supply goes back to its next user as it was), then the port released. Idempotent; a failed safe state is raised after the port is released."""
+        if self._closed:
+            return
+        try:
+            if self._armed:  # a supply this session never programmed is left as it was found
+                self.safe()
+            if self._watchdog_armed:
+                self._set("OUTP:PROT:WDOG OFF", "OUTP:PROT:WDOG?", 0.0)
+        finally:
+            self._release()
+
+    # -- internals ----------------------------------------------------------------------------
+    def _check_setpoint(self, volts: float, what: str = "setpoint") -> None:
         if not (math.isfinite(volts) and 0.0 <= volts <= self.config.max_voltage_v):
-            raise UsageError(f"{volts!r} V is outside 0..{self.config.max_voltage_v:g} V "
+            raise UsageError(f"{what} {volts!r} V is outside 0..{self.config.max_voltage_v:g} V "
                              f"(max_voltage_v of {self.name})")
-        start = self._setpoint_v if self._setpoint_v is not None else 0.0
+
+    def _check_found_state(self) -> None:
+        """An output found on above the rig's limit is switched off at once, and reported."""
+        if self._output_on and self._setpoint_v > self.config.max_voltage_v:
+            self._set("OUTP OFF", "OUTP?", 0.0)
+            self._output_on = False
+            raise DeviceError(f"{self.name}: its output was on at a {self._setpoint_v:g} V "
+                              f"setpoint, above max_voltage_v ({self.config.max_voltage_v:g} V) "
+                              "of the rig file; switched it off")
+
+    def _require_protection(self) -> None:
+        for kind, have in (("over_voltage_protection", self.protection.over_voltage),
+                           ("watchdog", self.protection.watchdog)):
+            if getattr(self.config, kind) == "required" and not have:
+                raise DeviceError(f"{self.name} ({self.identity}) has no {kind.replace('_', ' ')}"
+                                  f" (`{kind}: required` in the rig file)")
+
+    def _arm(self, setpoint_v: float) -> None:
+        """Program the current limit, the protections and `setpoint_v`, and read them back."""
+        self._check_setpoint(setpoint_v)
+        cfg = self.config
+        self._set(f"CURR {cfg.current_limit_a:.4f}", "CURR?", cfg.current_limit_a)
+        if self.protection.over_voltage and cfg.over_voltage_protection != "off":
+            self._set(f"VOLT:PROT {cfg.max_voltage_v:.4f}", "VOLT:PROT?", cfg.max_voltage_v)
+        self._set(f"VOLT {setpoint_v:.4f}", "VOLT?", setpoint_v)
+        self._setpoint_v = setpoint_v
+        if self.protection.watchdog and cfg.watchdog != "off":
+            self._set(f"OUTP:PROT:WDOG:DEL {cfg.watchdog_s:.3f}", "OUTP:PROT:WDOG:DEL?",
+                      cfg.watchdog_s)
+            self._set("OUTP:PROT:WDOG ON", "OUTP:PROT:WDOG?", 1.0)
+            self._watchdog_armed = True
+        self._armed = True
+
+    def _ramp(self, volts: float) -> None:
+        """Move the setpoint to `volts` in slew-limited steps, each confirmed."""
+        self._check_setpoint(volts)
+        start = self._setpoint_v
         steps = max(1, math.ceil(abs(volts - start) / self.config.slew_v_per_s / _RAMP_STEP_S))
         t0 = time.monotonic()
         for k in range(1, steps + 1):
@@ -90,43 +239,46 @@ class ScpiSupply:
             self._setpoint_v = target
             if k < steps:
                 time.sleep(max(0.0, t0 + k * _RAMP_STEP_S - time.monotonic()))
-            if k == 1:
-                self.output(True)
-        return self.measure()[0]
 
-    def output(self, on: bool) -> None:
-        """Switch the output on or off (confirmed)."""
-        self._set(f"OUTP {'ON' if on else 'OFF'}", "OUTP?", 1.0 if on else 0.0)
-
-    def measure(self) -> tuple[float, float]:
-        """(volts, amps) the supply measures at its output."""
-        return self._number("MEAS:VOLT?"), self._number("MEAS:CURR?")
-
-    def safe(self) -> None:
-        """Output off (or ramped to safe_voltage_v), as the rig file asks; idempotent, quiet
-        after close. DeviceError when the supply does not confirm it."""
-        if self._closed:
+    def _start_keepalive(self) -> None:
+        """Talk to an armed watchdog often enough that only a dead host lets it fire."""
+        if self._keepalive is not None or not (self.protection.watchdog
+                                                and self.config.watchdog != "off"):
             return
-        if self.config.on_exit == "off":
-            self.output(False)
-        else:
-            self.set_voltage(self.config.safe_voltage_v)
+        self._keepalive = threading.Thread(target=self._keep_alive, daemon=True,
+                                           name="scpi-supply-keepalive")
+        self._keepalive.start()
 
-    def close(self) -> None:
-        """Safe state, then release the port. Idempotent; a failed safe state is raised after
-        the port is released."""
-        if self._closed:
-            return
-        try:
-            self.safe()
-        finally:
-            self._release()
+    def _keep_alive(self) -> None:
+        period = self.config.watchdog_s / 4
+        while not self._keepalive_stop.wait(period / 4):
+            if time.monotonic() - self._last_io < period:
+                continue
+            with self._lock:
+                if self._closed:
+                    return
+                with contextlib.suppress(DeviceError):
+                    self._query("OUTP?", _is_number)
 
-    # -- internals ----------------------------------------------------------------------------
     def _release(self) -> None:
-        self._closed = True
-        with contextlib.suppress(serial.SerialException, OSError):
-            self._ser.close()
+        self._keepalive_stop.set()
+        with self._lock:
+            self._closed = True
+            with contextlib.suppress(serial.SerialException, OSError):
+                self._ser.close()
+
+    def _answers(self, query: str) -> bool:
+        """Whether the supply knows `query`: a number comes back and the error queue is empty
+        (a supply that does not know it may stay silent for `timeout_s`)."""
+        try:
+            self._number(query)
+        except DeviceError:
+            self.stats["timeouts"] -= 1  # a probe, not a fault of the link
+            known = False
+        else:
+            known = True
+        error = self._query("SYST:ERR?", _ERROR_REPLY.match)
+        return known and error.startswith(("0,", "+0,"))
 
     def _set(self, command: str, query: str, expect: float) -> None:
         """Send a setting, then check the error queue and the value read back."""
@@ -146,35 +298,37 @@ class ScpiSupply:
             self._ser.write((line + self.config.line_end).encode("ascii"))
         except (serial.SerialException, OSError) as exc:
             raise DeviceError(f"cannot write to {self.name}: {exc}") from None
+        self._last_io = time.monotonic()
 
     def _query(self, query: str, accept: Callable[[str], bool] = bool) -> str:
         """Send `query` and return the first reply line that `accept`s; other lines (not ASCII,
         or not of the expected form) are counted as garbage and skipped."""
-        with contextlib.suppress(serial.SerialException, OSError):
-            self._ser.reset_input_buffer()
-        self._framer.clear()
-        self._write(query)
-        deadline = time.monotonic() + self.config.timeout_s
-        while time.monotonic() < deadline:
-            try:
-                chunk = self._ser.read(max(1, self._ser.in_waiting))
-            except (serial.SerialException, OSError) as exc:
-                raise DeviceError(f"lost connection to {self.name}: {exc}") from None
-            lines, overflow = self._framer.feed(chunk)
-            self.stats["garbage"] += overflow
-            for raw in lines:
+        with self._lock:
+            with contextlib.suppress(serial.SerialException, OSError):
+                self._ser.reset_input_buffer()
+            self._framer.clear()
+            self._write(query)
+            deadline = time.monotonic() + self.config.timeout_s
+            while time.monotonic() < deadline:
                 try:
-                    text = raw.decode("ascii").strip()
-                except UnicodeDecodeError:
+                    chunk = self._ser.read(max(1, self._ser.in_waiting))
+                except (serial.SerialException, OSError) as exc:
+                    raise DeviceError(f"lost connection to {self.name}: {exc}") from None
+                lines, overflow = self._framer.feed(chunk)
+                self.stats["garbage"] += overflow
+                for raw in lines:
+                    try:
+                        text = raw.decode("ascii").strip()
+                    except UnicodeDecodeError:
+                        self.stats["garbage"] += 1
+                        continue
+                    self.stats["lines"] += 1
+                    if accept(text):
+                        return text
                     self.stats["garbage"] += 1
-                    continue
-                self.stats["lines"] += 1
-                if accept(text):
-                    return text
-                self.stats["garbage"] += 1
-        self.stats["timeouts"] += 1
-        raise DeviceError(f"no reply from {self.name} to {query!r} within "
-                          f"{self.config.timeout_s:g} s")
+            self.stats["timeouts"] += 1
+            raise DeviceError(f"no reply from {self.name} to {query!r} within "
+                              f"{self.config.timeout_s:g} s")
 
     def _number(self, query: str) -> float:
         """The number a query answers (lines that are not a finite number are garbage)."""
