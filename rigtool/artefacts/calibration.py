@@ -442,7 +442,7 @@ def performance_header(command_unit: str, voltage_swept: bool = False) -> list[s
     """Headers with unit suffixes, in the Tyto/manufacturer style `rigtool import` reads;
     `Supply Voltage (V)` (the voltage set) only for a voltage sweep."""
     supply = ["Supply Voltage (V)"] if voltage_swept else []
-    return ["Depth (m)", *supply, f"ESC ({command_unit})", "Motor Optical Speed (RPM)",
+    return ["Depth (m)", *supply, csv_cell(f"ESC ({command_unit})"), "Motor Optical Speed (RPM)",
             "Current (A)", "Voltage (V)", "Electrical Power (W)", "Thrust (N)", "Force (kgf)",
             "Efficiency (g/W)"]
 

@@ -9,18 +9,18 @@ step-response run (the calibrated run itself, or one given with --dynamics).
 from __future__ import annotations
 
 import math
-import re
+import textwrap
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 import rigtool
 from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.dynamics import Dynamics
 from rigtool.artefacts.calibration import FILES, write_artefacts
+from rigtool.artefacts.encode import c_string, scalar_text, xml_text, yaml_string
 from rigtool.artefacts.write import atomic_write, csv_cell
 from rigtool.errors import UsageError
 from rigtool.outpaths import run_folder
@@ -69,13 +69,20 @@ def write_vehicle_artefacts(cal: Calibration, out_dir: str | Path, formats: Sequ
     paths = []
     for fmt in dict.fromkeys(formats):
         if fmt == "csv-lut":
-            paths += [p for p in write_artefacts(cal, out_dir, created_utc)
+            paths += [p for p in write_artefacts(_storable(cal), out_dir,
+                                                 scalar_text(created_utc))
                       if p.name == FORMATS["csv-lut"]]
             continue
         text = {"c-header": c_header, "ros2": ros2_params, "gazebo": gazebo_sdf}[fmt](
             cal, sec, created_utc, dynamics)
         paths.append(atomic_write(folder / FORMATS[fmt], text))
     return paths
+
+
+def _storable(cal: Calibration) -> Calibration:
+    """`cal` with lone surrogates in the texts the CSV comment lines carry as U+FFFD."""
+    return replace(cal, run_id=scalar_text(cal.run_id), command_unit=scalar_text(cal.command_unit),
+                   tool_version=scalar_text(cal.tool_version))
 
 
 def deepest(cal: Calibration) -> DepthSection:
@@ -121,14 +128,22 @@ def lut_command(tables: list[tuple[str, np.ndarray, np.ndarray]], neutral: float
     return out
 
 
-def _head(cal: Calibration, sec: DepthSection, created: str) -> list[str]:
+def _texts(cal: Calibration, created: str) -> dict[str, str]:
+    """The stored texts every artefact carries, by parameter name: as values, never comments."""
+    return {"source_run": cal.run_id, "run_name": cal.run_name,
+            "thruster_id": cal.thruster_id or "", "created_utc": created,
+            "command_unit": cal.command_unit}
+
+
+def _head(sec: DepthSection, names: Sequence[str]) -> list[str]:
+    """An artefact's comment lines: no stored text, `names` tell where the texts are."""
     depth = "not set" if sec.depth_m is None else f"{sec.depth_m:g} m"
     if sec.voltage_v is not None:
         depth += f", supply {sec.voltage_v:g} V"
-    return [f"rigtool {rigtool.__version__}: thruster calibration of run {cal.run_id} "
-            f"({cal.run_name}), thruster {cal.thruster_id or 'not named'}, depth {depth}",
-            f"created {created} from calibrations/{cal.run_id}/ (docs/artefacts.md)",
-            f"units: thrust N, command {cal.command_unit}, speed r/min. Generated: do not edit."]
+    return [f"rigtool {rigtool.__version__}: thruster calibration, depth {depth}. Generated: "
+            "do not edit.",
+            f"source run, run name, thruster, creation time, command unit: {', '.join(names)}.",
+            "units: thrust N, command in the command unit, speed r/min (docs/artefacts.md)."]
 
 
 def _c(x: float) -> str:
@@ -157,10 +172,10 @@ def c_header(cal: Calibration, sec: DepthSection, created: str,
             for k in ("C_p_fwd", "C_p_rev")}
     zones = list(sec.curve.dead_zones) if sec.curve else []
     guard = "RIGTOOL_THRUSTER_CALIBRATION_H"
-    lines = ["/*"] + [f" * {line}" for line in _head(cal, sec, created)] + [" */", "",
+    texts = {f"RIGTOOL_{k.upper()}": v for k, v in _texts(cal, created).items()}
+    lines = ["/*"] + [f" * {line}" for line in _head(sec, list(texts))] + [" */", "",
              f"#ifndef {guard}", f"#define {guard}", "", "#include <math.h>", "",
-             f'#define RIGTOOL_SOURCE_RUN "{_c_string(cal.run_id)}"',
-             f'#define RIGTOOL_COMMAND_UNIT "{_c_string(cal.command_unit)}"',
+             *(f"#define {name} {c_string(text)}" for name, text in texts.items()),
              f"#define RIGTOOL_NEUTRAL_COMMAND {_c(cal.neutral_command)}",
              f"#define RIGTOOL_C_P_FWD {_c(coef['C_p_fwd'])} /* N/(r/min)^2: f = C_p |n| n, n > 0 */",
              f"#define RIGTOOL_C_P_REV {_c(coef['C_p_rev'])} /* N/(r/min)^2: n < 0 */",
@@ -170,7 +185,8 @@ def c_header(cal: Calibration, sec: DepthSection, created: str,
              f"#define RIGTOOL_N_BRANCHES {len(tables)}",
              "static const int rigtool_branch_start[] = {"
              + ", ".join(str(int(s)) for s in starts) + "};",
-             "/* branch directions: " + ", ".join(d for d, _, _ in tables) + " */",
+             "#define RIGTOOL_BRANCH_DIRECTIONS "
+             + c_string(", ".join(d for d, _, _ in tables)) + " /* in branch order */",
              _c_array("rigtool_lut_thrust", np.concatenate([f for _, f, _ in tables]))
              + " /* N, ascending per branch */",
              _c_array("rigtool_lut_command", np.concatenate([c for _, _, c in tables])),
@@ -218,16 +234,12 @@ def _c_dynamics(dynamics: DynamicsSource | None) -> list[str]:
             .replace("inflow_gain", "RIGTOOL_INFLOW_GAIN")
             .replace("command_delay_s", "RIGTOOL_DELAY_S") + ". Seconds. */",
             "#define RIGTOOL_HAS_DYNAMICS 1",
-            f'#define RIGTOOL_DYNAMICS_RUN "{_c_string(str(d["dynamics_source_run"]))}"',
-            f'#define RIGTOOL_DYNAMICS_MODEL "{d["dynamics_model"]}"',
+            f"#define RIGTOOL_DYNAMICS_RUN {c_string(str(d['dynamics_source_run']))}",
+            f"#define RIGTOOL_DYNAMICS_MODEL {c_string(str(d['dynamics_model']))}",
             f"#define RIGTOOL_TAU_N_S {_c(d['time_constant_s'])}",
             f"#define RIGTOOL_TAU_A_S {_c(d['inflow_time_constant_s'])} /* NAN: one-state */",
             f"#define RIGTOOL_INFLOW_GAIN {_c(d['inflow_gain'])}",
             f"#define RIGTOOL_DELAY_S {_c(d['command_delay_s'])}"]
-
-
-def _c_string(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.:+\- ]", "_", text)
 
 
 def _first(tables: list, direction: str) -> tuple[list[float], list[float]]:
@@ -243,11 +255,10 @@ def ros2_params(cal: Calibration, sec: DepthSection, created: str,
     tables = branches(sec)
     fwd_f, fwd_c = _first(tables, "forward")
     rev_f, rev_c = _first(tables, "reverse")
+    texts = _texts(cal, created)
     params = {
-        "source_run": cal.run_id,
-        "thruster_id": cal.thruster_id or "",
+        **texts,
         "depth_m": math.nan if sec.depth_m is None else float(sec.depth_m),
-        "command_unit": cal.command_unit,
         "neutral_command": float(cal.neutral_command),
         "dead_band": [float(v) for z in (sec.curve.dead_zones if sec.curve else []) for v in z],
         "thrust_coefficient_forward": _coef(sec, "C_p_fwd"),
@@ -257,14 +268,40 @@ def ros2_params(cal: Calibration, sec: DepthSection, created: str,
         "map_reverse_thrust_n": rev_f, "map_reverse_command": rev_c,
         **(dynamics.params() if dynamics else {"dynamics_model": "none"}),
     }
-    head = "".join(f"# {line}\n" for line in _head(cal, sec, created))
+    head = "".join(f"# {line}\n" for line in _head(sec, list(texts)))
     head += ("# map_*: thrust (N, ascending) -> command; interpolate linearly; neutral for 0 N.\n"
              "# NaN (.nan) marks a value this run could not give.\n")
     head += (f"# dynamics: {DYNAMICS_MODEL}.\n" if dynamics else
              "# dynamics_model none: no step-response run was given (--dynamics RUN), so there"
              " are\n# no time constants.\n")
-    return head + yaml.safe_dump({"/**": {"ros__parameters": {"rigtool": params}}},
-                                 sort_keys=False, default_flow_style=None, width=100)
+    return head + "/**:\n  ros__parameters:\n    rigtool:\n" + "".join(
+        _yaml_entry(k, v, " " * 6) + "\n" for k, v in params.items())
+
+
+def _yaml_entry(key: str, value: str | float | list[float], indent: str) -> str:
+    """`key: value` for a parameter; a list of numbers wraps at 100 columns, text never."""
+    line = f"{indent}{key}: {_yaml_value(value)}"
+    if not isinstance(value, list):
+        return line
+    return textwrap.fill(line, width=100, subsequent_indent=indent + "  ",
+                         break_long_words=False, break_on_hyphens=False)
+
+
+def _yaml_value(value: str | float | list[float]) -> str:
+    """A parameter value in YAML flow style: text through yaml_string, else numbers."""
+    if isinstance(value, str):
+        return yaml_string(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
+    return _yaml_float(float(value))
+
+
+def _yaml_float(x: float) -> str:
+    """`x` as PyYAML writes a float (.nan, .inf, a point before any exponent): a float again."""
+    if not math.isfinite(x):
+        return ".nan" if math.isnan(x) else (".inf" if x > 0 else "-.inf")
+    text = repr(x)
+    return text.replace("e", ".0e", 1) if "." not in text and "e" in text else text
 
 
 def _coef(sec: DepthSection, name: str) -> float:
@@ -292,26 +329,30 @@ def gazebo_sdf(cal: Calibration, sec: DepthSection, created: str,
     rev_note = ("" if not math.isfinite(rev) else
                 f" Reverse: C_T = {rev / (rho * d**4 * RAD_S_PER_RPM**2):.6g} (the plugin "
                 "takes one coefficient).")
-    comment = " ".join(_head(cal, sec, created)).replace("--", "-")
+    texts = {f"rigtool_{k}": v for k, v in _texts(cal, created).items()}
+    comment = " ".join(_head(sec, list(texts)))
     tables = branches(sec)
     thrusts = [float(v) for _, f, _ in tables for v in (f[0], f[-1])]
     clamp = "" if not thrusts else (f"  <max_thrust_cmd>{max(thrusts):.9g}</max_thrust_cmd>\n"
                                     f"  <min_thrust_cmd>{min(thrusts):.9g}</min_thrust_cmd>\n")
     if dynamics is None:
-        lag_note, lag = " No time constant: no step-response run was given (--dynamics RUN).", ""
+        lag_note = " No time constant: no step-response run was given (the dynamics option)."
+        lag = ""
     else:
         dp = dynamics.params()
-        lag_note = (f" The rigtool_* elements are the dynamics of run "
-                    f"{dp['dynamics_source_run']} ({dp['dynamics_model']}): {DYNAMICS_MODEL}. "
-                    "The Thruster system has no lag and ignores them; with use_angvel_cmd, a "
-                    "first-order filter of time constant rigtool_time_constant_s on the "
-                    "angular-velocity command is the one-state model.")
+        lag_note = (" The rigtool_* dynamics elements are those of the model "
+                    "rigtool_dynamics_model of the run rigtool_dynamics_source_run: "
+                    f"{DYNAMICS_MODEL}. The Thruster system has no lag and ignores them; with "
+                    "use_angvel_cmd, a first-order filter of time constant "
+                    "rigtool_time_constant_s on the angular-velocity command is the one-state "
+                    "model.")
+        texts |= {f"rigtool_{k}": str(dp[k]) for k in ("dynamics_model", "dynamics_source_run")}
         lag = "".join(f"  <rigtool_{k}>{_xml_num(dp[k])}</rigtool_{k}>\n" for k in (
             "time_constant_s", "inflow_time_constant_s", "inflow_gain", "command_delay_s"))
     return (f"<!-- {comment} -->\n"
             f"<!-- thrust = C_T rho D^4 w|w|, w in rad/s; C_T from C_p_fwd = {cp:.6g} "
             f"N/(r/min)^2.{rev_note} Thrust commands are clamped to the measured range (N)."
-            f"{lag_note.replace('--', '-')} -->\n"
+            f"{lag_note} -->\n"
             '<plugin filename="gz-sim-thruster-system" name="gz::sim::systems::Thruster">\n'
             "  <namespace>thruster</namespace>\n"
             "  <joint_name>propeller_joint</joint_name>\n"
@@ -319,7 +360,8 @@ def gazebo_sdf(cal: Calibration, sec: DepthSection, created: str,
             f"  <fluid_density>{rho:.9g}</fluid_density>\n"
             f"  <propeller_diameter>{d:.9g}</propeller_diameter>\n"
             f"{clamp}{lag}"
-            "</plugin>\n")
+            + "".join(f"  <{tag}>{xml_text(text)}</{tag}>\n" for tag, text in texts.items())
+            + "</plugin>\n")
 
 
 def _xml_num(x: float | str) -> str:

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from rigtool.artefacts.encode import scalar_text
+
 MISSING = "nan"
 
 
@@ -79,15 +81,17 @@ def csv_cell(v: object) -> str:
             return MISSING
         s = f"{x:.9g}"
         return "0" if s == "-0" else s
-    return str(v).replace(",", ";")
+    return " ".join(scalar_text(str(v)).replace(",", ";").splitlines())
 
 
 def csv_text(comments: Sequence[str], columns: Sequence[tuple[str, str, str]],
              rows: Iterable[Sequence[object]]) -> str:
-    """CSV text: comment lines (split on newlines), one `# name [unit]: text` line per column,
-    the header row, then the rows."""
-    lines = [f"# {line}" for c in comments for line in (str(c).splitlines() or [""])]
-    lines += [f"# {name}{f' [{unit}]' if unit else ''}: {text}" for name, unit, text in columns]
-    lines.append(",".join(name for name, _, _ in columns))
+    """CSV text: comment lines, one `# name [unit]: text` line per column, the header row,
+    then the rows. Every comment is split on every line break Python knows (so no stored text
+    can start a row), and header cells are single cells."""
+    notes = [*comments, *(f"{name}{f' [{unit}]' if unit else ''}: {text}"
+                          for name, unit, text in columns)]
+    lines = [f"# {line}" for c in notes for line in (scalar_text(str(c)).splitlines() or [""])]
+    lines.append(",".join(csv_cell(name) for name, _, _ in columns))
     lines += [",".join(csv_cell(v) for v in row) for row in rows]
     return "\n".join(lines) + "\n"
