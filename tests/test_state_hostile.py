@@ -459,3 +459,34 @@ def test_fuzz_generated_trees(version: int, root: Any):
        st.booleans(), st.integers(0, 64))
 def test_fuzz_npy_headers(descr: Any, shape: Any, fortran: bool, n_data: int):
     event(outcome(blob({"$a": 0}, npy_header(descr, shape, fortran) + bytes(n_data))))
+
+
+def _retyped(blob: bytes, value: object) -> bytes:
+    """`blob` with the first float field of its first Coefficient set to `value`."""
+    with zipfile.ZipFile(io.BytesIO(blob)) as zf:
+        entries = {name: zf.read(name) for name in zf.namelist()}
+    tree = json.loads(entries["tree.json"])
+    stack = [tree["root"]]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, dict) and node.get("$c", "").startswith("fits.Coefficient"):
+            node["f"]["value"] = value
+            break
+        stack.extend(node.values() if isinstance(node, dict) else
+                     node if isinstance(node, list) else [])
+    else:
+        raise AssertionError("no Coefficient in the fixture")
+    entries["tree.json"] = json.dumps(tree).encode()
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, data in entries.items():
+            zf.writestr(name, data)
+    return out.getvalue()
+
+
+@pytest.mark.parametrize("value", ["abc", [1.0], {"$t": [1.0, 2.0]}, None])
+def test_a_field_of_the_wrong_type_is_refused_naming_it(value):
+    blob = (FIXTURES / "quick-demo-v2.blob").read_bytes()
+    with pytest.raises(StoreError, match=r"fits\.Coefficient/1 field 'value' holds"):
+        state.decode(_retyped(blob, value))
+    assert state.decode(_retyped(blob, 3)) is not None  # a whole number is a float in JSON

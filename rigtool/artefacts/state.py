@@ -29,11 +29,14 @@ says to calibrate again. `encode` refuses (StoreError) what `decode` would refus
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import json
 import math
 import struct
 import tokenize
+import types
+import typing
 import zipfile
 import zlib
 from collections.abc import Iterator
@@ -374,11 +377,61 @@ def _construct(cls: type, tag: str, values: dict[str, Any], *, strict: bool) -> 
                and f.default_factory is dataclasses.MISSING]
     if missing:
         raise _Bad(f"{tag} lacks field {missing[0]!r}")
+    hints = _hints(cls)
+    for k, v in values.items():
+        if not _conforms(v, hints.get(k, Any)):
+            raise _Bad(f"{tag} field {k!r} holds {_short(v)}, not {_hint_name(hints[k])}")
     obj = cls(**{k: v for k, v in values.items() if fields[k].init})
     for k, v in values.items():
         if not fields[k].init:
             object.__setattr__(obj, k, v)
     return obj
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    """The resolved field annotations of a registered class."""
+    return typing.get_type_hints(cls)
+
+
+def _conforms(value: Any, hint: Any) -> bool:
+    """Whether a decoded value fits a field's annotation (containers checked item by item;
+    an int passes for a float, as JSON writes whole floats)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is Any:
+        return True
+    if origin in (typing.Union, types.UnionType):
+        return any(_conforms(value, h) for h in args)
+    if hint is float:
+        return isinstance(value, int | float)
+    if origin is None:
+        if hint is type(None) or _unstored(hint):
+            return value is None  # an unregistered class is never encoded: stored as None
+        return not isinstance(hint, type) or isinstance(value, hint)
+    if not isinstance(value, origin):
+        return False
+    if origin is list and args:
+        return all(_conforms(v, args[0]) for v in value)
+    if origin is dict and args:
+        return all(_conforms(k, args[0]) and _conforms(v, args[1]) for k, v in value.items())
+    if origin is tuple and args:
+        if len(args) == 2 and args[1] is Ellipsis:
+            return all(_conforms(v, args[0]) for v in value)
+        return len(args) == len(value) and all(map(_conforms, value, args))
+    return True
+
+
+def _unstored(hint: Any) -> bool:
+    """A dataclass the registry does not hold (a fitted GP the state leaves out)."""
+    return dataclasses.is_dataclass(hint) and hint not in _REGISTERED
+
+
+_REGISTERED = frozenset(state_types.TYPES.values())
+
+
+def _hint_name(hint: Any) -> str:
+    """An annotation as a short text for messages."""
+    return getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
 
 
 def _short(value: Any, limit: int = 60) -> str:
