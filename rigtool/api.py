@@ -12,9 +12,9 @@ has `.to_pandas()` when pandas is installed.
 
 from __future__ import annotations
 
-import json
 import math
 import os
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,11 +23,18 @@ from typing import Any
 import numpy as np
 
 from rigtool.errors import UsageError
+from rigtool.files import decode_utf8, read_regular_bytes
+from rigtool.readback import MAX_JSON_BYTES, Invalid, calibration_document, parse_json, show
 from rigtool.store import DB_ENV, DEFAULT_DB, RunRecord, Store
 
 CALIBRATION_FILE = "calibration.json"
 CURVE_FILE = "command_curve.csv"
 LUT_FILE = "inverse_lut.csv"
+CURVE_NEEDS = ("depth_m", "command", "thrust_fit_n")  # columns load_calibration reads
+LUT_NEEDS = ("depth_m", "branch", "direction", "thrust_n", "command")
+MAX_CSV_BYTES = 32 << 20  # a calibration CSV (real ones: a few kB per depth)
+MAX_CSV_ROWS = 500_000
+MAX_CSV_COLUMNS = 64  # real ones have 6 or 13
 
 
 class Columns(dict):
@@ -71,8 +78,21 @@ def load_calibration(folder: str | os.PathLike[str]) -> Calibration:
     if not doc_path.is_file():
         raise UsageError(f"{root}: no {CALIBRATION_FILE} here (a calibrations/<run-id>/ folder "
                          "written by `rigtool calibrate`)")
-    document = json.loads(doc_path.read_text(encoding="utf-8"))
-    return Calibration(document, _read_csv(root / CURVE_FILE), _read_csv(root / LUT_FILE))
+    document = _read_document(doc_path)
+    curve, lut = _read_csv(root / CURVE_FILE, CURVE_NEEDS), _read_csv(root / LUT_FILE, LUT_NEEDS)
+    try:
+        return Calibration(document, curve, lut)
+    except UsageError as exc:
+        raise UsageError(f"{doc_path}: {exc}") from None
+
+
+def _read_document(path: Path) -> dict:
+    """calibration.json, size-capped, parsed with bounds and checked; UsageError names the field."""
+    data = read_regular_bytes(path, MAX_JSON_BYTES)
+    try:
+        return calibration_document(parse_json(data))
+    except Invalid as exc:
+        raise UsageError(f"{path}: {exc}") from None
 
 
 class Lab:
@@ -184,7 +204,7 @@ class StepDynamics:
         model = document["models"][self.selected]
         self.parameters: dict[str, Value] = {
             k: _coefficient_value(k, v) for k, v in model.items() if isinstance(v, dict)}
-        self.levels = {float(x["command"]): float(x["thrust_n"]) for x in document["levels"]}
+        self.levels = {float(x["command"]): _float(x["thrust_n"]) for x in document["levels"]}
 
     def __repr__(self) -> str:
         tau = self.parameters["tau_n"].value
@@ -299,7 +319,7 @@ class Calibration:
             raise ValueError(f"run {self.run_id} was not swept over supply voltages"
                              + ("" if d.depth_m is None else f" at {d.depth_m:g} m"))
         u = np.asarray(voltage, dtype=float)
-        return _like(voltage, law["k"]["value"] * u ** law["b"]["value"])
+        return _like(voltage, _float(law["k"].get("value")) * u ** _float(law["b"].get("value")))
 
     def thrust(self, command: Any, depth: float | None = None,
                voltage: float | None = None) -> Any:
@@ -440,23 +460,47 @@ def _columns(names: list[str], rows: Iterable[list[object]]) -> Columns:
     return out
 
 
-def _read_csv(path: Path) -> Columns:
-    """A calibration CSV (comment lines, header, rows; `nan` for missing) as columns."""
+def _read_csv(path: Path, needs: tuple[str, ...]) -> Columns:
+    """A size-capped UTF-8 calibration CSV (comments, header, rows; `nan` missing) as columns."""
     if not path.is_file():
         raise UsageError(f"{path} is missing: the calibration folder is incomplete")
-    numbered = [(i, ln) for i, ln in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
-                if ln and ln[0] != "#"]
+    text = decode_utf8(path, read_regular_bytes(path, MAX_CSV_BYTES))
+    numbered = [(i, ln) for i, ln in enumerate(text.splitlines(), 1) if ln and ln[0] != "#"]
     if not numbered:
         raise UsageError(f"{path}: no header row")
-    names = numbered[0][1].split(",")
+    if len(numbered) > MAX_CSV_ROWS + 1:
+        raise UsageError(f"{path}: {len(numbered) - 1:,} rows; the limit is {MAX_CSV_ROWS:,}")
+    names = _header(path, numbered[0], needs)
     rows = []
     for number, line in numbered[1:]:
-        cells = line.split(",")
+        cells = line.split(",", len(names))
         if len(cells) != len(names):
-            raise UsageError(f"{path}:{number}: {len(cells)} cells, the header has {len(names)}")
-        try:
-            rows.append([c if n in TEXT_COLUMNS else float(c) for n, c in zip(names, cells,
-                                                                              strict=True)])
-        except ValueError as exc:
-            raise UsageError(f"{path}:{number}: {exc}") from None
+            raise UsageError(f"{path}:{number}: {line.count(',') + 1} cells, the header has "
+                             f"{len(names)}")
+        rows.append([c if n in TEXT_COLUMNS else _cell(path, number, n, c)
+                     for n, c in zip(names, cells, strict=True)])
     return _columns(names, rows)
+
+
+def _cell(path: Path, number: int, name: str, cell: str) -> float:
+    """A numeric CSV cell; UsageError names the file, line and column of a bad one."""
+    try:
+        return float(cell)
+    except ValueError:
+        raise UsageError(f"{path}:{number}: could not convert {show(cell)} to a number "
+                         f"(column {show(name)})") from None
+
+
+def _header(path: Path, line: tuple[int, str], needs: tuple[str, ...]) -> list[str]:
+    """The column names of a calibration CSV's header line, each once, `needs` among them."""
+    number, text = line
+    names = text.split(",", MAX_CSV_COLUMNS)
+    if len(names) > MAX_CSV_COLUMNS:
+        raise UsageError(f"{path}:{number}: more than {MAX_CSV_COLUMNS} columns")
+    missing = [n for n in needs if n not in names]
+    if missing:
+        raise UsageError(f"{path}:{number}: no column {missing[0]!r} in the header")
+    repeated = [n for n, count in Counter(names).items() if count > 1]
+    if repeated:
+        raise UsageError(f"{path}:{number}: column {show(repeated[0])} appears twice")
+    return names

@@ -16,7 +16,7 @@ from rich.table import Column, Table
 from rich.text import Text
 
 from rigtool import __version__
-from rigtool.errors import RigtoolError, UsageError
+from rigtool.errors import DataError, RigtoolError, UsageError
 from rigtool.progress import default_reporter, stage
 from rigtool.store import DB_ENV, Store, resolve_db_path
 from rigtool.units import unit_label
@@ -44,7 +44,7 @@ def _fmt_duration(seconds: float) -> str:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from rigtool.sweep import (
-        open_checked,
+        check_dry_run,
         open_store,
         resolve,
         resume_sweep,
@@ -75,9 +75,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError("give a protocol file (or --resume RUN_ID)")
     setup = resolve(args.protocol, args.rig, args.sim, args.seed)
     if args.dry_run:
-        rigset = open_checked(setup, dry_run=True)
-        rigset.close()
-        _print_plan(setup, rigset.actuator.info.neutral)
+        _print_plan(setup, check_dry_run(setup).neutral)
         return 0
     store = open_store(args.db, setup.rig, setup.rig_path)
     try:
@@ -115,18 +113,24 @@ def _print_plan(setup, neutral: float) -> None:
     out.print(f"  commands: {p.command.n_values()} values in {unit}, order "
               f"{p.command.order}, {p.command.repeats} repeat(s)")
     out.print(f"  depths: {', '.join(f'{d:g} m' for d in depths)} ({p.depth.mode}, loop {p.depth.loop})")
+    if p.voltage is not None:
+        out.print(f"  supply voltages: {', '.join(f'{v:g} V' for v in p.voltage.voltages_v())} "
+                  f"({p.voltage.mode}, each held within {p.voltage.tolerance_frac:.0%})")
     out.print(f"  per point: settle {timing.settle.max_seconds():g} s max, acquire "
               f"{timing.acquire.n_samples} samples at {timing.acquire.rate_hz:g} Hz, rest {timing.rest_s:g} s; "
               f"tare {timing.tare}")
     out.print(f"  samples to store: {n * timing.acquire.n_samples:,}")
     out.print(f"  estimated duration on the rig: {_fmt_duration(estimate_duration_s(p, neutral))}")
-    table = Table("step", "command", "depth (m)", "repeat", "direction")
+    volts = p.voltage is not None
+    table = Table("step", "command", "depth (m)", *(["supply (V)"] if volts else []), "repeat",
+                  "direction")
     shown = list(range(n)) if n <= 6 else [0, 1, 2, n - 3, n - 2, n - 1]
     for i, idx in enumerate(shown):
         if n > 6 and i == 3:
-            table.add_row("...", "", "", "", "")
+            table.add_row("...", *[""] * (len(table.columns) - 1))
         s = step_at(p, idx)
-        table.add_row(str(s.idx), f"{s.command:g} {unit}", f"{s.depth_m:g}", str(s.repeat), s.direction)
+        table.add_row(str(s.idx), f"{s.command:g} {unit}", f"{s.depth_m:g}",
+                      *([f"{s.voltage_v:g}"] if volts else []), str(s.repeat), s.direction)
     out.print(table)
 
 
@@ -154,7 +158,8 @@ def cmd_show(args: argparse.Namespace) -> int:
                                 (run["status"], "bold"),
                                 f" ({run['stop_reason']})" if run["stop_reason"] else ""))
         out.print(f"  created {run['created_utc']}, finished {run['finished_utc'] or '-'}, "
-                  f"host {run['host']}, rigtool {run['tool_version']}, seed {run['seed']}")
+                  f"host {run['host']}, rigtool {run['tool_version']}"
+                  + ("" if run["seed"] is None else f", simulator seed {run['seed']}"))
         out.print(f"  rig: {run['rig'].get('name')}  protocol: {run['protocol_path']}")
         if run["actuator"]:
             out.print("  actuator: " + _actuator_text(run["actuator"]))
@@ -165,9 +170,10 @@ def cmd_show(args: argparse.Namespace) -> int:
         unit = unit_label(run["command_unit"])
         table = Table("depth (m)", "points", f"command ({unit})", "thrust mean (N)", "speed (r/min)",
                       "current (A)", title="per-depth summary")
-        for depth in sorted({s["depth_m"] for s in steps}):
+        depths = {s["depth_m"] for s in steps}  # None: an import that recorded no depth
+        for depth in sorted(depths, key=lambda d: (d is None, d or 0.0)):
             ds = [s for s in steps if s["depth_m"] == depth]
-            table.add_row(f"{depth:g}", str(len(ds)), _span(ds, "command"), _span(ds, "thrust_n_mean"),
+            table.add_row("not recorded" if depth is None else f"{depth:g}", str(len(ds)), _span(ds, "command"), _span(ds, "thrust_n_mean"),
                           _span(ds, "speed_rpm_mean"), _span(ds, "current_a_mean"))
         out.print(table)
         counts: dict[str, int] = {}
@@ -236,15 +242,19 @@ def cmd_merge(args: argparse.Namespace) -> int:
             raise UsageError(f"no run database at {src}")
         if target.exists() and src.resolve() == target.resolve():
             raise UsageError(f"{src} is the output: give another -o")
-    with Store(target) as store:
-        for src in sources:
-            with Store(src, read_only=True) as source, stage(f"merging {src}"):
-                report = store.merge_from(source)
-            out.print(f"{src}: {len(report['added'])} run(s) added, {len(report['skipped'])} "
-                      "already present")
-            for run_id in report["running"]:
-                err.print(f"warning: {src}: run {run_id} is still running: not merged "
-                          "(merge again when it has ended)")
+    with Store(target) as store, stage(f"merging {len(sources)} database(s) into {target}"):
+        try:
+            reports = store.merge_from(sources)
+        except DataError as exc:
+            raise DataError(f"{exc}; nothing was merged into {target}") from None
+        except UsageError as exc:
+            raise UsageError(f"{exc}; nothing was merged into {target}") from None
+    for src, report in zip(sources, reports, strict=True):
+        out.print(f"{src}: {len(report['added'])} run(s) added, {len(report['skipped'])} "
+                  "already present")
+        for run_id in report["running"]:
+            err.print(f"warning: {src}: run {run_id} is still running: not merged "
+                      "(merge again when it has ended)")
     return 0
 
 

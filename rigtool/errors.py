@@ -27,6 +27,13 @@ class StoreError(RigtoolError):
     """The run database cannot be opened or written."""
 
 
+class DataError(StoreError):
+    """Stored or read-back data is damaged or crafted; the message names the database or
+    file, the run and the field (exit status 2)."""
+
+    exit_status = 2
+
+
 class DeviceError(RigtoolError):
     """A device is missing, silent or reports a fault; the message names it."""
 

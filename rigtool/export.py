@@ -34,9 +34,10 @@ def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> li
     """Write <run>-points, <run>-samples and <run>-events files into `out_dir`; return them."""
     if fmt not in FORMATS:
         raise UsageError(f"unknown export format {fmt!r}; choose {' or '.join(FORMATS)}")
-    out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     with store.snapshot():  # points, samples and events of one moment, even mid-sweep
+        store.check_run(run_id)  # a damaged run is refused before any file is written
+        out_dir.mkdir(parents=True, exist_ok=True)
         record = store.run_record(run_id)
         for table in TABLES:
             path = inside(out_dir, f"{run_id}-{table}.{fmt}")
@@ -55,6 +56,8 @@ def export_all(store: Store, out_dir: Path) -> list[Path]:
     written = []
     with store.snapshot():
         records = [store.run_record(r) for r in store.run_ids()]
+        for rec in records:
+            store.check_run(rec.id)  # a damaged run is refused before any file is written
         for table in TABLES:
             folder = out_dir / table
             folder.mkdir(parents=True, exist_ok=True)

@@ -16,10 +16,11 @@ from rigtool.bounds import DepthM
 from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model
 from rigtool.devices.axes import rotation_deg, wrench_transform
-from rigtool.devices.base import Actuator, Clock, DepthStage, ForceSensor, Supply
+from rigtool.devices.base import Actuator, ActuatorInfo, Clock, DepthStage, ForceSensor, Supply
 from rigtool.devices.depth import ManualDepth, PresetDepth
 from rigtool.devices.manual_supply import ManualSupply
 from rigtool.devices.registry import (
+    ACTUATOR_INFO,
     ACTUATORS,
     SENSORS,
     STAGES,
@@ -205,6 +206,17 @@ def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset",
                      "sensor": rig.sensor.driver, "thrust": axis.model_dump()},
         transform=rig.mount.matrix() if rig.mount else None, supply=supply,
     )
+
+
+def rig_actuator_info(rig: Rig) -> ActuatorInfo:
+    """The actuator's command space from the rig file (or the twin's profile) alone."""
+    if rig.simulator is not None:
+        from rigtool.sim.profiles import profile_with_overrides
+
+        p = profile_with_overrides(rig.simulator.profile, dict(rig.simulator.overrides))
+        return ActuatorInfo(p.command_unit, p.neutral, p.command_min, p.command_max,
+                            tuple(p.feedback))
+    return ACTUATOR_INFO[rig.actuator.driver](rig.actuator)
 
 
 def _open_supply(rig: Rig, voltage_mode: str | None,

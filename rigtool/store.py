@@ -10,15 +10,17 @@ crash never leaves half a point. docs/performance.md has the measurements behind
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
 import json
 import logging
 import os
+import re
 import secrets
 import socket
 import sqlite3
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -26,7 +28,25 @@ from typing import Any
 
 import numpy as np
 
-from rigtool.errors import StoreError, UsageError
+from rigtool.errors import DataError, StoreError, UsageError
+from rigtool.readback import (
+    CALIBRATION_COLUMNS,
+    EVENT_COLUMNS,
+    MAX_CHUNK,
+    MAX_EVENT_BYTES,
+    MAX_ID_TEXT,
+    MAX_MERGE_RUNS,
+    MAX_PID,
+    MAX_STORED_CALIBRATIONS,
+    MAX_STORED_EVENTS,
+    MAX_STORED_POINTS,
+    RUN_COLUMNS,
+    STEP_COLUMNS,
+    Column,
+    Invalid,
+    event_detail,
+    show,
+)
 from rigtool.spool import SAMPLES_PER_CHUNK, SampleSpool
 
 log = logging.getLogger(__name__)
@@ -224,9 +244,27 @@ def new_run_id() -> str:
     return now.strftime("%Y%m%dT%H%M%S") + f"{now.microsecond // 1000:03d}Z-" + secrets.token_hex(3)
 
 
+RUN_ID_GRAMMAR = re.compile(r"\d{8}T\d{9}Z-[0-9a-f]{6}")  # what new_run_id makes
+
+
+def is_run_id(text: object) -> bool:
+    """Whether `text` is a run id as `new_run_id` makes them (safe as a file name)."""
+    return isinstance(text, str) and RUN_ID_GRAMMAR.fullmatch(text) is not None
+
+
+def run_label(run_id: object) -> str:
+    """A run id for a one-line message: as it is when well formed, else quoted and cut."""
+    return run_id if is_run_id(run_id) else show(run_id)  # type: ignore[return-value]
+
+
 def resolve_db_path(cli_value: str | None, rig_value: str | None = None) -> Path:
     """DB path from --db, then $RIGTOOL_DB, then the rig file, then ./rigtool.sqlite."""
     return Path(cli_value or os.environ.get(DB_ENV) or rig_value or DEFAULT_DB)
+
+
+def _is_pid(value: object) -> bool:
+    """Whether a stored pid is one a process could have (never 0, a group, or a text)."""
+    return isinstance(value, int) and 0 < value <= MAX_PID
 
 
 def _pid_alive(pid: int) -> bool:
@@ -281,6 +319,7 @@ class Store:
                 self._set_wal(timeout_s)
                 self.conn.execute("PRAGMA synchronous=NORMAL")
             self.conn.execute("PRAGMA foreign_keys=ON")
+            self.conn.text_factory = _utf8_text(f"run database {self.path}")
             if read_only:
                 self._check_readable()
             else:
@@ -364,10 +403,10 @@ class Store:
         try:
             rows = self.conn.execute(
                 "SELECT id, host, pid FROM runs WHERE status = 'running'").fetchall()
-        except sqlite3.DatabaseError:
+        except (sqlite3.DatabaseError, DataError):
             return
         dead = [run_id for run_id, run_host, pid in rows
-                if run_host == host and not _pid_alive(pid)]
+                if run_host == host and _is_pid(pid) and not _pid_alive(pid)]
         if not dead:
             return
         conn = self.conn
@@ -608,60 +647,71 @@ class Store:
                 "VALUES (?, ?, ?, ?, ?)",
                 [(run_id, r.get(t_key), kind, r.get(step_key), json.dumps(r)) for r in records])
 
-    def merge_from(self, source: Store) -> dict[str, list[str]]:
-        """Copy the runs of another store that this one lacks: run, points (new step ids),
-        samples, events and calibrations, one transaction per run. A run already here is
+    def merge_from(self, sources: Iterable[str | Path]) -> list[dict[str, list[str]]]:
+        """Copy the runs of other stores that this one lacks: run, points (new step ids),
+        samples, events and calibrations, every row checked first. A run already here is
         skipped, not duplicated; a run still marked running is left for a later merge.
-        Returns {"added": [...], "skipped": [...], "running": [...]}."""
-        if source.version != self.version:
-            raise UsageError(f"{source.path} has schema version {source.version}, this store "
-                             f"{self.version}: open both with the same rigtool first")
-        here = set(self.run_ids())
-        report: dict[str, list[str]] = {"added": [], "skipped": [], "running": []}
-        self.conn.execute("ATTACH DATABASE ? AS src", (str(source.path),))
+
+        The whole merge is one transaction: any refused row rolls all of it back. Sources
+        are opened read-only (immutable when they have no write-ahead log), so not even
+        their -wal or -shm files are created. Returns per source {"added": [...],
+        "skipped": [...], "running": [...]}.
+        """
+        opened = []
         try:
-            for run_id, status in source.conn.execute("SELECT id, status FROM runs ORDER BY id"):
-                key = "skipped" if run_id in here else "running" if status == "running" else None
-                if key:
-                    report[key].append(run_id)
-                    continue
-                with self.transaction() as conn:
-                    _copy_run(conn, run_id)
-                report["added"].append(run_id)
+            for path in sources:
+                opened.append(_MergeSource(Path(path), self.version))
+            with self.transaction():
+                here = set(self.run_ids())
+                return [src.copy_into(self.conn, here) for src in opened]
         finally:
-            self.conn.execute("DETACH DATABASE src")
-        return report
+            for src in opened:
+                src.close()
 
     # -- reading --------------------------------------------------------------------------
+    @property
+    def _read(self) -> _Reader:
+        """Checked reads from this store's connection."""
+        return _Reader(self.conn, f"run database {self.path}")
+
     def resolve_run_id(self, ref: str) -> str:
         """Accept a full id, an unambiguous literal id prefix, or `last`: the run most
         recently started or resumed. An empty or blank reference matches nothing."""
         if not ref.strip():
             raise UsageError(f"empty run id {ref!r}: give a run id, a prefix of one, or `last`")
+        self._read.find_bad(None, "runs", ("id", "started_utc"), "1", ())
         if ref == "last":
             row = self.conn.execute(
                 "SELECT id FROM runs ORDER BY started_utc DESC, id DESC LIMIT 1").fetchone()
             if row is None:
                 raise UsageError(f"no runs in {self.path} yet: run `rigtool sweep` first")
-            return row[0]
+            return self._run_id(row[0])
         rows = self.conn.execute(
             "SELECT id FROM runs WHERE substr(id, 1, ?) = ? ORDER BY id", (len(ref), ref)
         ).fetchall()
         if not rows:
             raise UsageError(f"no run {ref!r} in {self.path} (see `rigtool runs`)")
+        ids = [self._run_id(r[0]) for r in rows[:5]]
         if len(rows) > 1:
-            raise UsageError(f"run id prefix {ref!r} is ambiguous: {', '.join(r[0] for r in rows[:5])}")
-        return rows[0][0]
+            raise UsageError(f"run id prefix {ref!r} is ambiguous: {', '.join(ids)}")
+        return ids[0]
+
+    def _run_id(self, value: object) -> str:
+        """A run id read from the runs table, checked to be text."""
+        try:
+            return RUN_COLUMNS["id"].check(value)
+        except Invalid as exc:
+            raise self._read.damaged(value, "runs.id", str(exc)) from None
 
     def run(self, run_id: str) -> dict:
-        rows = self._dicts("SELECT * FROM runs WHERE id = ?", [run_id])
+        """The stored run: its columns, with protocol, rig, plan, metadata and actuator parsed
+        from JSON and checked (DataError names the run and the field)."""
+        rows = list(self._read.rows(run_id, "runs", tuple(RUN_COLUMNS), "id = ?", (run_id,)))
         if not rows:
             raise UsageError(f"no run {run_id!r} in {self.path}")
         out = rows[0]
-        for key in ("protocol_json", "rig_json", "plan_json", "metadata_json"):
-            out[key.removesuffix("_json")] = json.loads(out.pop(key))
-        actuator = out.pop("actuator_json")
-        out["actuator"] = None if actuator is None else json.loads(actuator)
+        for key in ("protocol_json", "rig_json", "plan_json", "metadata_json", "actuator_json"):
+            out[key.removesuffix("_json")] = out.pop(key)
         return out
 
     def run_record(self, run_id: str) -> RunRecord:
@@ -691,13 +741,10 @@ class Store:
 
     def points(self, run_id: str) -> dict[str, np.ndarray]:
         """A run's stored points as columns under POINT_COLUMNS' public names, in plan order."""
-        names = list(POINT_COLUMNS)
-        rows = self.conn.execute(
-            f"SELECT {', '.join(POINT_COLUMNS.values())} FROM steps WHERE run_id = ? "
-            "ORDER BY idx", (run_id,)).fetchall()
+        rows = self._step_rows(run_id, tuple(dict.fromkeys(POINT_COLUMNS.values())))
         out = {}
-        for i, name in enumerate(names):
-            values = [r[i] for r in rows]
+        for name, column in POINT_COLUMNS.items():
+            values = [r[column] for r in rows]
             if name in TEXT_POINT_COLUMNS:
                 out[name] = np.array(values, dtype=str)
             elif name in INT_POINT_COLUMNS:
@@ -705,6 +752,13 @@ class Store:
             else:
                 out[name] = np.array([np.nan if v is None else v for v in values], dtype=float)
         return out
+
+    def _step_rows(self, run_id: str, names: Sequence[str], where: str = "",
+                   parse: bool = False) -> list[dict]:
+        """Checked rows of a run's points in plan order (JSON parsed only if `parse`)."""
+        self._read.count(run_id, "steps", "run_id = ?", (run_id,), MAX_STORED_POINTS)
+        return list(self._read.rows(run_id, "steps", names, "run_id = ?" + where, (run_id,),
+                                    "ORDER BY idx", parse=parse))
 
     def sample_arrays(self, run_id: str, columns: Iterable[str] | None = None,
                       steps: Iterable[int] | None = None) -> dict[str, np.ndarray]:
@@ -722,6 +776,7 @@ class Store:
         """`sample_arrays` in chunks of about `batch` samples (stored blocks never split, so
         a chunk holds at most batch + SAMPLES_PER_CHUNK), for exports of any size."""
         cols = self._sample_names(columns)
+        self._read.check_blocks(run_id, "st.run_id = ?", (run_id,))
         sql = (f"SELECT st.idx, b.n{''.join(', b.' + c for c in cols[1:])} FROM sample_blocks b "
                "JOIN steps st ON st.id = b.step_id WHERE st.run_id = ?")
         args: list[Any] = [run_id]
@@ -759,42 +814,50 @@ class Store:
         return out
 
     def _decode(self, blob: bytes | None, n: int, column: str) -> np.ndarray:
-        """One stored column block as float64 (an absent channel: NaN)."""
+        """One stored column block as float64 (an absent channel: NaN), its count and size
+        checked before anything is allocated."""
+        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= SAMPLES_PER_CHUNK:
+            raise DataError(f"run database {self.path}: a block of column {column} claims "
+                            f"{show(n)} samples (0 .. {SAMPLES_PER_CHUNK:,} allowed); the file "
+                            "is damaged")
         if blob is None:
             return np.full(n, np.nan)
-        if len(blob) != n * BLOB_DTYPE.itemsize:
-            raise StoreError(f"run database {self.path}: a block of column {column} holds "
-                             f"{len(blob)} bytes for {n} samples; the file is damaged")
+        if not isinstance(blob, bytes) or len(blob) != n * BLOB_DTYPE.itemsize:
+            raise DataError(f"run database {self.path}: a block of column {column} holds "
+                            f"{show(blob)} for {n} samples; the file is damaged")
         return np.frombuffer(blob, dtype=BLOB_DTYPE)
-
-    def _dicts(self, sql: str, args: Iterable[Any] = ()) -> list[dict]:
-        """Rows of a query as dicts keyed by column name."""
-        cur = self.conn.execute(sql, tuple(args))
-        names = [d[0] for d in cur.description]
-        return [dict(zip(names, row, strict=True)) for row in cur.fetchall()]
 
     def run_ids(self) -> list[str]:
         """Every run id, oldest first."""
-        return [r[0] for r in self.conn.execute("SELECT id FROM runs ORDER BY id")]
+        self._read.find_bad(None, "runs", ("id",), "1", ())
+        return [self._run_id(r[0]) for r in self.conn.execute("SELECT id FROM runs ORDER BY id")]
 
     def runs(self, limit: int = 50) -> list[dict]:
-        return self._dicts(
-            "SELECT r.id, r.name, r.status, r.created_utc, r.n_planned, r.command_unit, "
+        """The newest `limit` runs: id, name, status, created_utc, n_planned, command_unit and
+        n_steps (stored points), each value checked."""
+        names = ("id", "name", "status", "created_utc", "n_planned", "command_unit")
+        self._read.find_bad(None, "runs", names, "1", ())
+        return self._read.listing(
+            f"SELECT {', '.join('r.' + n for n in names)}, "
             "(SELECT count(*) FROM steps s WHERE s.run_id = r.id) AS n_steps "
             "FROM runs r ORDER BY r.id DESC LIMIT ?", [limit])
 
     def steps(self, run_id: str) -> list[dict]:
-        return self._dicts("SELECT * FROM steps WHERE run_id = ? ORDER BY idx", [run_id])
+        """A run's stored points, every column checked (counters_json as stored text)."""
+        return self._step_rows(run_id, tuple(STEP_COLUMNS))
 
     def events(self, run_id: str, kind: str | None = None) -> list[dict]:
-        sql = "SELECT * FROM events WHERE run_id = ?"
-        args: list[Any] = [run_id]
+        """A run's events (of `kind`), oldest first, each `detail` parsed and checked."""
+        where, args = "run_id = ?", [run_id]
         if kind:
-            sql += " AND kind = ?"
+            where += " AND kind = ?"
             args.append(kind)
-        rows = self._dicts(sql + " ORDER BY id", args)
+        self._read.count(run_id, "events", where, args, MAX_STORED_EVENTS, "detail_json",
+                         MAX_EVENT_BYTES)
+        rows = list(self._read.rows(run_id, "events", tuple(EVENT_COLUMNS), where, args,
+                                    "ORDER BY id"))
         for r in rows:
-            r["detail"] = json.loads(r.pop("detail_json"))
+            r["detail"] = self._read.detail(run_id, r, r.pop("detail_json"))
         return rows
 
     def transport_counters(self, run_id: str) -> dict:
@@ -805,36 +868,47 @@ class Store:
         """
         totals: dict[str, dict[str, int]] = {}
         problems = []
-        rows = self.conn.execute("SELECT idx, counters_json FROM steps WHERE run_id = ? "
-                                 "AND counters_json IS NOT NULL ORDER BY idx", (run_id,))
-        for idx, text in rows:
+        rows = self._step_rows(run_id, ("idx", "counters_json"), " AND counters_json IS NOT NULL",
+                               parse=True)
+        for row in rows:
             bad = False
-            for role, counters in json.loads(text).items():
+            for role, counters in row["counters_json"].items():
                 into = totals.setdefault(role, {})
                 for name, n in counters.items():
                     into[name] = into.get(name, 0) + n
                     bad = bad or (n > 0 and name not in TRAFFIC_COUNTERS)
             if bad:
-                problems.append(idx)
+                problems.append(row["idx"])
         return {"totals": totals, "problem_points": problems}
 
     def latest_calibration(self, run_id: str) -> dict | None:
         """The run's most recent calibration record (with its `state` blob, None for one
         stored before schema v6), or None when it was never calibrated."""
-        row = self.conn.execute(
-            "SELECT id, created_utc, tool_version, out_dir, summary_json, state "
-            "FROM calibrations WHERE run_id = ? ORDER BY id DESC LIMIT 1", (run_id,)).fetchone()
-        if row is None:
+        names = ("id", "created_utc", "tool_version", "out_dir", "summary_json", "state")
+        self._read.count(run_id, "calibrations", "run_id = ?", (run_id,),
+                         MAX_STORED_CALIBRATIONS)
+        rows = list(self._read.rows(run_id, "calibrations", names, "run_id = ?", (run_id,),
+                                    "ORDER BY id DESC LIMIT 1"))
+        if not rows:
             return None
-        keys = ("id", "created_utc", "tool_version", "out_dir", "summary", "state")
-        out = dict(zip(keys, row, strict=True))
-        out["summary"] = json.loads(out["summary"])
+        out = rows[0]
+        out["summary"] = out.pop("summary_json")
         return out
+
+    def check_run(self, run_id: str) -> None:
+        """Check everything stored for a run, keeping nothing: DataError on the first bad value."""
+        with self.snapshot():
+            self.run(run_id)
+            self._step_rows(run_id, tuple(STEP_COLUMNS))
+            self.events(run_id)
+            self.latest_calibration(run_id)
+            self._read.check_blocks(run_id, "st.run_id = ?", (run_id,))
 
     def step_samples(self, step_id: int, columns: Iterable[str] = ("t_s", "thrust_n")
                      ) -> dict[str, np.ndarray]:
         """The samples of one stored point as float arrays (missing -> NaN), in time order."""
         cols = _checked_columns(columns)
+        self._read.check_blocks(None, "b.step_id = ?", (step_id,))
         blocks = self.conn.execute(f"SELECT n, {', '.join(cols)} FROM sample_blocks WHERE "
                                    "step_id = ? ORDER BY chunk", (step_id,)).fetchall()
         return {c: np.concatenate([self._decode(b[i], b[0], c) for b in blocks])
@@ -842,11 +916,13 @@ class Store:
 
     def samples(self, run_id: str, columns: Iterable[str] = SAMPLE_COLUMNS) -> dict[str, np.ndarray]:
         """All samples of a run as float arrays (missing -> NaN), in plan order, each point's
-        in acquisition order; one snapshot, so a sweep appending points is not half seen."""
+        in acquisition order; one snapshot, so a sweep appending points is not half seen.
+        Every block's count and sizes are checked before the arrays are allocated."""
         cols = _checked_columns(columns)
         names = ["st.id" if c == "step_id" else "b." + c for c in cols]
         join = "FROM sample_blocks b JOIN steps st ON st.id = b.step_id WHERE st.run_id = ?"
         with self.snapshot():
+            self._read.check_blocks(run_id, "st.run_id = ?", (run_id,))
             n = self.conn.execute(f"SELECT COALESCE(SUM(b.n), 0) {join}", (run_id,)).fetchone()[0]
             out = {c: np.empty(n) for c in cols}  # filled in place: 8 bytes per value, no copies
             cur = self.conn.execute(f"SELECT b.n, {', '.join(names)} {join} "
@@ -860,28 +936,369 @@ class Store:
                 filled += size
         return out
 
-def _columns_of(conn: sqlite3.Connection, table: str) -> list[str]:
-    return [r[1] for r in conn.execute(f"PRAGMA main.table_info({table})")]
+
+TABLES: dict[str, dict[str, Column]] = {
+    "runs": RUN_COLUMNS, "steps": STEP_COLUMNS, "events": EVENT_COLUMNS,
+    "calibrations": CALIBRATION_COLUMNS,
+}
+_ROW_KEYS = {"runs": ("id", "run"), "steps": ("idx", "point"), "events": ("id", "event"),
+             "calibrations": ("id", "calibration")}
+_BLOCK_OK = " AND ".join([
+    f"typeof(st.idx) = 'integer' AND st.idx BETWEEN 0 AND {MAX_STORED_POINTS - 1}",
+    f"typeof(b.n) = 'integer' AND b.n BETWEEN 0 AND {SAMPLES_PER_CHUNK}",
+    f"typeof(b.chunk) = 'integer' AND b.chunk BETWEEN 0 AND {MAX_CHUNK}",
+    "(b.n = 0 OR b.t_s IS NOT NULL)",
+    *(f"(b.{c} IS NULL OR (typeof(b.{c}) = 'blob' AND length(b.{c}) = "
+      f"{BLOB_DTYPE.itemsize} * b.n))" for c in SAMPLE_COLUMNS[1:])])
 
 
-def _copy_run(conn: sqlite3.Connection, run_id: str) -> None:
-    """Copy one run from the attached database `src` into `main`, giving its points new ids."""
-    def copy(table: str, where: str, skip: tuple[str, ...] = ("id",)) -> None:
-        cols = ", ".join(c for c in _columns_of(conn, table) if c not in skip)
-        conn.execute(f"INSERT INTO main.{table} ({cols}) SELECT {cols} FROM src.{table} {where}",
-                     (run_id,))
+class _Reader:
+    """Checked reads from one database: counts, types, ranges and lengths in SQL before
+    anything is fetched, JSON texts parsed with bounds and checked for shape after. A
+    failure is a DataError naming the database, the run and the field."""
 
-    copy("runs", "WHERE id = ?", skip=())
-    copy("steps", "WHERE run_id = ?")
-    copy("events", "WHERE run_id = ?")
-    copy("calibrations", "WHERE run_id = ?")
-    block_cols = [c for c in _columns_of(conn, "sample_blocks") if c not in ("id", "step_id")]
-    conn.execute(
-        f"INSERT INTO main.sample_blocks (step_id, {', '.join(block_cols)}) "
-        f"SELECT m.id, {', '.join('b.' + c for c in block_cols)} FROM src.sample_blocks b "
-        "JOIN src.steps ss ON ss.id = b.step_id "
-        "JOIN main.steps m ON m.run_id = ss.run_id AND m.idx = ss.idx "
-        "WHERE ss.run_id = ? ORDER BY ss.idx, b.chunk", (run_id,))
+    def __init__(self, conn: sqlite3.Connection, label: str) -> None:
+        self.conn = conn
+        self.label = label
+
+    def damaged(self, run_id: object, where: str, problem: str) -> DataError:
+        """The error for a stored value that fails its check."""
+        run = "" if run_id is None else f"run {run_label(run_id)}, "
+        return DataError(f"{self.label}: {run}{where}: {problem} (the database is damaged or "
+                         "was edited)")
+
+    def count(self, run_id: str, table: str, where: str, args: Sequence, cap: int,
+              size_column: str | None = None, max_bytes: int = 0) -> None:
+        """Refuse more than `cap` rows, or more than `max_bytes` in all in `size_column`."""
+        n, size = self.conn.execute(f"SELECT count(*), total(length({size_column or 'NULL'})) "
+                                    f"FROM {table} WHERE {where}", tuple(args)).fetchone()
+        if n > cap:
+            raise self.damaged(run_id, table, f"{n:,} rows; the limit is {cap:,}")
+        if size_column and size > max_bytes:
+            raise self.damaged(run_id, f"{table}.{size_column}",
+                               f"{int(size):,} bytes in all; the limit is {max_bytes:,}")
+
+    def find_bad(self, run_id: object, table: str, names: Sequence[str], where: str,
+                 args: Sequence) -> None:
+        """Refuse, before fetching it, a row with a value of the wrong type, range or length."""
+        columns = TABLES[table]
+        bad = [columns[n].bad_sql(n) for n in names]
+        key = _ROW_KEYS[table][0]
+        key_sql = f"substr({key}, 1, {MAX_ID_TEXT})" if table == "runs" else _probe(key)
+        row = self.conn.execute(
+            f"SELECT {', '.join(bad)}, rowid, {key_sql} FROM {table} "
+            f"WHERE ({where}) AND ({' OR '.join(bad)}) LIMIT 1", tuple(args)).fetchone()
+        if row is not None:
+            name = names[row.index(1)]
+            run_id = row[-1] if run_id is None and table == "runs" else run_id
+            raise self.damaged(run_id, self._field(table, {key: row[-1]}, name),
+                               self._problem(table, name, row[-2]))
+
+    def _problem(self, table: str, name: str, rowid: int) -> str:
+        """What is wrong with one stored value `find_bad` found, fetched only when small."""
+        column = TABLES[table][name]
+        size, value = self.conn.execute(
+            f"SELECT length({name}), CASE WHEN length({name}) <= {column.length_cap()} THEN "
+            f"{name} END FROM {table} WHERE rowid = ?", (rowid,)).fetchone()
+        if size is not None and size > column.length_cap():
+            if column.kind in ("int", "real"):
+                return f"expected a number, found {size:,} characters or bytes"
+            return f"{size:,} characters or bytes; the limit is {column.length_cap():,}"
+        try:
+            column.check(value)
+        except Invalid as exc:
+            return str(exc)
+        return f"{show(value)} is not a value rigtool writes"
+
+    def rows(self, run_id: object, table: str, names: Sequence[str], where: str,
+             args: Sequence, order: str = "", parse: bool = True) -> Iterator[dict]:
+        """The selected rows as checked dicts (JSON columns parsed when `parse`)."""
+        columns = TABLES[table]
+        self.find_bad(run_id, table, names, where, args)
+        texts = [n for n in names if columns[n].kind == "json"]
+        cur = self.conn.execute(f"SELECT {', '.join(names)} FROM {table} WHERE {where} {order}",
+                                tuple(args))
+        try:
+            for values in cur:
+                row = dict(zip(names, values, strict=True))
+                for name in texts:
+                    parsed = self._parsed(run_id, table, row, name)
+                    if parse:
+                        row[name] = parsed
+                yield row
+        except _NotUtf8 as exc:
+            raise self.damaged(run_id, table, exc.problem) from None
+
+    def _parsed(self, run_id: object, table: str, row: dict, name: str) -> Any:
+        """A fetched JSON column parsed and checked against its shape."""
+        try:
+            return TABLES[table][name].check(row[name])
+        except Invalid as exc:
+            raise self.damaged(run_id, self._field(table, row, name), str(exc)) from None
+
+    @staticmethod
+    def _field(table: str, row: dict, name: str) -> str:
+        """Where a value sits, for a message: `point 3, steps.command`."""
+        key, label = _ROW_KEYS[table]
+        if table == "runs" or key not in row:
+            return f"{table}.{name}"
+        return f"{label} {show(row[key])}, {table}.{name}"
+
+    def listing(self, sql: str, args: Sequence) -> list[dict]:
+        """Rows of a query over values already checked, as dicts keyed by column name."""
+        try:
+            cur = self.conn.execute(sql, tuple(args))
+            names = [d[0] for d in cur.description]
+            return [dict(zip(names, row, strict=True)) for row in cur]
+        except _NotUtf8 as exc:
+            raise self.damaged(None, "runs", exc.problem) from None
+
+    def detail(self, run_id: str, row: dict, detail: Any) -> Any:
+        """An event's parsed detail, checked against the shape its kind needs."""
+        try:
+            return event_detail(row["kind"], detail)
+        except Invalid as exc:
+            field = self._field("events", row, "detail_json")
+            raise self.damaged(run_id, field, str(exc)) from None
+
+    def check_blocks(self, run_id: str | None, where: str, args: Sequence) -> None:
+        """Refuse, before any is decoded, a selected block of a bad count, number or size."""
+        row = self.conn.execute(
+            "SELECT b.id, substr(st.run_id, 1, ?) FROM sample_blocks b JOIN steps st "
+            f"ON st.id = b.step_id WHERE ({where}) AND NOT ({_BLOCK_OK}) LIMIT 1",
+            (MAX_ID_TEXT, *args)).fetchone()
+        if row is not None:
+            raise self.damaged(row[1] if run_id is None else run_id, *self._block_problem(row[0]))
+
+    def _block_problem(self, block_id: int) -> tuple[str, str]:
+        """(where, problem) of a block `check_blocks` refused."""
+        probes = ", ".join(f"typeof(b.{c}), length(b.{c})" for c in SAMPLE_COLUMNS[1:])
+        idx, n, chunk, *sizes = self.conn.execute(
+            f"SELECT {_probe('st.idx')}, {_probe('b.n')}, {_probe('b.chunk')}, {probes} "
+            "FROM sample_blocks b JOIN steps st ON st.id = b.step_id WHERE b.id = ?",
+            (block_id,)).fetchone()
+        point = f"point {show(idx)}, block {show(chunk)}"
+        for name, value, hi in (("steps.idx", idx, MAX_STORED_POINTS - 1),
+                                ("sample_blocks.n", n, SAMPLES_PER_CHUNK),
+                                ("sample_blocks.chunk", chunk, MAX_CHUNK)):
+            try:
+                Column("int", lo=0, hi=hi).check(value)
+            except Invalid as exc:
+                return f"{point}, {name}", str(exc)
+        for c, kind, size in zip(SAMPLE_COLUMNS[1:], sizes[::2], sizes[1::2], strict=True):
+            if kind == "null" and c == "t_s" and n > 0:
+                return f"{point}, sample_blocks.t_s", f"missing for n = {n:,} samples"
+            if kind not in ("null", "blob"):
+                return f"{point}, sample_blocks.{c}", f"expected a blob, found {kind}"
+            if kind == "blob" and size != BLOB_DTYPE.itemsize * n:
+                return (f"{point}, sample_blocks.{c}",
+                        f"{size:,} bytes for n = {n:,} samples of {BLOB_DTYPE.itemsize} bytes")
+        return point, "not a block rigtool writes"
+
+
+class _NotUtf8(DataError):
+    """A stored text that is not UTF-8, met while a row is fetched."""
+
+    def __init__(self, label: str, raw: bytes) -> None:
+        self.problem = f"a text is not UTF-8 ({show(raw)})"
+        super().__init__(f"{label}: {self.problem} (the database is damaged or was edited)")
+
+
+def _utf8_text(label: str) -> Callable[[bytes], str]:
+    """A connection's text factory: UTF-8, and a DataError for anything else."""
+    def decode(raw: bytes) -> str:
+        """`raw` as UTF-8 text."""
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise _NotUtf8(label, raw) from None
+    return decode
+
+
+def _probe(column: str) -> str:
+    """SQL giving a column's number as it is, anything else as a short text."""
+    return (f"CASE WHEN typeof({column}) IN ('integer', 'real') THEN {column} "
+            f"ELSE typeof({column}) || ' ' || quote(substr({column}, 1, 20)) END")
+
+
+class _MergeSource:
+    """A run database to merge from: opened read-only, checked to have exactly rigtool's
+    schema, read through explicit column lists, every row checked before it is copied."""
+
+    def __init__(self, path: Path, version: int) -> None:
+        self.path = path
+        self.conn = _open_source(path)
+        self.read = _Reader(self.conn, f"merge source {path}")
+        try:
+            self._check_schema(version)
+        except BaseException:
+            self.conn.close()
+            raise
+
+    def close(self) -> None:
+        """Close the source; it was never written to."""
+        self.conn.close()
+
+    def _check_schema(self, version: int) -> None:
+        """Refuse another schema version, a view, a trigger, or any table not rigtool's."""
+        try:
+            found = self.conn.execute("PRAGMA user_version").fetchone()[0]
+            problem = _schema_difference(self.conn)
+        except sqlite3.DatabaseError as exc:
+            raise DataError(f"merge source {self.path}: not a readable SQLite database "
+                            f"({exc})") from None
+        if found != version:
+            raise UsageError(f"{self.path} has schema version {found}, this store {version}: "
+                             "open both with the same rigtool first (a writing command such as "
+                             "`rigtool calibrate` upgrades an older store)")
+        if problem:
+            raise DataError(f"merge source {self.path}: {problem}; only the tables rigtool "
+                            "makes are merged")
+
+    def copy_into(self, target: sqlite3.Connection, here: set[str]) -> dict[str, list[str]]:
+        """Copy the finished runs `here` lacks into `target` (in its transaction)."""
+        report: dict[str, list[str]] = {"added": [], "skipped": [], "running": []}
+        run_id = None
+        self.conn.execute("BEGIN")
+        try:
+            for run_id in self._run_ids():
+                if run_id in here:
+                    report["skipped"].append(run_id)
+                    continue
+                (run,) = self.read.rows(run_id, "runs", tuple(RUN_COLUMNS), "id = ?", (run_id,),
+                                        parse=False)
+                if run["status"] == "running":
+                    report["running"].append(run_id)
+                    continue
+                self._copy_run(target, run)
+                here.add(run_id)
+                report["added"].append(run_id)
+        except sqlite3.IntegrityError as exc:
+            raise self.read.damaged(run_id, "copying it", str(exc)) from None
+        except sqlite3.OperationalError:
+            raise
+        except sqlite3.DatabaseError as exc:
+            raise DataError(f"merge source {self.path}: cannot be read ({exc})") from None
+        finally:
+            self.conn.execute("ROLLBACK")
+        return report
+
+    def _run_ids(self) -> list[str]:
+        """The source's run ids, each in the run-id grammar (it names output folders)."""
+        self.read.count(None, "runs", "1", (), MAX_MERGE_RUNS)
+        self.read.find_bad(None, "runs", ("id",), "1", ())
+        ids = [r[0] for r in self.conn.execute("SELECT id FROM runs ORDER BY id")]
+        for run_id in ids:
+            if not is_run_id(run_id):
+                raise self.read.damaged(run_id, "runs.id", "not a run id rigtool makes "
+                                        "(YYYYMMDDThhmmssmmmZ-xxxxxx)")
+        return ids
+
+    def _copy_run(self, target: sqlite3.Connection, run: dict) -> None:
+        """One checked run, its points, samples, events and calibrations (new row ids)."""
+        run_id = run["id"]
+        _insert(target, "runs", run)
+        self.read.count(run_id, "steps", "run_id = ?", (run_id,), MAX_STORED_POINTS)
+        points = {}
+        for step in self.read.rows(run_id, "steps", tuple(STEP_COLUMNS), "run_id = ?",
+                                   (run_id,), "ORDER BY idx", parse=False):
+            points[step["idx"]] = (_insert(target, "steps", step, skip="id"), step["n"])
+        self._copy_blocks(target, run_id, points)
+        self.read.count(run_id, "events", "run_id = ?", (run_id,), MAX_STORED_EVENTS,
+                        "detail_json", MAX_EVENT_BYTES)
+        for event in self.read.rows(run_id, "events", tuple(EVENT_COLUMNS), "run_id = ?",
+                                    (run_id,), "ORDER BY id", parse=False):
+            self.read.detail(run_id, event, EVENT_COLUMNS["detail_json"].check(
+                event["detail_json"]))
+            _insert(target, "events", event, skip="id")
+        self.read.count(run_id, "calibrations", "run_id = ?", (run_id,),
+                        MAX_STORED_CALIBRATIONS)
+        for cal in self.read.rows(run_id, "calibrations", tuple(CALIBRATION_COLUMNS),
+                                  "run_id = ?", (run_id,), "ORDER BY id", parse=False):
+            _insert(target, "calibrations", cal, skip="id")
+
+    def _copy_blocks(self, target: sqlite3.Connection, run_id: str,
+                     points: dict[int, tuple[int, int]]) -> None:
+        """The run's checked blocks under the new point ids; each must add up to its `n`."""
+        self.read.check_blocks(run_id, "st.run_id = ?", (run_id,))
+        cols = ("chunk", "n", *SAMPLE_COLUMNS[1:])
+        held = dict.fromkeys(points, 0)
+        for idx, *values in self.conn.execute(
+                f"SELECT st.idx, {', '.join('b.' + c for c in cols)} FROM sample_blocks b "
+                "JOIN steps st ON st.id = b.step_id WHERE st.run_id = ? "
+                "ORDER BY st.idx, b.chunk", (run_id,)):
+            target.execute(INSERT_BLOCK, (points[idx][0], *values))
+            held[idx] += values[1]
+        for idx, (_, n) in points.items():
+            if held[idx] != n:
+                raise self.read.damaged(run_id, f"point {idx}, steps.n",
+                                        f"{n:,} samples, but its blocks hold {held[idx]:,}")
+
+
+def _insert(conn: sqlite3.Connection, table: str, row: dict, skip: str = "") -> int:
+    """Insert a checked row into `main.table` by explicit columns; the new row id."""
+    names = [k for k in row if k != skip]
+    cur = conn.execute(f"INSERT INTO main.{table} ({', '.join(names)}) VALUES "
+                       f"({', '.join('?' * len(names))})", [row[k] for k in names])
+    return cur.lastrowid
+
+
+def _open_source(path: Path) -> sqlite3.Connection:
+    """`path` read-only, query-only, and immutable unless its -wal holds commits."""
+    if not path.is_file():
+        raise UsageError(f"no run database at {path}")
+    wal = path.with_name(path.name + "-wal")
+    live = wal.exists() and wal.stat().st_size > 0
+    uri = path.resolve().as_uri() + ("?mode=ro" if live else "?mode=ro&immutable=1")
+    try:
+        conn = sqlite3.connect(uri, uri=True, isolation_level=None)
+        conn.text_factory = _utf8_text(f"merge source {path}")
+        conn.execute("PRAGMA query_only = ON")
+        conn.execute("PRAGMA trusted_schema = OFF")
+    except sqlite3.Error as exc:
+        raise DataError(f"merge source {path}: cannot be opened ({exc})") from None
+    return conn
+
+
+_SCHEMA_OBJECTS = ("SELECT type, name, tbl_name FROM sqlite_master WHERE NOT (type = 'table' "
+                   "AND name LIKE 'sqlite\\_%' ESCAPE '\\') LIMIT 1000")
+
+
+@functools.cache
+def _expected_schema() -> tuple[frozenset, dict[str, list]]:
+    """The schema objects and table columns of a store this rigtool creates."""
+    conn = sqlite3.connect(":memory:")
+    try:
+        create_schema(conn)
+        objects = frozenset(conn.execute(_SCHEMA_OBJECTS).fetchall())
+        return objects, {t: _table_info(conn, t) for t in (*TABLES, "sample_blocks")}
+    finally:
+        conn.close()
+
+
+def _table_info(conn: sqlite3.Connection, table: str) -> list:
+    """A table's columns, and its kind (a WITHOUT ROWID or STRICT table is not rigtool's)."""
+    kind = conn.execute("SELECT type, wr, strict FROM pragma_table_list WHERE schema = 'main' "
+                        "AND name = ?", (table,)).fetchall()
+    return [*kind, *conn.execute(f"PRAGMA main.table_info({table})").fetchall()]
+
+
+def _schema_difference(conn: sqlite3.Connection) -> str | None:
+    """What sets a database's schema apart from rigtool's (None: nothing)."""
+    objects, columns = _expected_schema()
+    found = set(conn.execute(_SCHEMA_OBJECTS).fetchall())
+    if len(found) >= 1000:
+        return "it has 1,000 or more tables, views, indexes or triggers"
+    extra = sorted(found - objects, key=lambda o: (o[0] not in ("view", "trigger"), str(o)))
+    missing = sorted(objects - found)
+    if extra:
+        return f"it has a {extra[0][0]} {show(extra[0][1])} that rigtool does not make"
+    if missing:
+        return f"it has no {missing[0][0]} {missing[0][1]}"
+    for table, expected in columns.items():
+        if _table_info(conn, table) != expected:
+            return f"its table {table} has other columns than rigtool's"
+    return None
 
 
 INSERT_BLOCK = (f"INSERT INTO sample_blocks (step_id, chunk, n, {', '.join(SAMPLE_COLUMNS[1:])}) "

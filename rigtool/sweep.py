@@ -16,12 +16,13 @@ from pydantic import ValidationError
 from rigtool import __version__
 from rigtool.bounds import MAX_RUN_S, MAX_SEED
 from rigtool.config import locate
+from rigtool.devices.base import ActuatorInfo
 from rigtool.engine import Engine, Outcome
 from rigtool.errors import ConfigError, StoreError, UsageError
 from rigtool.files import UnreadableFile
 from rigtool.plan import PlanStep, estimate_duration_s, expand, step_at
 from rigtool.protocol import Protocol, load_protocol
-from rigtool.rig import Rig, RigSet, load_rig, open_rig, sim_rig
+from rigtool.rig import Rig, RigSet, load_rig, open_rig, rig_actuator_info, sim_rig
 from rigtool.store import DB_ENV, Store, resolve_db_path
 
 
@@ -94,10 +95,9 @@ def open_store(cli_db: str | None, rig: Rig | None, rig_path: Path | None,
         raise ConfigError([f"{locate(rig_path, ('db',))}: db: {exc}"]) from None
 
 
-def check_compatible(setup: SweepSetup, rigset: RigSet) -> None:
+def check_compatible(setup: SweepSetup, info: ActuatorInfo) -> None:
     """The protocol's commands must be in the actuator's unit and range, and the run, ramps
     included, must fit MAX_RUN_S now that the actuator's neutral is known."""
-    info = rigset.actuator.info
     cmd = setup.protocol.command
     path = setup.protocol_path
     problems = []
@@ -155,22 +155,31 @@ def check_supply(setup: SweepSetup) -> None:
                            f"({rig.supply.max_voltage_v:g} V) in rig {rig.name!r}"])
 
 
-def open_checked(setup: SweepSetup, start_idx: int = 0, dry_run: bool = False) -> RigSet:
-    """Open the rig's devices and check the protocol against them (closing them on failure).
-    A dry run never opens the supply: it is checked against the rig file only."""
+def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
+    """Open the rig's devices and check the protocol against them (closing them on failure)."""
     check_depth_source(setup)
     check_supply(setup)
     voltage = setup.protocol.voltage
     rigset = open_rig(setup.rig, start_depth_m=step_at(setup.protocol, start_idx).depth_m,
                       depth_mode=setup.protocol.depth.mode,
-                      voltage_mode=voltage.mode if voltage and not dry_run else None,
+                      voltage_mode=voltage.mode if voltage else None,
                       current_limit_a=setup.protocol.limits.max_current_a)
     try:
-        check_compatible(setup, rigset)
+        check_compatible(setup, rigset.actuator.info)
     except BaseException:
         rigset.close()
         raise
     return rigset
+
+
+def check_dry_run(setup: SweepSetup) -> ActuatorInfo:
+    """Every check a sweep makes before it moves, from the files alone: a dry run opens,
+    commands and changes no device. Returns the actuator's command space (its neutral)."""
+    check_depth_source(setup)
+    check_supply(setup)
+    info = rig_actuator_info(setup.rig)
+    check_compatible(setup, info)
+    return info
 
 
 RESUMABLE = ("interrupted", "aborted", "failed")

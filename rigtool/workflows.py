@@ -11,10 +11,11 @@ from typing import TYPE_CHECKING
 
 import rigtool
 from rigtool.artefacts import state
-from rigtool.errors import UsageError
+from rigtool.errors import DataError, UsageError
 from rigtool.outpaths import run_folder
 from rigtool.progress import stage
-from rigtool.store import Store, utc_now
+from rigtool.readback import brief
+from rigtool.store import Store, is_run_id, run_label, utc_now
 
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration
@@ -113,9 +114,38 @@ def stored_results(store: Store, run_id: str) -> Results:
         when = "" if record is None else " by this rigtool version"
         raise UsageError(f"run {run_id} has not been calibrated{when}: run "
                          f"`rigtool calibrate {run_id}` first (the report shows what it stored)")
-    data = state.decode(record["state"])
+    data = _stored_state(record["state"], run_id, store.path)
     return Results(run_id, record["created_utc"], data["calibration"], data["cavitation"],
-                   list(data["notes"]), Path(record["out_dir"]))
+                   data["notes"], Path(record["out_dir"]))
+
+
+def _stored_state(blob: bytes, run_id: str, db: Path) -> dict:
+    """The results a state blob holds, checked to be this run's; DataError otherwise."""
+    try:
+        data = state.decode(blob)
+    except Exception as exc:  # the blob is untrusted: every failure means "calibrate again"
+        raise _bad_state(db, run_id, f"is unreadable ({brief(exc)})") from None
+    if not isinstance(data, dict) or not {"calibration", "cavitation", "notes"} <= data.keys():
+        raise _bad_state(db, run_id, "is not the results `rigtool calibrate` stores")
+    cal, cav, notes = data["calibration"], data["cavitation"], data["notes"]
+    if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
+        raise _bad_state(db, run_id, "has notes that are not a list of texts")
+    if cal is not None:
+        from rigtool.analysis.calibrate import Calibration
+
+        if not isinstance(cal, Calibration):
+            raise _bad_state(db, run_id, f"holds a {type(cal).__name__}, not a calibration")
+        if cal.run_id != run_id:
+            raise _bad_state(db, run_id, f"is the calibration of run {run_label(cal.run_id)}")
+    if cav is not None and type(cav).__name__ != "CavitationResult":
+        raise _bad_state(db, run_id, f"holds a {type(cav).__name__}, not a cavitation result")
+    return {"calibration": cal, "cavitation": cav, "notes": list(notes)}
+
+
+def _bad_state(db: Path, run_id: str, problem: str) -> DataError:
+    """The error for a stored calibration state that cannot be used."""
+    return DataError(f"run database {db}: run {run_label(run_id)}, calibrations.state: the "
+                     f"stored calibration {problem}; run `rigtool calibrate` on it again")
 
 
 def report(store: Store, run_ref: str, out_dir: str | Path = "calibrations", *,
@@ -138,7 +168,10 @@ def calibration_of(store: Store, run_id: str) -> Calibration:
 
     record = store.latest_calibration(run_id)
     if record is not None and record["state"] is not None:
-        return state.decode(record["state"])["calibration"]
+        cal = _stored_state(record["state"], run_id, store.path)["calibration"]
+        if cal is None:
+            raise UsageError(f"run {run_id} has no points: there is no calibration to compare")
+        return cal
     with stage(f"calibrating run {run_id}"):
         return calibrate_run(store, run_id)
 
@@ -175,6 +208,10 @@ def export_calibration(store: Store, run_ref: str, out_dir: str | Path, formats:
     from rigtool.artefacts.vehicle import DynamicsSource, write_vehicle_artefacts
 
     run_id = store.resolve_run_id(run_ref)
+    if not is_run_id(run_id):
+        raise DataError(f"run database {store.path}: run {run_label(run_id)}, runs.id: not a "
+                        "run id rigtool makes, and vehicle artefacts take their folder and names "
+                        "from it: not exported")
     res = results or stored_results(store, run_id)
     cal = res.calibration
     if cal is None:

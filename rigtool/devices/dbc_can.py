@@ -174,6 +174,51 @@ def encode_signal(message, name: str, value: float) -> bytes:
     return message.encode(data, scaling=True, strict=True)
 
 
+def signal_message(db: cantools.database.can.Database, path: Path,
+                   ref: SignalRef | CommandRef | FaultRef | EnableRef, where: str):
+    """The DBC message `ref` names, checking that it has `ref.signal`."""
+    try:
+        message = db.get_message_by_name(ref.message)
+    except KeyError:
+        known = ", ".join(m.name for m in db.messages)
+        raise UsageError(f"dbc-can {where}: no message {ref.message!r} in {path} "
+                         f"(messages: {known})") from None  # fmt: skip
+    names = [s.name for s in message.signals]
+    if ref.signal not in names:
+        raise UsageError(f"dbc-can {where}: message {ref.message} has no signal "
+                         f"{ref.signal!r} (signals: {', '.join(names)})")  # fmt: skip
+    return message
+
+
+def command_range(config: DbcCanConfig, message) -> tuple[float, float]:
+    """The command range: the rig file's, else the command signal's in the DBC."""
+    cmd = config.command
+    signal = message.get_signal_by_name(cmd.signal)
+    ends = [x / cmd.scale for x in (signal.minimum, signal.maximum) if x is not None]
+    lo = cmd.min if cmd.min is not None else (min(ends) if len(ends) == 2 else None)
+    hi = cmd.max if cmd.max is not None else (max(ends) if len(ends) == 2 else None)
+    if lo is None or hi is None:
+        raise UsageError(f"dbc-can command: signal {cmd.signal} has no range in the DBC; "
+                         "give command.min and command.max")  # fmt: skip
+    if not lo <= config.neutral <= hi:
+        raise UsageError(f"dbc-can: neutral {config.neutral:g} outside the command "
+                         f"range [{lo:g}, {hi:g}]")  # fmt: skip
+    return lo, hi
+
+
+def actuator_info(config: DbcCanConfig) -> ActuatorInfo:
+    """The command space the engine sees, from the rig file and its DBC (no bus opened)."""
+    c = resolve(config)
+    path = Path(c.dbc) if c.dbc is not None else SHIPPED_DBC
+    db = load_dbc(path)
+    fb = c.feedback or FeedbackMap()
+    fields = tuple(k for k in FEEDBACK_FIELDS if getattr(fb, k) is not None)
+    for k in fields:
+        signal_message(db, path, getattr(fb, k), f"feedback.{k}")
+    lo, hi = command_range(c, signal_message(db, path, c.command, "command"))
+    return ActuatorInfo(c.command.unit, c.neutral, lo, hi, fields)
+
+
 class DbcCanDriver(CanActuator):
     """Actuator on a DBC-described CAN drive."""
 
@@ -198,7 +243,8 @@ class DbcCanDriver(CanActuator):
             self._fault_id = self._listen(fault_msg)
             self._fault_signal = fault_msg.get_signal_by_name(c.fault.signal)
         self._enable_msg = self._signal_message(c.enable, "enable") if c.enable else None
-        self.info = ActuatorInfo(c.command.unit, c.neutral, *self._range(), self._fields)
+        self.info = ActuatorInfo(c.command.unit, c.neutral, *command_range(c, self._cmd_msg),
+                                 self._fields)
         self._feedback = FeedbackBuffer(self._fields)
         self._fault: str | None = None
         self._last_rx: float | None = None
@@ -248,18 +294,7 @@ class DbcCanDriver(CanActuator):
     # ----- internals -----
 
     def _signal_message(self, ref: SignalRef | CommandRef | FaultRef | EnableRef, where: str):
-        """The DBC message `ref` names, checking that it has `ref.signal`."""
-        try:
-            message = self.db.get_message_by_name(ref.message)
-        except KeyError:
-            known = ", ".join(m.name for m in self.db.messages)
-            raise UsageError(f"dbc-can {where}: no message {ref.message!r} in {self.dbc_path} "
-                             f"(messages: {known})") from None  # fmt: skip
-        names = [s.name for s in message.signals]
-        if ref.signal not in names:
-            raise UsageError(f"dbc-can {where}: message {ref.message} has no signal "
-                             f"{ref.signal!r} (signals: {', '.join(names)})")  # fmt: skip
-        return message
+        return signal_message(self.db, self.dbc_path, ref, where)
 
     def _frame_id(self, message) -> int:
         return message.frame_id + self.config.node_id
@@ -270,20 +305,6 @@ class DbcCanDriver(CanActuator):
         self._rx_messages[frame_id] = message
         self._rx.setdefault(frame_id, {})
         return frame_id
-
-    def _range(self) -> tuple[float, float]:
-        cmd = self.config.command
-        signal = self._cmd_msg.get_signal_by_name(cmd.signal)
-        ends = [x / cmd.scale for x in (signal.minimum, signal.maximum) if x is not None]
-        lo = cmd.min if cmd.min is not None else (min(ends) if len(ends) == 2 else None)
-        hi = cmd.max if cmd.max is not None else (max(ends) if len(ends) == 2 else None)
-        if lo is None or hi is None:
-            raise UsageError(f"dbc-can command: signal {cmd.signal} has no range in the DBC; "
-                             "give command.min and command.max")  # fmt: skip
-        if not lo <= self.config.neutral <= hi:
-            raise UsageError(f"dbc-can: neutral {self.config.neutral:g} outside the command "
-                             f"range [{lo:g}, {hi:g}]")  # fmt: skip
-        return lo, hi
 
     def _neutral_frame(self) -> can.Message:
         return self._command_frame(self.config.neutral)

@@ -146,13 +146,23 @@ def fault_name(code: int) -> str:
     return f"FAULT_CODE_{FAULT_NAMES[code] if code < len(FAULT_NAMES) else code}"
 
 
+def actuator_info(config: VescCanConfig) -> ActuatorInfo:
+    """The command space the engine sees, from the rig file alone (a dry run opens nothing)."""
+    if config.unit == "percent":
+        lo, hi = -100.0, 100.0
+    else:
+        limit = config.max_erpm / config.pole_pairs if config.unit == "rpm" else config.max_current_a
+        lo, hi = -limit, limit
+    return ActuatorInfo(config.unit, 0.0, lo, hi, FEEDBACK_FIELDS)
+
+
 class VescCanDriver(CanActuator):
     """Actuator on a VESC: commands in percent, r/min or A; feedback from its status frames."""
 
     def __init__(self, config: VescCanConfig) -> None:
         self.config = c = config
         self.name = f"VESC {c.controller_id}"
-        self.info = ActuatorInfo(c.unit, 0.0, *self._range(), FEEDBACK_FIELDS)
+        self.info = actuator_info(c)
         self._packet = {"duty": SET_DUTY, "current": SET_CURRENT, "rpm": SET_RPM}[c.mode]
         self._feedback = FeedbackBuffer()
         self._fault = 0
@@ -192,12 +202,6 @@ class VescCanDriver(CanActuator):
 
     # ----- internals -----
 
-    def _range(self) -> tuple[float, float]:
-        c = self.config
-        if c.unit == "percent":
-            return -100.0, 100.0
-        limit = c.max_erpm / c.pole_pairs if c.unit == "rpm" else c.max_current_a
-        return -limit, limit
 
     def _to_protocol(self, value: float) -> float:
         """Command in info.command_unit -> duty, A or ERPM (clipped to the range first)."""

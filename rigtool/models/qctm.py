@@ -25,12 +25,13 @@ flagged and their interval widened to that physical prior. See docs/cavitation.m
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from rigtool.errors import UsageError
+from rigtool.files import check_regular_file, read_regular_bytes
 from rigtool.models.betm import Betm
 from rigtool.models.domain import (
     CLAMPED,
@@ -40,10 +41,13 @@ from rigtool.models.domain import (
     Domain,
     nearest_distance,
 )
+from rigtool.readback import INT, STR, Invalid, Obj, brief, parse_json, show
 
 MODEL_FILE = "qctm_gp.json"
 VARIANCE_FILE = "qctm_gp_kinv.npy"
 FORMAT = "rigtool-qctm-gp"
+MAX_MODEL_BYTES = 64 << 20  # qctm_gp.json: a few MB for the largest training budget
+MAX_VARIANCE_BYTES = 256 << 20  # qctm_gp_kinv.npy: n_train^2 doubles (2000 rows: 32 MB)
 FORMAT_VERSION = 5  # 5: noise bias per regime; 4: bounds, domain; 3: gate, lead_blocks; 2: beta z
 Z95 = 1.959963984540054
 SQRT5 = 5.0**0.5
@@ -336,22 +340,53 @@ class Prediction:
     distance: np.ndarray
 
 
+DOCUMENT = Obj({"format_version": INT, "gp": Obj({"variance_file": STR})})
+
+
+class UnreadableModel(UsageError, ValueError):
+    """A model folder's file is missing, too large, malformed or of another fit (exit 2)."""
+
+
 def load_model(calibration_dir: str | Path) -> ThrustModel:
-    """Read qctm_gp.json (and, for the posterior variance, qctm_gp_kinv.npy) from a folder."""
+    """Read qctm_gp.json (and qctm_gp_kinv.npy), size-capped and checked, from a folder."""
     folder = Path(calibration_dir)
-    doc = json.loads((folder / MODEL_FILE).read_text(encoding="utf-8"))
+    path = folder / MODEL_FILE
+    try:
+        doc = parse_json(read_regular_bytes(path, MAX_MODEL_BYTES))
+        DOCUMENT.check(doc)
+    except Invalid as exc:
+        raise UnreadableModel(f"{path}: {exc}") from None
     if doc.get("format") != FORMAT:
-        raise ValueError(f"{folder / MODEL_FILE} is not a {FORMAT} document")
-    version = int(doc.get("format_version", 1))
+        raise UnreadableModel(f"{path} is not a {FORMAT} document")
+    version = doc.get("format_version", 1)
     if version < 2:
-        raise ValueError(f"{folder / MODEL_FILE} is a version-1 model on raw (n, I, h) inputs: "
-                         "rerun rigtool calibrate to refit it")
+        raise UnreadableModel(f"{path} is a version-1 model on raw (n, I, h) inputs: "
+                              "rerun rigtool calibrate to refit it")
     if version > FORMAT_VERSION:
-        raise ValueError(f"{folder / MODEL_FILE} is format version {version}; this rigtool "
-                         f"reads up to {FORMAT_VERSION}: update rigtool")
-    kinv_name = doc.get("gp", {}).get("variance_file", VARIANCE_FILE)
-    kinv_path = folder / kinv_name
-    return model_from_document(doc, np.load(kinv_path) if kinv_path.exists() else None)
+        raise UnreadableModel(f"{path} is format version {version}; this rigtool "
+                              f"reads up to {FORMAT_VERSION}: update rigtool")
+    if "gp" not in doc:
+        raise UnreadableModel(f"{path}: field 'gp' is missing")
+    name = doc["gp"].get("variance_file", VARIANCE_FILE)
+    if name in ("", ".", "..") or Path(name).name != name:
+        raise UnreadableModel(f"{path}: gp.variance_file: {show(name)} is not a file name")
+    k_inv = _variance(folder / name) if (folder / name).exists() else None
+    try:
+        return model_from_document(doc, k_inv)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as exc:
+        raise UnreadableModel(f"{path}: {type(exc).__name__}: {brief(exc)}") from None
+
+
+def _variance(path: Path) -> np.ndarray:
+    """The posterior-variance matrix, its .npy header read (memory-mapped) before any copy."""
+    try:
+        check_regular_file(path, MAX_VARIANCE_BYTES)
+        matrix = np.load(path, mmap_mode="r", allow_pickle=False)
+        if matrix.ndim != 2 or matrix.dtype.kind != "f":
+            raise ValueError(f"a {matrix.dtype} array of shape {matrix.shape}, not a matrix")
+        return np.array(matrix, dtype=float)
+    except (ValueError, OSError, EOFError) as exc:
+        raise UnreadableModel(f"{path}: {brief(exc)}") from None
 
 
 def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustModel:

@@ -173,7 +173,7 @@ def _meta_rows(run: dict, steps: list[dict], cal: Calibration | None) -> list[tu
         rig_text += f" (simulator profile {resolved.get('profile')})"
     command = protocol.get("command") or {}
     plan = run.get("plan") or steps
-    commands = sorted({float(s["command"]) for s in plan})
+    commands = sorted({float(s["command"]) for s in plan if s.get("command") is not None})
     unit = unit_label(run["command_unit"])
     depths = sorted({s["depth_m"] for s in plan if s.get("depth_m") is not None})
     status = run["status"] + (f": {run['stop_reason']}" if run.get("stop_reason") else "")
