@@ -120,7 +120,8 @@ def main() -> None:
     print(f"RSS: first quarter {rss[:quarter].mean():.1f} MB, last quarter {rss[-quarter:].mean():.1f} MB, "
           f"max {rss.max():.1f} MB")
     print(f"twin generated {generated:,} records; driver received {stats['records']:,}, "
-          f"lost {stats['lost_packets']:,}, late/duplicate {stats['out_of_order']:,}, "
+          f"lost {stats['lost_packets']:,}, late {stats['out_of_order']:,}, "
+          f"duplicate {stats.get('duplicates', 0):,}, "
           f"bad size {stats['bad_size']:,}, bad sequence {stats['bad_sequence']:,}")
     received_or_lost = stats["records"] + stats["lost_packets"]
     print(f"  generated - (received + lost) = {generated - received_or_lost:,} "

@@ -7,12 +7,35 @@ Protocol facts (ATI Net F/T manual, "Raw Data Transfer"):
   0x0000 stop streaming, 0x0002 start high-speed real-time streaming, 0x0042 set
   software bias (the box zeroes itself on its current reading).
 * The box answers from that port with 36-byte records, big-endian `>III6i` =
-  rdt_sequence (numbers the RDT packets: gaps are lost packets), ft_sequence (the
-  box's internal sample counter), status (0 = healthy), then Fx, Fy, Fz, Tx, Ty, Tz
-  in counts. A datagram may carry several records (buffered mode); each is used.
+  rdt_sequence, ft_sequence, status (0 = healthy), then Fx, Fy, Fz, Tx, Ty, Tz in
+  counts. A datagram may carry several records (buffered mode); each is used.
 * Counts per force unit and per torque unit, and the units themselves, are the
   `cfgcpf`, `cfgcpt`, `scfgfu`, `scfgtu` elements of `http://HOST/netftapi2.xml`;
   `comrdtrate` is the RDT output rate in Hz.
+
+How the box numbers records (ATI Net F/T manual, document 9620-05-NET FT, RDT section,
+record fields; ATI's Java demo, com.atiia.automation.sensors.NetFTRDTPacket, whose record
+"RDT sequence number increases by one for each packet that is sent"):
+
+* rdt_sequence is "the position of the RDT record within a single output stream": it
+  numbers records, not datagrams. It is 1 for the first record after a start request and
+  goes up by 1 with each record sent (a request for 1000 records runs from 1 to 1000), and
+  wraps to 0 after 2^32 - 1. A buffered-mode datagram carries "RDT output buffer size"
+  records, so it holds consecutive numbers and the next datagram goes on from its last
+  one. Records are missing exactly where this per-record number skips.
+* ft_sequence is "the internal sample number of the F/T record": it counts from power-up
+  at the box's internal rate and no request resets it, so it steps by more than 1 between
+  records whenever the RDT rate is lower; it says nothing about loss and is not checked.
+
+The receive thread judges every record's rdt_sequence against the last one stored
+(`RdtSequence`): ahead by 1 to SEQUENCE_WINDOW, it is stored and the numbers skipped are
+lost; equal or behind by up to SEQUENCE_WINDOW, it is a late record (its number was
+skipped: `out_of_order`) or a duplicate, and is dropped. A record farther away is held,
+neither stored nor counted, until the next record judges it: if that one goes on from the
+held one, the stream really moved there (a restart, or a gap longer than the window) and
+both are stored (`resyncs`; a forward move of up to MAX_SEQUENCE_JUMP counts the numbers
+skipped as lost); if not, the held record was a lone corrupt one: dropped and counted in
+`bad_sequence`, with no loss, and the next record is judged as if it had never come.
 
 The driver streams in a background thread into a buffer stamped with the monotonic
 arrival time, converts counts to N and N m, and keeps statistics of lost, late,
@@ -55,7 +78,8 @@ CMD_BIAS = 0x0042
 REQUEST = struct.Struct(">HHI")  # header, command, sample count
 RECORD = struct.Struct(">III6i")  # rdt_sequence, ft_sequence, status, Fx..Tz (counts)
 RECORD_DTYPE = np.dtype([("seq", ">u4"), ("ft_seq", ">u4"), ("status", ">u4"), ("counts", ">i4", (6,))])
-MAX_SEQUENCE_JUMP = 1_000_000  # larger rdt_sequence jumps are taken as a corrupt record
+SEQUENCE_WINDOW = 1024  # farther rdt_sequence jumps are held until the next record judges them
+MAX_SEQUENCE_JUMP = 1_000_000  # a confirmed move ahead up to this is a gap (lost); more, a restart
 _SEQ_MOD = 1 << 32
 _BIAS_GUARD_S = 0.02  # after a device bias, records arriving this soon may predate it
 # With the kernel's arrival stamp on every datagram (Linux SO_TIMESTAMPNS), the receiver
@@ -201,11 +225,12 @@ class NetFTStats:
 
     datagrams: int = 0  # every datagram from the box
     records: int = 0  # records accepted into the buffer
-    lost_packets: int = 0  # rdt_sequence numbers missing from the accepted stream
-    out_of_order: int = 0  # late or duplicate packets (discarded)
+    lost_packets: int = 0  # rdt_sequence numbers (records) missing from the accepted stream
+    out_of_order: int = 0  # late records: behind the stream, in a gap counted lost (discarded)
+    duplicates: int = 0  # records whose rdt_sequence was already received (discarded)
     bad_size: int = 0  # datagrams whose length is not a multiple of 36 bytes
-    bad_sequence: int = 0  # 36-byte records with an implausible rdt_sequence (corrupt)
-    resyncs: int = 0  # times the sequence was re-learned after corrupt records
+    bad_sequence: int = 0  # far records the next did not confirm (corrupt), or left at a restart
+    resyncs: int = 0  # far moves of the stream that the next record confirmed (followed)
     status_records: int = 0  # records with a non-zero status word
     last_status: int = 0
     starts: int = 0  # start requests sent (first one, re-arms, restarts)
@@ -213,6 +238,129 @@ class NetFTStats:
     refused: int = 0  # ICMP "port unreachable" replies: nothing listening at host:port
     stale: int = 0  # samples dropped because they arrived in a pause between reads (max_gap_s)
     overflowed: int = 0  # buffered samples dropped because the buffer was full
+
+
+class RdtSequence:
+    """The rdt_sequence of one output stream, judged record by record (see the module
+    docstring); `offer` and `take_run` say what to store, and counts go into `stats`."""
+
+    def __init__(self, stats: NetFTStats) -> None:
+        self.stats = stats
+        self.last: int | None = None  # rdt_sequence of the last record stored
+        self._held: tuple | None = None  # a far record, until the next one judges it
+        self._missing: set[int] = set()  # numbers skipped, within SEQUENCE_WINDOW of `last`
+
+    def restart(self) -> None:
+        """A start request went out: the box numbers the new stream from 1."""
+        if self._held is not None:
+            self.stats.bad_sequence += 1  # never confirmed
+        self.last = self._held = None
+        self._missing.clear()
+
+    def offer(self, item: tuple) -> list[tuple]:
+        """The records to store now, in order, given the next one (t, seq, status, counts...)."""
+        if self._held is None:
+            return self._judge(item)
+        return self._settle(item)
+
+    def take_run(self, seq: np.ndarray) -> bool:
+        """Take uint32 `seq` at once if each is 1..SEQUENCE_WINDOW ahead of the one before."""
+        last = self.last
+        if last is None or self._held is not None:
+            return False
+        ahead = np.empty(len(seq), np.uint32)  # steps modulo 2^32, as uint32 arithmetic wraps
+        ahead[0] = (int(seq[0]) - last) % _SEQ_MOD
+        np.subtract(seq[1:], seq[:-1], out=ahead[1:])
+        top = int((ahead - np.uint32(1)).max())  # a repeat (0) wraps to the largest
+        if top >= SEQUENCE_WINDOW:
+            return False
+        if top:
+            for i in np.flatnonzero(ahead > 1).tolist():
+                self._skip(int(seq[i - 1]) if i else last, int(ahead[i]))
+        self.last = int(seq[-1])
+        return True
+
+    def take_consecutive(self, seqs: list[int]) -> bool:
+        """Take a datagram's records at once if they number on from the stream one by one."""
+        last, first = self.last, seqs[0]
+        if (last is None or self._held is not None or not 0 < first - last <= SEQUENCE_WINDOW
+                or seqs != list(range(first, first + len(seqs)))):
+            return False  # the wrap past 2^32 is left to `offer`
+        if first - last > 1:
+            self._skip(last, first - last)
+        self.last = seqs[-1]
+        return True
+
+    def _judge(self, item: tuple) -> list[tuple]:
+        """Judge a record against the stored stream, nothing being held."""
+        seq, last = item[1], self.last
+        if last is None:
+            return self._first(item)
+        ahead = (seq - last) % _SEQ_MOD
+        if 0 < ahead <= SEQUENCE_WINDOW:
+            if ahead > 1:
+                self._skip(last, ahead)
+            self.last = seq
+            return [item]
+        if not ahead or _SEQ_MOD - ahead <= SEQUENCE_WINDOW:
+            self._behind(seq)
+        else:
+            self._held = item
+        return []
+
+    def _first(self, item: tuple) -> list[tuple]:
+        """The first record of a stream: stored if near where the box starts (1), else held."""
+        seq = item[1]
+        if not 0 < seq <= SEQUENCE_WINDOW:
+            self._held = item
+            return []
+        if seq > 1:
+            self._skip(0, seq)
+        self.last = seq
+        return [item]
+
+    def _settle(self, item: tuple) -> list[tuple]:
+        """Judge the held record by the one after it, then judge that one."""
+        held = self._held
+        step = (item[1] - held[1]) % _SEQ_MOD
+        if not step:
+            self.stats.duplicates += 1
+            return []
+        self._held = None
+        if step > SEQUENCE_WINDOW:
+            self.stats.bad_sequence += 1  # a lone far record: corrupt
+            return self._judge(item)
+        self._follow(held[1])
+        return [held, *self._judge(item)]
+
+    def _follow(self, seq: int) -> None:
+        """The stream really moved to `seq`: a long gap (lost) or a restart."""
+        last, self.last = self.last, seq
+        if last is None:
+            return
+        self.stats.resyncs += 1
+        ahead = (seq - last) % _SEQ_MOD
+        if ahead <= MAX_SEQUENCE_JUMP:
+            self._skip(last, ahead)
+        else:
+            self._missing.clear()
+
+    def _skip(self, last: int, ahead: int) -> None:
+        """Count the ahead - 1 numbers after `last` lost, remembering the latest of them."""
+        self.stats.lost_packets += ahead - 1
+        missing = self._missing
+        missing.update((last + k) % _SEQ_MOD for k in range(max(1, ahead - SEQUENCE_WINDOW), ahead))
+        if len(missing) > 2 * SEQUENCE_WINDOW:
+            top = (last + ahead) % _SEQ_MOD
+            self._missing = {m for m in missing if (top - m) % _SEQ_MOD <= SEQUENCE_WINDOW}
+
+    def _behind(self, seq: int) -> None:
+        """A record at or behind the stream: late if its number was skipped, else a duplicate."""
+        if seq in self._missing:
+            self._missing.discard(seq)
+            self.stats.out_of_order += 1
+        else:
+            self.stats.duplicates += 1
 
 
 class NetFTSensor:
@@ -246,8 +394,7 @@ class NetFTSensor:
         self._stats = NetFTStats()
         self._warnings: list[str] = []
         self._lock = threading.Lock()  # sequence state, shared by both threads
-        self._last_seq: int | None = None
-        self._suspect_seq: int | None = None
+        self._seq = RdtSequence(self._stats)
         self._since_start = 0
         self._discard_until = -np.inf
         self._buffer = SampleBuffer(cfg.buffer_samples)
@@ -389,7 +536,7 @@ class NetFTSensor:
 
     def _start_streaming(self) -> None:
         with self._lock:
-            self._last_seq = self._suspect_seq = None  # the box numbers a new stream afresh
+            self._seq.restart()  # the box numbers a new stream afresh
             self._since_start = 0
             self._stats.starts += 1
         self._send(CMD_START_REALTIME, self.config.sample_count)
@@ -487,15 +634,8 @@ class NetFTSensor:
             return False
         seq = rec["seq"].astype(np.uint32)
         with self._lock:
-            if self._last_seq is None:
+            if not self._seq.take_run(seq):
                 return False
-            ahead = np.empty(n, np.uint32)  # steps modulo 2^32, as uint32 arithmetic wraps
-            ahead[0] = (int(seq[0]) - self._last_seq) % _SEQ_MOD
-            np.subtract(seq[1:], seq[:-1], out=ahead[1:])
-            if (ahead - np.uint32(1)).max() >= MAX_SEQUENCE_JUMP:  # 0 (a repeat) wraps too
-                return False
-            self._stats.lost_packets += int(ahead.sum(dtype=np.int64)) - n
-            self._last_seq, self._suspect_seq = int(seq[-1]), None
             self._since_start += n
         s = self._stats
         s.datagrams += n
@@ -532,31 +672,6 @@ class NetFTSensor:
         self._batch_s = 0.0
         return self._now()
 
-    def _accept_sequence(self, seq: int) -> bool:
-        """Track rdt_sequence: count gaps; reject late, duplicate and implausible packets."""
-        s = self._stats
-        last = self._last_seq
-        if last is None:
-            self._last_seq = seq
-            return True
-        ahead = (seq - last) % _SEQ_MOD
-        if 0 < ahead <= MAX_SEQUENCE_JUMP:
-            s.lost_packets += ahead - 1
-            self._last_seq, self._suspect_seq = seq, None
-            return True
-        if ahead == 0 or _SEQ_MOD - ahead <= MAX_SEQUENCE_JUMP:
-            s.out_of_order += 1
-            return False
-        # Far from the stream: a corrupt record, unless the next packet continues from it
-        # (the box restarted its numbering without us asking).
-        if self._suspect_seq is not None and (seq - self._suspect_seq) % _SEQ_MOD == 1:
-            s.resyncs += 1
-            self._last_seq, self._suspect_seq = seq, None
-            return True
-        s.bad_sequence += 1
-        self._suspect_seq = seq
-        return False
-
     def _handle(self, datagrams: list[tuple[bytes, float]]) -> None:
         """Check (size, sequence, status word) and buffer (datagram, arrival time) pairs,
         with one buffer put and one wake-up of a waiting read for them all."""
@@ -567,22 +682,38 @@ class NetFTSensor:
             if not data or len(data) % RECORD.size:
                 s.bad_size += 1
                 continue
-            records = list(RECORD.iter_unpack(data))
-            with self._lock:
-                if not self._accept_sequence(records[0][0]):
-                    continue
-                self._since_start += len(records)
-            if t < self._discard_until:
-                continue  # may predate a device bias just sent
-            for rec in records:
-                status = rec[2]
-                if status:
-                    s.status_records += 1
-                    if status != s.last_status:
-                        self._warn(f"{self.name}: status word 0x{status:08x} (rdt_sequence {rec[0]})")
-                s.last_status = status
-            items.extend((t, rec[0], rec[2], *rec[3:]) for rec in records)
-            s.records += len(records)
+            items += self._judge_records(data, t)
+        if items and items[0][0] < self._discard_until:  # in arrival order: the first is oldest
+            items = [item for item in items if item[0] >= self._discard_until]  # predate a bias?
+        self._note_status(items)
+        s.records += len(items)
         if items:
             self._buffer.put_many(items)
             self._first.set()
+
+    def _judge_records(self, data: bytes, t: float) -> list[tuple]:
+        """The records of one datagram, and any held before, that the sequence checks store."""
+        records = list(RECORD.iter_unpack(data))
+        sequence = self._seq
+        with self._lock:
+            if len(records) > 1 and sequence.take_consecutive([rec[0] for rec in records]):
+                kept = [(t, rec[0], rec[2], *rec[3:]) for rec in records]
+            else:
+                kept = [item for rec in records
+                        for item in sequence.offer((t, rec[0], rec[2], *rec[3:]))]
+            self._since_start += len(kept)
+        return kept
+
+    def _note_status(self, items: list[tuple]) -> None:
+        """Count records with a non-zero status word, warning when the word changes."""
+        s = self._stats
+        if items and not any(item[2] for item in items):
+            s.last_status = 0
+            return
+        for item in items:
+            status = item[2]
+            if status:
+                s.status_records += 1
+                if status != s.last_status:
+                    self._warn(f"{self.name}: status word 0x{status:08x} (rdt_sequence {item[1]})")
+            s.last_status = status

@@ -6,7 +6,7 @@ its records like the box (rdt_sequence from 1 per stream, ft_sequence running), 
 sends one 36-byte record per LiveTwin sample, so its RDT rate is the LiveTwin's rate.
 
 `faults` switches transport and device misbehaviour on and off while it runs: lost,
-reordered, malformed and corrupt datagrams, a non-zero status word, and silence.
+reordered, duplicated, malformed and corrupt datagrams, a non-zero status word, and silence.
 All of its randomness comes from one seeded generator.
 """
 
@@ -45,6 +45,7 @@ class NetFTFaults:
 
     drop: float = 0.0  # record never sent (its rdt_sequence is skipped: a lost packet)
     reorder: float = 0.0  # record held back and sent after the next one
+    duplicate: float = 0.0  # record sent twice in a row (the network delivered it twice)
     garbage: float = 0.0  # an extra datagram of random bytes (never a multiple of 36 long)
     short: float = 0.0  # record truncated to 1..35 bytes
     oversized: float = 0.0  # record sent with 1..35 extra bytes
@@ -240,6 +241,8 @@ class NetFTTwin:
             self._held = payload
             return
         self._send(payload)
+        if f.duplicate and rng.random() < f.duplicate:
+            self._send(payload)
         if self._held is not None:
             self._send(self._held)
             self._held = None
