@@ -100,8 +100,8 @@ def supply_lines(config: ScpiSupplyConfig) -> list[str]:
         lines = [f"supply: {supply.identity} on {config.url}",
                  f"  found: output {'ON' if found.output_on else 'off'}, setpoint "
                  f"{found.setpoint_v:g} V, current limit {found.current_limit_a:g} A (rig "
-                 f"max_voltage_v {config.max_voltage_v:g} V; a sweep programs the limit and "
-                 "0 V with the output off before switching it on)"]
+                 f"max_voltage_v {config.max_voltage_v:g} V; a sweep switches it off, programs "
+                 "the limit and 0 V, then switches it on)"]
         ovp = ("yes: a sweep sets it to max_voltage_v" if have.over_voltage
                else "no (VOLT:PROT not answered)")
         lines.append(f"  over-voltage protection: {ovp}")

@@ -22,7 +22,7 @@ from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
 from rigtool.rig import RigSet, counter_delta
-from rigtool.safety import BUS_WINDOWS, BusVoltageMonitor, FollowMonitor, LimitMonitor
+from rigtool.safety import BusVoltageMonitor, FollowMonitor, LimitMonitor
 from rigtool.spool import SampleSpool
 from rigtool.store import SAMPLE_COLUMNS, STAT_FIELDS, StepRecord, Store
 from rigtool.units import FT_CHANNELS
@@ -107,6 +107,7 @@ class Engine:
         self._depth: float | None = None
         self._voltage: float | None = None
         self._supply_used = False  # the run has commanded the supply: leave it safe at the end
+        self._signals: _Signals | None = None
         self._fb_last = dict.fromkeys(FEEDBACK_FIELDS, np.nan)
         self._bias_total = np.zeros(6)
         self._stored_idx: int | None = None
@@ -122,10 +123,14 @@ class Engine:
         status, reason, done = "failed", None, 0
         self.reporter.start(self.run_id, len(self.plan), self.unit, done=start_idx)
         with _Signals(self.reporter) as signals:
+            self._signals = signals
             try:
                 self._begin(t_offset_s)
                 remaining = self.plan[start_idx:]
                 for i, step in enumerate(remaining):
+                    if signals.stop_requested:  # Ctrl-C before the first point began
+                        status, reason = "aborted", "stopped by the operator (Ctrl-C)"
+                        break
                     self._prepare_depth(step)
                     self._prepare_voltage(step)
                     self._run_step_or_pause(step)
@@ -189,16 +194,17 @@ class Engine:
             raise DeviceError(f"point {step.idx} needs {step.voltage_v:g} V, but the rig has no "
                               "supply to set it")
         self._ramp_to(self.rig.actuator.info.neutral)
+        if self._signals is not None and self._signals.stop_requested:
+            raise StopNow("stopped by the operator (Ctrl-C) before the supply was set")
         self._supply_used = True
         reached = supply.set_voltage(step.voltage_v)
         self._event("voltage", {"target_v": step.voltage_v, "measured_v": reached,
                                 "by": supply.reached_by}, step.idx)
-        self._voltage = step.voltage_v
-        for _ in range(BUS_WINDOWS):  # the voltage reached is judged before anything is labelled
-            self._check_supply(step.voltage_v, reached)
         settle = self.protocol.voltage.settle_s if self.protocol.voltage else 0.0
         if settle > 0:
             self._read_for(settle, self.protocol.timing.acquire.rate_hz, step)
+        self._voltage = step.voltage_v  # judged from here on: settled, before anything is labelled
+        self._check_supply(step.voltage_v)
 
     def _run_step_or_pause(self, step: PlanStep) -> None:
         """Run a point; with `on_trip: pause`, a trip goes neutral and the operator may go on.
@@ -245,6 +251,8 @@ class Engine:
         t_acq = self._now()
         samples = self._acquire(step, timing.acquire.n_samples, rate)
         try:
+            if step.voltage_v is not None:  # the bus as the point ends, before it is labelled
+                self._check_supply(step.voltage_v)
             self.follow.release()
             if not steps or step.idx == self.plan[-1].idx:
                 self._ramp_to(self.rig.actuator.info.neutral, step)
@@ -368,20 +376,21 @@ class Engine:
         """The bus voltage must be the one the point is labelled with (BusVoltageMonitor)."""
         if step is None or step.voltage_v is None or step.voltage_v != self._voltage:
             return
-        if feedback.voltage_v is not None and len(feedback.voltage_v):
-            self.bus.check(step.voltage_v, float(np.nanmedian(feedback.voltage_v)), "actuator")
+        volts = feedback.voltage_v
+        if volts is not None and len(volts) and np.isfinite(volts).any():
+            self.bus.check_feedback(step.voltage_v, float(np.nanmedian(volts)))
         if self.bus.supply_due(self.clock.now()):
             self._check_supply(step.voltage_v)
 
-    def _check_supply(self, set_v: float, volts: float | None = None) -> None:
-        """The supply's own measurement of the bus, where it has one."""
+    def _check_supply(self, set_v: float) -> None:
+        """The supply's own measurement of its terminals, where it has one."""
         supply = self.rig.supply
         measure = getattr(supply, "measure", None)
         if measure is None:
             return
         measured_v, amps = measure()
-        self.bus.check(set_v, measured_v if volts is None else volts, supply.reached_by, amps,
-                       getattr(supply, "current_limit_a", None))
+        self.bus.check_supply(set_v, measured_v, supply.reached_by, amps,
+                              getattr(supply, "current_limit_a", None))
 
     def _device_warnings(self, step: PlanStep | None) -> None:
         """Store warnings a driver has queued (e.g. a Net F/T status word, a stream restart)."""

@@ -214,20 +214,25 @@ class FollowMonitor:
 
 
 BUS_CHECK_S = 0.5  # the supply's own measurement is read at most this often during a point
-BUS_FLOOR_V = 0.5  # the band is never narrower than this
-BUS_WINDOWS = 2  # readings outside the band in a row that trip
-CC_FRACTION = 0.99  # a supply delivering this much of its current limit is current-limited
+BUS_FLOOR_V = 0.5  # the actuator's band is never narrower than this
+BUS_WINDOWS = 2  # actuator blocks outside the band in a row that trip (its readings are noisy)
+SUPPLY_BAND_FRAC = 0.03  # a supply in constant-voltage mode holds its terminals this close...
+SUPPLY_FLOOR_V = 0.25  # ...or this close, whichever is wider (setpoint and meter accuracy)
+CC_FRACTION = 0.97  # a supply delivering this much of its current limit is current-limited
 
 
 class BusVoltageMonitor:
-    """Trips when the bus is not at the voltage a point is labelled with: a supply in
-    constant-current mode (its current at the limit and its voltage below the set one), or a
-    bus outside `tolerance_frac` of the set voltage (at least `BUS_FLOOR_V`): a supply switched
-    off by its protection or by hand, or a manual supply set wrong. The band is wide enough for
-    the sag of the thruster's current through the leads. Judged on the supply's own measurement
-    (at most every `BUS_CHECK_S`) and on the median of the actuator's voltage feedback in each
-    block; `BUS_WINDOWS` bad readings in a row trip, so no point is stored under a voltage it
-    did not have."""
+    """Trips when the bus is not at the voltage a point is labelled with.
+
+    Two witnesses. The supply's own measurement of its terminals (at most every
+    `BUS_CHECK_S`, and once more before a point is stored): a supply in constant-voltage mode
+    holds them within `SUPPLY_BAND_FRAC` (at least `SUPPLY_FLOOR_V`) of the setpoint, so one
+    reading outside that, or a current at `CC_FRACTION` of the limit with the voltage below
+    the setpoint, trips at once: constant-current mode, a supply switched off by its protection
+    or by hand. The actuator's voltage feedback (the median of each block) sees the bus after
+    the leads, sag included, so it gets the protocol's `tolerance_frac` (at least
+    `BUS_FLOOR_V`) and `BUS_WINDOWS` blocks in a row; it also covers a manual supply set
+    wrong. No point is stored under a voltage it did not have."""
 
     def __init__(self, tolerance_frac: float) -> None:
         self.tolerance_frac = tolerance_frac
@@ -235,8 +240,13 @@ class BusVoltageMonitor:
         self._last_supply_check = -np.inf
 
     def band_v(self, set_v: float) -> float:
-        """Half-width of the band around `set_v`."""
+        """Half-width of the actuator feedback's band around `set_v`."""
         return max(BUS_FLOOR_V, self.tolerance_frac * set_v)
+
+    @staticmethod
+    def supply_band_v(set_v: float) -> float:
+        """Half-width of the supply measurement's band around `set_v`."""
+        return max(SUPPLY_FLOOR_V, SUPPLY_BAND_FRAC * set_v)
 
     def supply_due(self, now: float) -> bool:
         """Whether the supply's measurement should be read now (and mark it read)."""
@@ -245,25 +255,35 @@ class BusVoltageMonitor:
         self._last_supply_check = now
         return True
 
-    def check(self, set_v: float, measured_v: float | None, source: str,
-              current_a: float | None = None, limit_a: float | None = None) -> None:
-        """One reading of the bus (`source`: supply or actuator); NaN or None is no reading.
-        `current_a` and `limit_a`, where the supply reports them, reveal constant current."""
-        if measured_v is None or not np.isfinite(measured_v):
-            return
+    def check_supply(self, set_v: float, measured_v: float, source: str,
+                     current_a: float | None = None, limit_a: float | None = None) -> None:
+        """One reading of the supply's terminals: outside its band, or current-limited, trips."""
+        band = self.supply_band_v(set_v)
         limited = (current_a is not None and limit_a is not None
-                   and current_a >= CC_FRACTION * limit_a and measured_v < set_v - BUS_FLOOR_V)
-        if abs(measured_v - set_v) <= self.band_v(set_v) and not limited:
+                   and current_a >= CC_FRACTION * limit_a and measured_v < set_v - SUPPLY_FLOOR_V)
+        if not limited and abs(measured_v - set_v) <= band:
+            return
+        why = (f"current-limited at {current_a:.3g} A (limit {limit_a:g} A)" if limited
+               else f"outside {set_v:g} ± {band:.2g} V")
+        self._trip(set_v, measured_v, source, why,
+                   {"current_a": current_a, "limit_a": limit_a, "band_v": band})
+
+    def check_feedback(self, set_v: float, measured_v: float) -> None:
+        """The median of a block of the actuator's voltage feedback (NaN: none)."""
+        if not np.isfinite(measured_v) or abs(measured_v - set_v) <= self.band_v(set_v):
             self._outside = 0
             return
         self._outside += 1
-        if self._outside < BUS_WINDOWS:
-            return
-        self._outside = 0
-        why = (f"current-limited at {current_a:.3g} A (limit {limit_a:g} A)" if limited
-               else f"outside {set_v:g} ± {self.band_v(set_v):.2g} V")
+        if self._outside >= BUS_WINDOWS:
+            self._outside = 0
+            self._trip(set_v, measured_v, "actuator",
+                       f"outside {set_v:g} ± {self.band_v(set_v):.2g} V",
+                       {"band_v": self.band_v(set_v)})
+
+    @staticmethod
+    def _trip(set_v: float, measured_v: float, source: str, why: str, detail: dict) -> None:
         raise SafetyTrip(
             f"supply voltage trip: the {source} measures {measured_v:.3g} V at a {set_v:g} V "
             f"point, {why}; the point is not stored under {set_v:g} V",
             {"check": "bus_voltage", "set_v": set_v, "measured_v": measured_v,
-             "source": source, "current_a": current_a, "limit_a": limit_a})
+             "source": source, **detail})

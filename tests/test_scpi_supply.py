@@ -93,11 +93,22 @@ def test_silent_supply_is_a_clear_error_and_close_still_releases(twin):
     assert not twin.output  # the OUTP OFF itself reached the supply
 
 
-def test_safe_voltage_mode_ramps_down_instead_of_switching_off(twin):
+def test_safe_voltage_mode_keeps_a_supply_found_on_at_its_safe_voltage():
+    """Something else relied on the supply being on: the exit ramps it down, never up."""
+    for safe_v, last_v in ((2.0, 10.0), (20.0, 12.0)):
+        with ScpiSupplyTwin(setpoint_v=6.0, output=True) as twin:
+            supply = _open(twin, on_exit="safe_voltage", safe_voltage_v=safe_v)
+            supply.set_voltage(last_v)
+            supply.close()
+            assert twin.output and twin.voltage_set == pytest.approx(min(safe_v, last_v))
+            assert max(v for what, v in twin.history if what == "VOLT") == last_v
+
+
+def test_safe_voltage_mode_switches_off_a_supply_it_found_off(twin):
     supply = _open(twin, on_exit="safe_voltage", safe_voltage_v=2.0)
     supply.set_voltage(10.0)
     supply.close()
-    assert twin.output and twin.voltage_set == pytest.approx(2.0)
+    assert not twin.output
 
 
 def test_missing_port_names_it():
@@ -136,14 +147,30 @@ def test_output_found_on_above_the_limit_is_switched_off_and_refused():
         assert not twin.output and twin.history == [("OUTP", 0.0)]
 
 
-def test_output_found_on_within_limits_is_ramped_from_where_it_is():
+def test_output_found_on_within_limits_is_switched_off_before_it_is_programmed():
     with ScpiSupplyTwin(setpoint_v=20.0, output=True) as twin:
         supply = _open(twin, url=twin.url, max_voltage_v=24.0, slew_v_per_s=1000.0)
         supply.set_voltage(12.0)
-        volts = [v for what, v in twin.history if what == "VOLT"]
-        assert volts[0] == 20.0 and volts[-1] == 12.0 and min(volts) >= 12.0  # no dip to 0
+        assert twin.history[0] == ("OUTP", 0.0) and twin.on_states == [(0.0, 5.0)]
+        on_at = twin.history.index(("OUTP", 1.0))
+        assert {what for what, _ in twin.history[1:on_at]} == {"CURR", "VOLT", "VOLT:PROT",
+                                                                "OUTP:PROT:WDOG:DEL", "WDOG_ARM"}
+        assert twin.voltage_set == 12.0
         supply.close()
         assert not twin.output
+
+
+def test_supplies_that_round_answer_in_words_or_guard_their_protection():
+    """A 10 mV setpoint resolution (Korad), `OUTP?` answered ON/OFF (Rigol), and a protection
+    level that may not go below the leftover setpoint: all arm and ramp."""
+    with ScpiSupplyTwin(setpoint_v=48.0, max_voltage_v=60.0, resolution_v=0.01,
+                        state_words=True) as twin:
+        supply = _open(twin, slew_v_per_s=7.0, max_voltage_v=24.0)
+        assert supply.found.output_on is False and supply.found.ovp_v == 60.0
+        supply.set_voltage(1.0)
+        assert twin.output and twin.voltage_set == pytest.approx(1.0) and twin.ovp_v == 24.0
+        supply.close()
+        assert not twin.output and twin.ovp_v == 60.0  # the level found, restored
 
 
 def test_untouched_supply_is_left_as_found():

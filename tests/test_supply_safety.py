@@ -7,8 +7,12 @@ and a run that stops before its first voltage point leaves the supply as it was 
 from __future__ import annotations
 
 import contextlib
+import os
+import signal
+import sqlite3
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -88,7 +92,8 @@ def test_leftover_48v_setpoint_is_never_on_and_the_run_completes(bench, tmp_path
     assert _sweep(protocol, rig, tmp_path / "db.sqlite") == 0
     assert twin.on_states == [(0.0, 5.0)] and _switched_on_outside(twin, 24.0, 5.0) == []
     assert max(v for what, v in twin.history if what == "VOLT") == 16.0
-    assert not twin.output and not twin.watchdog and twin.ovp_v == 24.0
+    assert ("VOLT:PROT", 24.0) in twin.history  # the protection held the rig's limit
+    assert not twin.output and not twin.watchdog and twin.ovp_v == 60.0  # restored as found
     store = Store(tmp_path / "db.sqlite")
     assert {s["voltage_v"] for s in store.steps(store.resolve_run_id("last"))} == {12.0, 16.0}
 
@@ -193,3 +198,101 @@ def test_check_reports_the_supplys_protections_and_leaves_it_as_found(bench, cap
     else:
         assert "output watchdog: NO" in out and "stays on" in out
     assert twin.history == [] and all(line.endswith("?") for line in twin.lines)
+
+
+def _cc_part_way(twin: ScpiSupplyTwin, db, after_points: int, flip_s: float | None = None):
+    """Once `after_points` points are stored, the load grows so that 12 V needs 12 A: the
+    supply goes constant-current (3.5 A into 1 ohm: 3.5 V); with `flip_s` it comes and goes."""
+    stop = threading.Event()
+    seen: list[int] = []
+
+    def _watch() -> None:
+        while not stop.is_set():
+            if db.exists():
+                with contextlib.suppress(sqlite3.Error):
+                    conn = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=1)
+                    n = conn.execute("SELECT count(*) FROM steps").fetchone()[0]
+                    conn.close()
+                    if n >= after_points:
+                        seen.append(n)
+                        break
+            time.sleep(0.01)
+        while not stop.is_set():
+            twin.load_ohm = 1.0
+            if flip_s is None or stop.wait(flip_s):
+                return
+            twin.load_ohm = 4.0
+            stop.wait(flip_s)
+
+    thread = threading.Thread(target=_watch, daemon=True)
+    thread.start()
+    return stop, seen
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("flip_s", [None, 0.2])
+def test_constant_current_part_way_through_trips_before_the_point_is_labelled(
+        bench, tmp_path, flip_s):
+    """A supply that goes constant-current during a point, for good or coming and going, trips
+    the run, and the point acquired meanwhile is not stored (a point that ended before is)."""
+    twin, protocol, rig = bench(volts=(12.0,), amps=3.5)
+    protocol.write_text(protocol.read_text().replace("values: [0, 300]", "values: [0, 100, 200, "
+                                                     "300, 400]"))
+    db = tmp_path / "db.sqlite"
+    stop, seen = _cc_part_way(twin, db, after_points=2, flip_s=flip_s)
+    try:
+        assert _sweep(protocol, rig, db) == 1
+    finally:
+        stop.set()
+    store = Store(db)
+    run_id = store.resolve_run_id("last")
+    assert seen and len(store.steps(run_id)) <= seen[0] + 1 < 5
+    trip = store.events(run_id, "limit_trip")[0]["detail"]
+    assert trip["check"] == "bus_voltage" and trip["measured_v"] < 4.0 and not twin.output
+
+
+@pytest.mark.slow
+def test_a_supply_just_short_of_its_current_limit_still_trips(bench, tmp_path):
+    """9.5 V at a 12 V point with 3.94 A against a 4 A limit (meter accuracy): the supply's
+    terminals are outside its constant-voltage band, whatever the current reads."""
+    twin, protocol, rig = bench(volts=(12.0,), amps=4.0, meter_gain=0.985)
+    twin.load_ohm = 9.5 / 4.0  # wants 5.05 A at 12 V: constant current, 9.5 V, reads 3.94 A
+    db = tmp_path / "db.sqlite"
+    assert _sweep(protocol, rig, db) == 1
+    store = Store(db)
+    run_id = store.resolve_run_id("last")
+    assert store.steps(run_id) == []
+    trip = store.events(run_id, "limit_trip")[0]["detail"]
+    assert trip["measured_v"] == pytest.approx(9.5) and trip["current_a"] == pytest.approx(3.94)
+
+
+def test_ctrl_c_before_the_first_voltage_point_never_switches_the_supply_on(tmp_path):
+    """A first Ctrl-C during the opening tare: the run stops before any point, and the supply,
+    found off, is sent no setting."""
+    protocol = tmp_path / "p.yaml"
+    protocol.write_text("rigtool_protocol: 1\nname: t\nsimulator: {profile: esc-1100-1900}\n"
+                        "command: {unit: pulse_us, values: [1500, 1700]}\n"
+                        "depth: {unit: m, values: [1.0]}\nvoltage: {unit: V, values: [12]}\n"
+                        "timing: {settle: {seconds: 0.2}, acquire: {samples: 50, rate_hz: 500},"
+                        " tare: at_start}\n")
+    setup = resolve(protocol, sim=True)
+    with ScpiSupplyTwin(setpoint_v=12.0) as twin:
+        rigset = open_checked(setup)
+        rigset.supply = ScpiSupply(ScpiSupplyConfig(driver="scpi-supply", url=twin.pty_path,
+                                                    timeout_s=0.3, max_voltage_v=24.0))
+        read = rigset.sensor.read
+
+        def read_then_ctrl_c(*args):
+            os.kill(os.getpid(), signal.SIGINT)
+            return read(*args)
+
+        rigset.sensor.read = read_then_ctrl_c
+        store = Store(tmp_path / "db.sqlite")
+        run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                                  metadata={}, seed=1, command_unit="pulse_us", tool_version="t")
+        try:
+            outcome = Engine(setup.protocol, setup.plan, rigset, store, run_id).run()
+        finally:
+            rigset.close()
+        assert outcome.status == "aborted" and "Ctrl-C" in outcome.reason
+        assert store.steps(run_id) == [] and twin.history == [] and not twin.output

@@ -36,6 +36,7 @@ from rigtool.errors import DeviceError, UsageError
 _MAX_LINE = 256
 _ERROR_REPLY = re.compile(r"[+-]?\d+,")  # SYST:ERR? answers `code,"message"`
 _RAMP_STEP_S = 0.05  # a ramp sends a new setpoint this often
+_STATES = {"1": True, "0": False, "ON": True, "OFF": False}
 Volts = Annotated[float, Field(ge=0, le=1000, allow_inf_nan=False)]
 Amps = Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]
 Protection = Literal["auto", "required", "off"]
@@ -58,6 +59,8 @@ class ScpiSupplyConfig(BaseModel):
     over_voltage_protection: Protection = "auto"  # VOLT:PROT at max_voltage_v where it exists
     watchdog: Protection = "auto"  # OUTP:PROT:WDOG: output off when the host goes silent
     watchdog_s: Annotated[float, Field(ge=1, le=3600, allow_inf_nan=False)] = 10.0
+    # a setting reads back within this (V or A) or 0.1 %: a supply's setpoint resolution
+    readback_tolerance: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.011
 
     @model_validator(mode="after")
     def _safe_voltage_within_limit(self) -> ScpiSupplyConfig:
@@ -74,6 +77,7 @@ class SupplyState:
     output_on: bool
     setpoint_v: float
     current_limit_a: float
+    ovp_v: float | None  # the over-voltage protection level; None: the supply has none
 
 
 @dataclass(frozen=True)
@@ -101,6 +105,7 @@ class ScpiSupply:
         self._last_io = time.monotonic()
         self._armed = False  # limits, protection and a safe setpoint programmed this session
         self._watchdog_armed = False
+        self._ovp_set = False
         try:
             self._ser = serial.serial_for_url(config.url, baudrate=config.baudrate, timeout=0.02,
                                               write_timeout=config.timeout_s)
@@ -108,11 +113,12 @@ class ScpiSupply:
             raise DeviceError(f"cannot open {config.url} (SCPI supply): {exc}") from None
         try:
             self.identity = self._query("*IDN?")
-            self._output_on = self._number("OUTP?") != 0.0
+            self._output_on = self._state("OUTP?")
             self._setpoint_v = self._number("VOLT?")
-            self.found = SupplyState(self._output_on, self._setpoint_v, self._number("CURR?"))
-            self.protection = SupplyProtection(self._answers("VOLT:PROT?"),
-                                               self._answers("OUTP:PROT:WDOG?"))
+            self.found = SupplyState(self._output_on, self._setpoint_v, self._number("CURR?"),
+                                     self._probe("VOLT:PROT?"))
+            self.protection = SupplyProtection(self.found.ovp_v is not None,
+                                               self._probe("OUTP:PROT:WDOG?") is not None)
             self._check_found_state()
             self._require_protection()
         except BaseException:
@@ -121,16 +127,17 @@ class ScpiSupply:
 
     # -- what the engine uses -----------------------------------------------------------------
     def set_voltage(self, volts: float) -> float:
-        """Bring the output to `volts` and return the voltage measured there. An output that is
-        off is first armed (current limit, protection, 0 V setpoint, each read back) and only
-        then switched on; the setpoint is ramped at the slew limit."""
+        """Bring the output to `volts` and return the voltage measured there. The first call
+        switches an output found on off, arms it (current limit, 0 V setpoint, protection, each
+        read back) and only then switches it on; the setpoint is ramped at the slew limit."""
         self._check_setpoint(volts)
         with self._lock:
+            if not self._armed:
+                if self._output_on:  # found on: settings are only ever programmed while off
+                    self.output(False)
+                self._arm()
             if not self._output_on:
-                self._arm(0.0)
                 self.output(True)
-            elif not self._armed:
-                self._arm(self._setpoint_v)
             self._ramp(volts)
             return self.measure()[0]
 
@@ -142,8 +149,15 @@ class ScpiSupply:
                 if not self._armed:
                     raise DeviceError(f"{self.name}: output on refused: limits not programmed")
                 setpoint = self._number("VOLT?")
-                self._check_setpoint(setpoint, what="setpoint read back")
-            self._set(f"OUTP {'ON' if on else 'OFF'}", "OUTP?", 1.0 if on else 0.0)
+                if not 0.0 <= setpoint <= self.config.max_voltage_v:
+                    raise DeviceError(f"{self.name}: output on refused: its setpoint reads "
+                                      f"{setpoint:g} V, outside 0..{self.config.max_voltage_v:g}"
+                                      " V (max_voltage_v)")
+            self._write(f"OUTP {'ON' if on else 'OFF'}")
+            self._check_error(f"OUTP {'ON' if on else 'OFF'}")
+            if self._state("OUTP?") != on:
+                raise DeviceError(f"{self.name}: OUTP? does not read {'ON' if on else 'OFF'} "
+                                  "after setting it")
             self._output_on = on
             if on:
                 self._start_keepalive()
@@ -161,24 +175,27 @@ class ScpiSupply:
     def is_on(self) -> bool:
         """Whether the output is on, as the supply says now."""
         with self._lock:
-            self._output_on = self._number("OUTP?") != 0.0
+            self._output_on = self._state("OUTP?")
             return self._output_on
 
     def safe(self) -> None:
-        """Output off (or ramped to safe_voltage_v if it is on), as the rig file asks; never
-        switches an output on. Idempotent, quiet after close. DeviceError when the supply does
-        not confirm it."""
+        """Output off; with `on_exit: safe_voltage`, a supply that was found on (something else
+        relies on it) is instead ramped down to safe_voltage_v, never up. Never switches an
+        output on. Idempotent, quiet after close. DeviceError when the supply does not confirm."""
         if self._closed:
             return
         with self._lock:
-            if self.config.on_exit == "off":
+            keep_on = self.config.on_exit == "safe_voltage" and self.found.output_on
+            if keep_on and self.is_on():
+                self._ramp(min(self.config.safe_voltage_v, self._setpoint_v))
+            else:
                 self.output(False)
-            elif self.is_on():
-                self._ramp(self.config.safe_voltage_v)
 
     def close(self) -> None:
-        """Safe state if this session programmed the supply, the watchdog disarmed (a bench
-        supply goes back to its next user as it was), then the port released. Idempotent; a failed safe state is raised after the port is released."""
+        """Safe state if this session programmed the supply; the watchdog disarmed and the
+        over-voltage level found restored (a bench supply goes back to its next user as it
+        was); then the port released. Idempotent; a failed safe state is raised after the port
+        is released."""
         if self._closed:
             return
         try:
@@ -186,20 +203,21 @@ class ScpiSupply:
                 self.safe()
             if self._watchdog_armed:
                 self._set("OUTP:PROT:WDOG OFF", "OUTP:PROT:WDOG?", 0.0)
+            if self._ovp_set and self.found.ovp_v is not None and not self._output_on:
+                self._set(f"VOLT:PROT {self.found.ovp_v:.4f}", "VOLT:PROT?", self.found.ovp_v)
         finally:
             self._release()
 
     # -- internals ----------------------------------------------------------------------------
-    def _check_setpoint(self, volts: float, what: str = "setpoint") -> None:
+    def _check_setpoint(self, volts: float) -> None:
         if not (math.isfinite(volts) and 0.0 <= volts <= self.config.max_voltage_v):
-            raise UsageError(f"{what} {volts!r} V is outside 0..{self.config.max_voltage_v:g} V "
+            raise UsageError(f"setpoint {volts!r} V is outside 0..{self.config.max_voltage_v:g} V "
                              f"(max_voltage_v of {self.name})")
 
     def _check_found_state(self) -> None:
         """An output found on above the rig's limit is switched off at once, and reported."""
         if self._output_on and self._setpoint_v > self.config.max_voltage_v:
-            self._set("OUTP OFF", "OUTP?", 0.0)
-            self._output_on = False
+            self.output(False)
             raise DeviceError(f"{self.name}: its output was on at a {self._setpoint_v:g} V "
                               f"setpoint, above max_voltage_v ({self.config.max_voltage_v:g} V) "
                               "of the rig file; switched it off")
@@ -211,15 +229,19 @@ class ScpiSupply:
                 raise DeviceError(f"{self.name} ({self.identity}) has no {kind.replace('_', ' ')}"
                                   f" (`{kind}: required` in the rig file)")
 
-    def _arm(self, setpoint_v: float) -> None:
-        """Program the current limit, the protections and `setpoint_v`, and read them back."""
-        self._check_setpoint(setpoint_v)
+    def _arm(self) -> None:
+        """With the output off: the current limit, a 0 V setpoint, then the over-voltage
+        protection (a supply may refuse one below its setpoint) and the watchdog, each read
+        back."""
+        if self._output_on:
+            raise DeviceError(f"{self.name}: settings are only programmed with the output off")
         cfg = self.config
         self._set(f"CURR {cfg.current_limit_a:.4f}", "CURR?", cfg.current_limit_a)
+        self._set("VOLT 0.0000", "VOLT?", 0.0)
+        self._setpoint_v = 0.0
         if self.protection.over_voltage and cfg.over_voltage_protection != "off":
             self._set(f"VOLT:PROT {cfg.max_voltage_v:.4f}", "VOLT:PROT?", cfg.max_voltage_v)
-        self._set(f"VOLT {setpoint_v:.4f}", "VOLT?", setpoint_v)
-        self._setpoint_v = setpoint_v
+            self._ovp_set = True
         if self.protection.watchdog and cfg.watchdog != "off":
             self._set(f"OUTP:PROT:WDOG:DEL {cfg.watchdog_s:.3f}", "OUTP:PROT:WDOG:DEL?",
                       cfg.watchdog_s)
@@ -258,7 +280,7 @@ class ScpiSupply:
                 if self._closed:
                     return
                 with contextlib.suppress(DeviceError):
-                    self._query("OUTP?", _is_number)
+                    self._state("OUTP?")
 
     def _release(self) -> None:
         self._keepalive_stop.set()
@@ -267,29 +289,35 @@ class ScpiSupply:
             with contextlib.suppress(serial.SerialException, OSError):
                 self._ser.close()
 
-    def _answers(self, query: str) -> bool:
-        """Whether the supply knows `query`: a number comes back and the error queue is empty
-        (a supply that does not know it may stay silent for `timeout_s`)."""
+    def _probe(self, query: str) -> float | None:
+        """What the supply answers to `query`, or None when it does not know it (it stays
+        silent for `timeout_s`, or queues an error)."""
         try:
-            self._number(query)
+            value: float | None = self._number(query)
         except DeviceError:
             self.stats["timeouts"] -= 1  # a probe, not a fault of the link
-            known = False
-        else:
-            known = True
+            value = None
         error = self._query("SYST:ERR?", _ERROR_REPLY.match)
-        return known and error.startswith(("0,", "+0,"))
+        return value if error.startswith(("0,", "+0,")) else None
 
     def _set(self, command: str, query: str, expect: float) -> None:
         """Send a setting, then check the error queue and the value read back."""
         self._write(command)
+        self._check_error(command)
+        got = self._number(query)
+        if abs(got - expect) > max(self.config.readback_tolerance, 1e-3 * abs(expect)):
+            raise DeviceError(f"{self.name}: {query} reads {got:g} after {command!r}")
+
+    def _check_error(self, command: str) -> None:
+        """The error queue must be empty after `command`."""
         error = self._query("SYST:ERR?", _ERROR_REPLY.match)
         if not error.startswith(("0,", "+0,")):
             self.stats["errors"] += 1
             raise DeviceError(f"{self.name} refused {command!r}: {error}")
-        got = self._number(query)
-        if abs(got - expect) > 1e-3 * max(1.0, abs(expect)):
-            raise DeviceError(f"{self.name}: {query} reads {got:g} after {command!r}")
+
+    def _state(self, query: str) -> bool:
+        """An on/off state: `1`/`0` (Keysight, R&S) or `ON`/`OFF` (Rigol)."""
+        return _STATES[self._query(query, lambda text: text.upper() in _STATES).upper()]
 
     def _write(self, line: str) -> None:
         if self._closed:

@@ -148,12 +148,13 @@ class SimSupply:
         return self.measure()[0]
 
     def measure(self) -> tuple[float, float]:
-        """(volts, amps) at the output: the noise-free bus voltage and current now."""
+        """(volts, amps) at the supply's terminals, as a supply in constant-voltage mode
+        measures them: the setpoint (the sag is in the leads, after them) and the current."""
         twin = self.world.twin
         _, _, amps = twin.steady_state(twin.command)
         if twin.supply_voltage_v <= 0:
             return 0.0, 0.0
-        return twin.supply_voltage_v - twin.profile.supply_resistance_ohm * amps, amps
+        return twin.supply_voltage_v, amps
 
     def safe(self) -> None:
         twin = self.world.twin

@@ -9,7 +9,9 @@ output watchdog (`OUTP:PROT:WDOG ON|OFF`, `OUTP:PROT:WDOG?`, `OUTP:PROT:WDOG:DEL
 A supply without them answers nothing and queues `-113` (undefined header), as real ones do.
 Setting commands reply nothing. The output feeds a resistive load through the supply's source
 resistance; at the current limit the supply goes constant-current. A supply may start with a
-leftover setpoint and its output on or off (a shared bench). Fault switches: `garbage` (a junk
+leftover setpoint and its output on or off (a shared bench); it refuses a protection level below
+its setpoint (-221), may round setpoints to `resolution_v`, and may answer `OUTP?` with
+`ON`/`OFF` (`state_words`, as Rigol supplies do). Fault switches: `garbage` (a junk
 line before every reply) and `no_replies` (the supply stops answering). `lines` records every
 line received; `on_states` the (setpoint, current limit) at every switch-on.
 """
@@ -36,13 +38,17 @@ class ScpiSupplyTwin:
     def __init__(self, *, max_voltage_v: float = 30.0, max_current_a: float = 10.0,
                  load_ohm: float = 4.0, source_ohm: float = 0.05, seed: int = 0,
                  host: str = "127.0.0.1", setpoint_v: float = 0.0, output: bool = False,
-                 protection: bool = True) -> None:
+                 protection: bool = True, state_words: bool = False,
+                 resolution_v: float = 0.0, meter_gain: float = 1.0) -> None:
         self.max_voltage_v, self.max_current_a = max_voltage_v, max_current_a
         self.load_ohm, self.source_ohm = load_ohm, source_ohm
         self.voltage_set = setpoint_v
         self.current_limit = max_current_a
         self.output = output
         self.protection = protection
+        self.state_words = state_words  # OUTP? answers ON/OFF (Rigol) instead of 1/0
+        self.resolution_v = resolution_v  # setpoints are rounded to this (0: exact)
+        self.meter_gain = meter_gain  # MEAS:CURR? reads the current times this (accuracy)
         self.ovp_v = max_voltage_v
         self.watchdog = False
         self.watchdog_s = 60.0
@@ -107,8 +113,8 @@ class ScpiSupplyTwin:
         upper = text.upper()
         volts, amps = self.measured()
         queries = {"*IDN?": IDN, "VOLT?": f"{self.voltage_set:.4f}",
-                   "CURR?": f"{self.current_limit:.4f}", "OUTP?": "1" if self.output else "0",
-                   "MEAS:VOLT?": f"{volts:.4f}", "MEAS:CURR?": f"{amps:.4f}"}
+                   "CURR?": f"{self.current_limit:.4f}", "OUTP?": self._state(self.output),
+                   "MEAS:VOLT?": f"{volts:.4f}", "MEAS:CURR?": f"{amps * self.meter_gain:.4f}"}
         if self.protection:
             queries |= {"VOLT:PROT?": f"{self.ovp_v:.4f}",
                         "OUTP:PROT:WDOG?": "1" if self.watchdog else "0",
@@ -130,13 +136,23 @@ class ScpiSupplyTwin:
             self._switch_output(m["state"].upper() in ("ON", "1"))
         return None
 
+    def _state(self, on: bool) -> str:
+        if self.state_words:
+            return "ON" if on else "OFF"
+        return "1" if on else "0"
+
     def _setting(self, cmd: str, value: float) -> None:
         top = {"VOLT": self.max_voltage_v, "CURR": self.max_current_a,
                "VOLT:PROT": self.max_voltage_v * 1.1, "OUTP:PROT:WDOG:DEL": 3600.0}[cmd]
         if not 0.0 <= value <= top:
             self._errors.append('-222,"Data out of range"')
             return
+        if cmd == "VOLT:PROT" and value < self.voltage_set:
+            self._errors.append('-221,"Settings conflict"')  # protection below the setpoint
+            return
         if cmd == "VOLT":
+            if self.resolution_v:
+                value = round(value / self.resolution_v) * self.resolution_v
             self.voltage_set = value
         elif cmd == "CURR":
             self.current_limit = value
