@@ -130,35 +130,49 @@ def test_current_limited_supply_trips_and_stores_no_point_under_its_label(bench,
     assert store.events(run_id, "limit_trip")[0]["detail"]["measured_v"] == pytest.approx(2.0)
 
 
+SIM_PROTOCOL = """\
+rigtool_protocol: 1
+name: t
+simulator: {profile: esc-1100-1900}
+command: {unit: pulse_us, values: [1500, 1700]}
+depth: {unit: m, values: [1.0]}
+voltage: {unit: V, values: [12]}
+timing: {settle: {seconds: 0.2}, acquire: {samples: 50, rate_hz: 500}, tare: at_start}
+"""
+
+
+def _run_with_supply(tmp_path, url: str, read, **supply) -> tuple[Store, object]:
+    """The in-process ESC twin at 12 V with the real SCPI driver at `url`; the sensor's
+    reads go through `read(inner_read, *args)`. Returns the store and the outcome."""
+    protocol = tmp_path / "p.yaml"
+    protocol.write_text(SIM_PROTOCOL)
+    setup = resolve(protocol, sim=True)
+    rigset = open_checked(setup)
+    rigset.supply = ScpiSupply(ScpiSupplyConfig(driver="scpi-supply", url=url, timeout_s=0.3,
+                                                max_voltage_v=24.0, **supply))
+    inner = rigset.sensor.read
+    rigset.sensor.read = lambda *args: read(inner, *args)
+    store = Store(tmp_path / "db.sqlite")
+    run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                              metadata={}, seed=1, command_unit="pulse_us", tool_version="t")
+    try:
+        return store, Engine(setup.protocol, setup.plan, rigset, store, run_id).run()
+    finally:
+        with contextlib.suppress(Exception):
+            rigset.close()
+
+
 @pytest.mark.parametrize("transport", ["pty_path", "url"])
 def test_run_stopped_before_its_first_voltage_leaves_the_supply_as_found(tmp_path, transport):
     """A sensor lost during the first tare: the supply, left off at 12 V with `on_exit:
     safe_voltage`, is sent no setting at all."""
-    protocol = tmp_path / "p.yaml"
-    protocol.write_text("rigtool_protocol: 1\nname: t\nsimulator: {profile: esc-1100-1900}\n"
-                        "command: {unit: pulse_us, values: [1500, 1700]}\n"
-                        "depth: {unit: m, values: [1.0]}\nvoltage: {unit: V, values: [12]}\n"
-                        "timing: {settle: {seconds: 0.2}, acquire: {samples: 50, rate_hz: 500},"
-                        " tare: at_start}\n")
-    setup = resolve(protocol, sim=True)
+
+    def lost(inner, *args):
+        raise DeviceError("sensor lost")
+
     with ScpiSupplyTwin(setpoint_v=12.0) as twin:
-        rigset = open_checked(setup)
-        rigset.supply = ScpiSupply(ScpiSupplyConfig(
-            driver="scpi-supply", url=getattr(twin, transport), timeout_s=0.3,
-            max_voltage_v=24.0, on_exit="safe_voltage", safe_voltage_v=12.0))
-
-        def lost(*_):
-            raise DeviceError("sensor lost")
-
-        rigset.sensor.read = lost
-        store = Store(tmp_path / "db.sqlite")
-        run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
-                                  metadata={}, seed=1, command_unit="pulse_us", tool_version="t")
-        try:
-            outcome = Engine(setup.protocol, setup.plan, rigset, store, run_id).run()
-        finally:
-            with contextlib.suppress(Exception):
-                rigset.close()
+        _, outcome = _run_with_supply(tmp_path, getattr(twin, transport), lost,
+                                      on_exit="safe_voltage", safe_voltage_v=12.0)
         assert outcome.status == "aborted" and "sensor lost" in outcome.reason
         assert not twin.output and twin.history == []
         assert all(line.endswith("?") for line in twin.lines)
@@ -269,30 +283,12 @@ def test_a_supply_just_short_of_its_current_limit_still_trips(bench, tmp_path):
 def test_ctrl_c_before_the_first_voltage_point_never_switches_the_supply_on(tmp_path):
     """A first Ctrl-C during the opening tare: the run stops before any point, and the supply,
     found off, is sent no setting."""
-    protocol = tmp_path / "p.yaml"
-    protocol.write_text("rigtool_protocol: 1\nname: t\nsimulator: {profile: esc-1100-1900}\n"
-                        "command: {unit: pulse_us, values: [1500, 1700]}\n"
-                        "depth: {unit: m, values: [1.0]}\nvoltage: {unit: V, values: [12]}\n"
-                        "timing: {settle: {seconds: 0.2}, acquire: {samples: 50, rate_hz: 500},"
-                        " tare: at_start}\n")
-    setup = resolve(protocol, sim=True)
+
+    def read_then_ctrl_c(inner, *args):
+        os.kill(os.getpid(), signal.SIGINT)
+        return inner(*args)
+
     with ScpiSupplyTwin(setpoint_v=12.0) as twin:
-        rigset = open_checked(setup)
-        rigset.supply = ScpiSupply(ScpiSupplyConfig(driver="scpi-supply", url=twin.pty_path,
-                                                    timeout_s=0.3, max_voltage_v=24.0))
-        read = rigset.sensor.read
-
-        def read_then_ctrl_c(*args):
-            os.kill(os.getpid(), signal.SIGINT)
-            return read(*args)
-
-        rigset.sensor.read = read_then_ctrl_c
-        store = Store(tmp_path / "db.sqlite")
-        run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
-                                  metadata={}, seed=1, command_unit="pulse_us", tool_version="t")
-        try:
-            outcome = Engine(setup.protocol, setup.plan, rigset, store, run_id).run()
-        finally:
-            rigset.close()
+        store, outcome = _run_with_supply(tmp_path, twin.pty_path, read_then_ctrl_c)
         assert outcome.status == "aborted" and "Ctrl-C" in outcome.reason
-        assert store.steps(run_id) == [] and twin.history == [] and not twin.output
+        assert store.steps(outcome.run_id) == [] and twin.history == [] and not twin.output
