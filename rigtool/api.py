@@ -12,10 +12,11 @@ has `.to_pandas()` when pandas is installed.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -112,6 +113,15 @@ class Lab:
         """Close the database; closing twice is harmless."""
         self.store.close()
 
+    @contextlib.contextmanager
+    def snapshot(self) -> Iterator[Lab]:
+        """Read one state of the database: every call inside the block, on this lab and its
+        runs, sees the database as it was at the first read, even while a sweep appends
+        points. A nested block joins the outer one; the outermost ends the snapshot when it
+        exits, also on an exception."""
+        with self.store.snapshot():
+            yield self
+
     def runs(self, limit: int = 1000) -> Records:
         """The runs, newest first: id, name, status, created_utc, n_planned, command_unit,
         n_steps."""
@@ -140,6 +150,8 @@ class Lab:
         if self.store.read_only:
             raise UsageError(f"{self.path} is open read-only: use rigtool.open(path, write=True) "
                              "to calibrate")
+        if self.store.in_snapshot:
+            raise UsageError("calibrate writes to the database: call it outside lab.snapshot()")
         ref = run.id if isinstance(run, Run) else run
         results = calibrate(self.store, ref, out_dir, **options)
         return Calibration.from_results(results.calibration, results.created_utc)
@@ -201,34 +213,30 @@ class StepDynamics:
     def __init__(self, document: dict) -> None:
         self.document = document
         self.selected: str = document["selected"]
+        self.identified: bool = bool(document.get("identified", True))
+        self.reason: str = str(document.get("reason", ""))  # why not identified
         model = document["models"][self.selected]
         self.parameters: dict[str, Value] = {
             k: _coefficient_value(k, v) for k, v in model.items() if isinstance(v, dict)}
         self.levels = {float(x["command"]): _float(x["thrust_n"]) for x in document["levels"]}
 
     def __repr__(self) -> str:
-        tau = self.parameters["tau_n"].value
-        return f"<rigtool dynamics: {self.selected}, tau_n {tau:.3g} s>"
+        if not self.identified:
+            return f"<rigtool dynamics: none identified ({self.reason})>"
+        p = self.parameters
+        lag = p.get("tau_n") or p.get("alpha")
+        return f"<rigtool dynamics: {self.selected}, {lag.name} {lag.value:.3g}>" if lag else (
+            f"<rigtool dynamics: {self.selected}>")
 
     def simulate(self, t_s: Any, command: Any, steady: Any = None) -> np.ndarray:
-        """Thrust (N) for commands `command[i]` held from `t_s[i]`. `steady` maps a command to
-        its steady thrust (a steady sweep's `cal.thrust` is best); by default the levels of the
-        step run, interpolated in speed."""
-        from rigtool.analysis.dynamics import response, speed_target
+        """Thrust (N) for commands `command[i]` held from `t_s[i]`, with the selected model
+        (direction-dependent steady map included). `steady` maps a command to its steady
+        thrust (a steady sweep's `cal.thrust` is best); by default the levels of the step
+        run, interpolated in speed."""
+        from rigtool.analysis.dynamics import simulate_document
 
-        t = np.asarray(t_s, dtype=float)
-        c = np.asarray(command, dtype=float)
-        change = np.concatenate(([True], c[1:] != c[:-1]))
-        if steady is None:
-            known = np.array(sorted(self.levels))
-            speeds = speed_target(np.array([self.levels[k] for k in known]))
-            target = np.interp(c[change], known, speeds)
-        else:
-            target = speed_target(np.nan_to_num(np.asarray(steady(c[change]), dtype=float)))
-        p = self.parameters
-        tau_a = p["tau_a"].value if "tau_a" in p else 1.0
-        gain = p["g"].value if "g" in p else 0.0
-        return response(t, t[change], target, p["tau_n"].value, tau_a, gain, p["delay"].value)
+        return simulate_document(self.document, np.asarray(t_s, dtype=float),
+                                 np.asarray(command, dtype=float), steady)
 
 
 @dataclass
@@ -357,8 +365,9 @@ class Calibration:
 
     def thrust_from_current(self, current_a: Any, direction: str = "forward",
                             depth: float | None = None, voltage: float | None = None) -> Any:
-        """Thrust (N) from motor current (A): f = C_i (|I| - I_0)^(2/3), signed by
-        `direction` ("forward" or "reverse"; current alone cannot tell). Uses the directly
+        """Thrust (N) from motor current (A): f = C_i (|I| - I_0)^(2/k), k = 3 unless the free
+        current law replaced it (`current_exponent`), signed by `direction` ("forward" or
+        "reverse"; current alone cannot tell). Uses the directly
         fitted C_i where there is one, else C_p / C_n^(2/3). With `voltage`, the section
         swept at that supply voltage."""
         if direction not in ("forward", "reverse"):
@@ -368,16 +377,16 @@ class Calibration:
         c_i = _value(coef, f"C_i_{key}_direct")
         if math.isnan(c_i):
             c_i = _value(coef, f"C_i_{key}")
-        i_0 = _value(coef, "I_0")
+        k = _value(coef, "current_exponent")  # the free current law, where it replaced k = 3
+        i_0 = _value(coef, "I_0" if math.isnan(k) else "I_0_free")
         i_0 = 0.0 if math.isnan(i_0) else i_0
         current = np.abs(np.asarray(current_a, dtype=float))
-        f = c_i * np.maximum(current - i_0, 0.0) ** (2 / 3)
+        f = c_i * np.maximum(current - i_0, 0.0) ** (2 / (3.0 if math.isnan(k) else k))
         return _like(current_a, f if direction == "forward" else -f)
 
     def _at(self, depth: float | None, voltage: float | None = None) -> _Depth:
         if depth is None:
-            known = [d.depth_m for d in self._depths if d.depth_m is not None]
-            depth_m = max(known) if known else self._depths[0].depth_m
+            depth_m = deepest_depth(self.depths)
         else:
             depth_m = next((d.depth_m for d in self._depths
                             if d.depth_m is not None and abs(d.depth_m - depth) < 1e-6), None)
@@ -385,15 +394,28 @@ class Calibration:
                 have = ", ".join("not set" if d is None else f"{d:g} m"
                                  for d in dict.fromkeys(self.depths))
                 raise ValueError(f"no section at depth {depth:g} m; this calibration has {have}")
-        here = sorted((d for d in self._depths if d.depth_m == depth_m),
-                      key=lambda d: -math.inf if d.voltage_v is None else d.voltage_v)
+        here = [d for d in self._depths if d.depth_m == depth_m]
         if voltage is None:
-            return here[(len(here) - 1) // 2]
+            return here[middle_voltage([d.voltage_v for d in here])]
         for d in here:
             if d.voltage_v is not None and abs(d.voltage_v - voltage) < 1e-6:
                 return d
         raise ValueError(f"no section at {voltage:g} V; this calibration was swept at "
                          f"{', '.join(f'{v:g} V' for v in self.voltages) or 'no voltages'}")
+
+
+def deepest_depth(depths: Sequence[float | None]) -> float | None:
+    """The depth a calibration's methods use by default: the deepest set (the thruster's own
+    thrust; shallower points may ventilate), else the first (not set)."""
+    known = [d for d in depths if d is not None]
+    return max(known) if known else depths[0]
+
+
+def middle_voltage(voltages: Sequence[float | None]) -> int:
+    """Index of the middle supply voltage among one depth's sections (None sorts first)."""
+    order = sorted(range(len(voltages)),
+                   key=lambda i: -math.inf if voltages[i] is None else voltages[i])
+    return order[(len(order) - 1) // 2]
 
 
 def _depth_from(doc: dict, curve: Columns, lut: Columns) -> _Depth:

@@ -23,6 +23,7 @@ from rigtool.units import unit_label
 
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration
+    from rigtool.engine import Outcome
 
 # Pipes and logs get wide tables instead of rich's 80-column default.
 # markup off: run names, reasons and file contents are printed literally, never as Rich markup
@@ -34,6 +35,7 @@ err = Console(stderr=True, highlight=False, markup=False, soft_wrap=True,
 
 VEHICLE_FORMATS = ("c-header", "ros2", "gazebo", "csv-lut")  # rigtool.artefacts.vehicle.FORMATS
 MAX_PRINTED_ERRORS = 200  # unreadable cells of one imported file listed on stderr
+EXIT_INTERRUPTED = 130  # 128 + SIGINT: the operator's Ctrl-C stopped the command
 
 
 def _fmt_duration(seconds: float) -> str:
@@ -85,19 +87,30 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         store.close()
 
 
-def _report_outcome(outcome, n_plan: int, store: Store) -> int:
+def _report_outcome(outcome: Outcome, n_plan: int, store: Store) -> int:
+    """Print how the run ended; return its exit status (`_exit_status`)."""
     steps = f"{len(store.steps(outcome.run_id))}/{n_plan} points"
     if outcome.status == "completed" and outcome.neutral_ok:
         out.print(f"run {outcome.run_id} completed: {steps} stored in {store.path}")
-        return 0
-    if not outcome.neutral_ok:
+    elif not outcome.neutral_ok:
         err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in {store.path}. "
                   "ERROR: THE NEUTRAL COMMAND FAILED: check the thruster and cut its power.")
-        return 1
-    err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in "
-              f"{store.path}; actuator at neutral. Continue with: "
-              f"rigtool sweep --resume {outcome.run_id} --db {store.path}")
-    return 130 if "Ctrl-C" in (outcome.reason or "") else 1
+    else:
+        err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in "
+                  f"{store.path}; actuator at neutral. Continue with: "
+                  f"rigtool sweep --resume {outcome.run_id} --db {store.path}")
+    return _exit_status(outcome)
+
+
+def _exit_status(outcome: Outcome) -> int:
+    """0 completed, 3 the actuator may not be at neutral, 130 stopped by Ctrl-C, 1 otherwise."""
+    from rigtool.engine import NeutralNotConfirmed
+
+    if not outcome.neutral_ok:
+        return NeutralNotConfirmed.exit_status
+    if outcome.status == "completed":
+        return 0
+    return EXIT_INTERRUPTED if outcome.interrupted else 1
 
 
 def _print_plan(setup, neutral: float) -> None:
@@ -242,18 +255,25 @@ def cmd_merge(args: argparse.Namespace) -> int:
             raise UsageError(f"no run database at {src}")
         if target.exists() and src.resolve() == target.resolve():
             raise UsageError(f"{src} is the output: give another -o")
-    with Store(target) as store, stage(f"merging {len(sources)} database(s) into {target}"):
-        try:
+    created = not target.exists()
+    try:
+        with Store(target) as store, stage(f"merging {len(sources)} database(s) into {target}"):
             reports = store.merge_from(sources)
-        except DataError as exc:
-            raise DataError(f"{exc}; nothing was merged into {target}") from None
-        except UsageError as exc:
-            raise UsageError(f"{exc}; nothing was merged into {target}") from None
+    except (DataError, UsageError) as exc:
+        if created:  # a refused merge leaves no empty database where there was none
+            for path in (target, *(target.with_name(target.name + x) for x in ("-wal", "-shm"))):
+                path.unlink(missing_ok=True)
+        raise type(exc)(f"{exc}; nothing was merged into {target}") from None
     for src, report in zip(sources, reports, strict=True):
-        out.print(f"{src}: {len(report['added'])} run(s) added, {len(report['skipped'])} "
-                  "already present")
-        for run_id in report["running"]:
+        out.print(f"{src}: {len(report.added)} run(s) added, {len(report.updated)} updated, "
+                  f"{len(report.present)} already present")
+        for change in report.updated:
+            out.print(f"  run {change.run_id}: {change.describe()}")
+        for run_id in report.running:
             err.print(f"warning: {src}: run {run_id} is still running: not merged "
+                      "(merge again when it has ended)")
+        for run_id in report.busy:
+            err.print(f"warning: {src}: run {run_id} is running in {target}: not updated "
                       "(merge again when it has ended)")
     return 0
 
@@ -567,11 +587,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="merged database (created, or added to; runs already there are skipped)")
     p.set_defaults(func=cmd_merge)
 
-    p = sub.add_parser("import", help="store existing thrust-stand logs (Tyto/RCbenchmark, any CSV) as runs")
+    p = sub.add_parser("import", help="store existing thrust-stand logs (Tyto/RCbenchmark, "
+                       "manufacturer tables, any CSV) as runs")
     p.add_argument("files", nargs="+", metavar="FILE", help="CSV log(s); one run per file")
     p.add_argument("--mapping", help="YAML column mapping (docs/import.md)")
     p.add_argument("--col", action="append", metavar="FIELD=COLUMN",
-                   help="map a column: time, command, thrust, speed, current, voltage, depth, "
+                   help="map a column: time, command, thrust, speed, current, voltage (bus, "
+                        "measured), supply (the supply voltage set: one calibration per "
+                        "voltage; a `Supply Voltage (V)` column is recognised), depth, "
                         "thrust_std, n_samples (repeatable)")
     p.add_argument("--unit", action="append", metavar="FIELD=UNIT",
                    help="unit of a mapped column, e.g. thrust=kgf (overrides the header suffix)")
@@ -580,8 +603,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--decimal-comma", action="store_true", help="numbers use ',' as decimal sep. "
                    "(delimiter then defaults to ';')")
     p.add_argument("--delimiter", help="field delimiter (default: sniffed from the header)")
-    p.add_argument("--format", choices=("auto", "timeseries", "points"),
-                   help="time series (rows grouped by command) or one row per point")
+    p.add_argument("--format", choices=("auto", "timeseries", "points", "steps"),
+                   help="time series (rows grouped by command), one row per point, or `steps`: "
+                        "a step log kept whole, imported as a step-response run")
     p.add_argument("--settle-s", type=float, help="time series: drop this many seconds at the "
                    "start of each command")
     p.add_argument("--pole-pairs", type=int, help="motor pole pairs, to convert electrical r/min")
@@ -617,7 +641,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         err.print("rigtool: interrupted")
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

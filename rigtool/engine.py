@@ -37,6 +37,12 @@ class StopNow(BaseException):
     """Raised from a signal handler to stop immediately (second Ctrl-C, SIGTERM, SIGHUP)."""
 
 
+class NeutralNotConfirmed(DeviceError):
+    """A run failed and its final neutral command was not confirmed: the thruster may run."""
+
+    exit_status = 3
+
+
 @dataclass
 class Outcome:
     """How a run ended."""
@@ -46,6 +52,7 @@ class Outcome:
     reason: str | None
     steps_done: int
     neutral_ok: bool = True  # False: the final neutral command could not be confirmed sent
+    interrupted: bool = False  # the operator's Ctrl-C (SIGINT) stopped the run
 
 
 class _Signals:
@@ -121,6 +128,7 @@ class Engine:
         times keep increasing across the interruption.
         """
         status, reason, done = "failed", None, 0
+        interrupted = False
         self.reporter.start(self.run_id, len(self.plan), self.unit, done=start_idx)
         with _Signals(self.reporter) as signals:
             self._signals = signals
@@ -140,8 +148,10 @@ class Engine:
                         break
                 else:
                     status = "completed"
+                interrupted = status == "aborted"  # the loop stopped at the operator's Ctrl-C
             except (KeyboardInterrupt, StopNow) as exc:
                 status, reason = "aborted", str(exc) or "interrupted (Ctrl-C)"
+                interrupted = signals.stop_requested or isinstance(exc, KeyboardInterrupt)
             except SafetyTrip as exc:
                 status, reason = "aborted", str(exc)
                 signals.closing = True
@@ -161,7 +171,10 @@ class Engine:
                 self._safe_supply()
                 self.reporter.finish()
                 self._close_run(status, reason, neutral_ok)
-        return Outcome(self.run_id, status, reason, done, neutral_ok)
+                if not neutral_ok and status == "failed":
+                    raise NeutralNotConfirmed(f"{reason}; THE NEUTRAL COMMAND FAILED: check the "
+                                              "thruster and cut its power")
+        return Outcome(self.run_id, status, reason, done, neutral_ok, interrupted)
 
     # -- phases ---------------------------------------------------------------------------
     def _begin(self, t_offset_s: float) -> None:
@@ -369,7 +382,8 @@ class Engine:
         self.follow.check(feedback)
         self._check_bus(step, feedback)
         if step is not None and self.reporter.wants_live:
-            self.reporter.live(step, float(out["thrust_n"].mean()) if len(block) else None)
+            thrust = float(out["thrust_n"].mean()) if len(block) else None
+            self.reporter.live(step, thrust, self._command)  # the reading of the command sent
         return out
 
     def _check_bus(self, step: PlanStep | None, feedback: FeedbackBlock) -> None:

@@ -16,6 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from rigtool.analysis.calibrate import DEEP_DEPTH_M
+from rigtool.api import deepest_depth, middle_voltage
+from rigtool.artefacts.encode import csv_safe_text
 from rigtool.artefacts.write import atomic_write
 from rigtool.errors import UsageError
 from rigtool.outpaths import inside, safe_component
@@ -26,7 +29,8 @@ TABLES = ("points", "samples", "events")
 KEY_COLUMNS = ("run_id", "thruster_id", "rig")
 TEXT_COLUMNS = frozenset({*KEY_COLUMNS, "command_unit", "direction", "status", "kind",
                           "detail_json", "name", "created_utc", "finished_utc", "tool_version",
-                          "metadata_json", "protocol_json", "unit", "coefficient", "out_dir"})
+                          "metadata_json", "protocol_json", "unit", "coefficient", "out_dir",
+                          "role"})
 Chunk = dict[str, np.ndarray]
 
 
@@ -133,25 +137,28 @@ def _runs_table(store: Store, records: list[RunRecord]) -> Chunk:
     }
 
 
+CALIBRATION_COLUMNS = ("run_id", "thruster_id", "rig", "created_utc", "out_dir", "depth_m",
+                       "supply_voltage_v", "role", "main_section", "coefficient", "value", "lo",
+                       "hi", "unit", "n")
+LAW_TERMS = {"k": "C_n_law_k", "b": "C_n_law_b", "k_inverse": "C_n_law_k_inverse"}
+
+
 def _calibrations_table(store: Store, records: list[RunRecord]) -> Chunk:
-    """One row per coefficient of each run's latest calibration (long format)."""
-    rows = []
+    """One row per coefficient of each run's latest calibration (long format): every depth
+    and supply-voltage section, then the C_n(U) law terms of a voltage sweep."""
+    rows: list[tuple] = []
     for rec in records:
         cal = store.latest_calibration(rec.id)
-        if cal is None:
-            continue
-        for depth in cal["summary"].get("depths") or []:
-            for name, c in (depth.get("coefficients") or {}).items():
-                rows.append((rec.id, rec.thruster_id, rec.rig_name, cal["created_utc"],
-                             cal["out_dir"], depth.get("depth_m"), name, c.get("value"),
-                             c.get("lo"), c.get("hi"), c.get("unit"), c.get("n")))
-    names = ("run_id", "thruster_id", "rig", "created_utc", "out_dir", "depth_m",
-             "coefficient", "value", "lo", "hi", "unit", "n")
+        if cal is not None:
+            keys = (rec.id, rec.thruster_id, rec.rig_name, cal["created_utc"], cal["out_dir"])
+            rows += [(*keys, *row) for row in _coefficient_rows(cal["summary"])]
     out = {}
-    for i, name in enumerate(names):
+    for i, name in enumerate(CALIBRATION_COLUMNS):
         values = [r[i] for r in rows]
         if name in TEXT_COLUMNS:
             out[name] = np.array(values, dtype=object)
+        elif name == "main_section":
+            out[name] = np.array(values, dtype=bool)
         elif name == "n":
             out[name] = np.array([MISSING_INT if v is None else v for v in values], np.int64)
         else:
@@ -159,8 +166,50 @@ def _calibrations_table(store: Store, records: list[RunRecord]) -> Chunk:
     return out
 
 
+def _coefficient_rows(summary: dict) -> Iterator[tuple]:
+    """(depth, voltage, role, main section, coefficient, value, lo, hi, unit, n) of every
+    coefficient a stored calibration summary holds."""
+    depths = summary.get("depths") or []
+    deep = (summary.get("analysis") or {}).get("deep_depth_m")
+    deep = DEEP_DEPTH_M if deep is None else deep
+    main = _main_section(depths)
+    for i, section in enumerate(depths):
+        depth = section.get("depth_m")
+        head = (depth, section.get("supply_voltage_v"), _role(depth, deep), i == main)
+        for name, c in (section.get("coefficients") or {}).items():
+            yield (*head, name, *_coefficient(c))
+    main_depth = None if main is None else depths[main].get("depth_m")
+    for law in summary.get("voltage_laws") or []:
+        depth = law.get("depth_m")
+        head = (depth, None, _role(depth, deep), main is not None and depth == main_depth)
+        for term, name in LAW_TERMS.items():
+            if law.get(term) is not None:
+                yield (*head, name, *_coefficient(law[term]))
+
+
+def _main_section(depths: list[dict]) -> int | None:
+    """The section the Python API and the vehicle artefacts use by default (the deepest
+    depth, the middle supply voltage there); None without sections."""
+    if not depths:
+        return None
+    depth = deepest_depth([d.get("depth_m") for d in depths])
+    here = [i for i, d in enumerate(depths) if d.get("depth_m") == depth]
+    return here[middle_voltage([depths[i].get("supply_voltage_v") for i in here])]
+
+
+def _role(depth: float | None, deep_m: float) -> str:
+    """`shallow` where the propeller may ventilate (as calibrate decides), else `deep`."""
+    return "shallow" if depth is not None and depth < deep_m else "deep"
+
+
+def _coefficient(c: dict) -> tuple:
+    """value, lo, hi, unit and n of a stored coefficient."""
+    return c.get("value"), c.get("lo"), c.get("hi"), c.get("unit"), c.get("n")
+
+
 def _cells(values: np.ndarray) -> list:
-    """A column as CSV cells: missing values (NaN, None, MISSING_INT in ints) empty."""
+    """A column as CSV cells: missing values (NaN, None, MISSING_INT in ints) empty; text
+    that a spreadsheet would run as a formula behind a `'` (the writer quotes the rest)."""
     if values.dtype.kind == "f":
         obj = values.astype(object)
         obj[np.isnan(values)] = None
@@ -169,7 +218,7 @@ def _cells(values: np.ndarray) -> list:
         obj = values.astype(object)
         obj[values == MISSING_INT] = None
         return obj.tolist()
-    return values.tolist()
+    return [csv_safe_text(v) if isinstance(v, str) else v for v in values.tolist()]
 
 
 def _write_csv(path: Path, chunks: Iterator[Chunk]) -> None:
@@ -188,6 +237,8 @@ def _arrow(name: str, values: np.ndarray) -> object:
 
     if name in TEXT_COLUMNS or values.dtype.kind in "OUS":
         return pa.array(values.tolist(), type=pa.string())
+    if values.dtype.kind == "b":
+        return pa.array(values, type=pa.bool_())
     if values.dtype.kind == "i":
         return pa.array(values, mask=values == MISSING_INT, type=pa.int64())
     return pa.array(values, mask=np.isnan(values), type=pa.float64())

@@ -26,9 +26,12 @@ if TYPE_CHECKING:  # the plan's pydantic models cost 0.25 s to import: not at st
     from rigtool.plan import PlanStep
 
 
-def _live_text(step: PlanStep, unit: str, thrust_n: float | None) -> str:
+def _live_text(step: PlanStep, unit: str, thrust_n: float | None,
+               command: float | None = None) -> str:
+    """One progress line: the command (the step's unless given), depth and thrust read at it."""
     thrust = "   --   " if thrust_n is None else f"{thrust_n:8.2f}"
-    return (f"cmd {step.command:8.2f} {unit_label(unit)}  depth {step.depth_m:5.2f} m  "
+    cmd = step.command if command is None else command
+    return (f"cmd {cmd:8.2f} {unit_label(unit)}  depth {step.depth_m:5.2f} m  "
             f"thrust {thrust} N")
 
 
@@ -57,11 +60,13 @@ class RichReporter:
         self._progress.start()
         self._task = self._progress.add_task("starting", total=n_steps, completed=done)
 
-    def live(self, step: PlanStep, thrust_n: float | None) -> None:
+    def live(self, step: PlanStep, thrust_n: float | None, command: float) -> None:
+        """Show `thrust_n`, just read with `command` sent (ramps, settle and rest included)."""
         now = time.monotonic()
         if self._progress is not None and now - self._last_live > 0.1:
             self._last_live = now
-            self._progress.update(self._task, description=_live_text(step, self._unit, thrust_n))
+            self._progress.update(self._task,
+                                  description=_live_text(step, self._unit, thrust_n, command))
 
     def step_done(self, step: PlanStep, thrust_n: float | None) -> None:
         if self._progress is not None:
@@ -99,7 +104,7 @@ class PlainReporter:
         self._next_report = done + max(1, n_steps // 10)
         self._print(f"run {run_id}: {n_steps} points")
 
-    def live(self, step: PlanStep, thrust_n: float | None) -> None:
+    def live(self, step: PlanStep, thrust_n: float | None, command: float) -> None:
         return None
 
     def step_done(self, step: PlanStep, thrust_n: float | None) -> None:
@@ -125,7 +130,7 @@ class SilentReporter:
     def start(self, run_id: str, n_steps: int, unit: str, done: int = 0) -> None:
         return None
 
-    def live(self, step: PlanStep, thrust_n: float | None) -> None:
+    def live(self, step: PlanStep, thrust_n: float | None, command: float) -> None:
         return None
 
     def step_done(self, step: PlanStep, thrust_n: float | None) -> None:

@@ -271,8 +271,13 @@ ACTUATOR = Obj({"command_unit": STR, "neutral": NUM, "command_min": NUM, "comman
 COUNTERS = MapOf(MapOf(NUM))
 COEFFICIENT = Obj({"value": Opt(NUM), "lo": Opt(NUM), "hi": Opt(NUM), "unit": Opt(STR),
                    "n": Opt(INT), "r2": Opt(NUM)})
-SUMMARY = Obj({"depths": Opt(ListOf(Obj({"depth_m": Opt(NUM),
-                                          "coefficients": Opt(MapOf(COEFFICIENT))})))})
+SUMMARY = Obj({
+    "depths": Opt(ListOf(Obj({"depth_m": Opt(NUM), "supply_voltage_v": Opt(NUM),
+                              "coefficients": Opt(MapOf(COEFFICIENT))}))),
+    "voltage_laws": Opt(ListOf(Obj({"depth_m": Opt(NUM), "k": Opt(COEFFICIENT),
+                                    "b": Opt(COEFFICIENT), "k_inverse": Opt(COEFFICIENT)}))),
+    "analysis": Opt(Obj({"deep_depth_m": Opt(NUM)})),
+})
 _INTERVAL = Obj({"t_start_s": NUM, "t_end_s": NUM})
 EVENT_DETAILS: dict[str, Shape] = {
     "tare": Obj({"bias": Opt(ListOf(Opt(NUM)))}),

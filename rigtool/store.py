@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import hashlib
 import itertools
 import json
 import logging
@@ -20,8 +21,9 @@ import secrets
 import socket
 import sqlite3
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -429,7 +431,8 @@ class Store:
     @contextlib.contextmanager
     def snapshot(self) -> Iterator[None]:
         """Read in one transaction: every query inside sees the database as it was at the
-        first, even while a sweep appends points. Nested use joins the outer snapshot."""
+        first, even while a sweep appends points. Nested use joins the outer snapshot; the
+        outermost ends the transaction when it exits, also on an exception."""
         if self.conn.in_transaction:
             yield
             return
@@ -437,8 +440,18 @@ class Store:
         try:
             yield
         finally:
+            self._end_read()
+
+    def _end_read(self) -> None:
+        """End a snapshot's read transaction (nothing to end once the store is closed)."""
+        with contextlib.suppress(sqlite3.ProgrammingError):
             if self.conn.in_transaction:
                 self.conn.execute("COMMIT")
+
+    @property
+    def in_snapshot(self) -> bool:
+        """Whether a snapshot (or any transaction) is open on this store's connection."""
+        return self.conn.in_transaction
 
     def transaction(self) -> _Transaction:
         """Context manager: BEGIN IMMEDIATE ... COMMIT, or ROLLBACK on error."""
@@ -647,15 +660,18 @@ class Store:
                 "VALUES (?, ?, ?, ?, ?)",
                 [(run_id, r.get(t_key), kind, r.get(step_key), json.dumps(r)) for r in records])
 
-    def merge_from(self, sources: Iterable[str | Path]) -> list[dict[str, list[str]]]:
-        """Copy the runs of other stores that this one lacks: run, points (new step ids),
-        samples, events and calibrations, every row checked first. A run already here is
-        skipped, not duplicated; a run still marked running is left for a later merge.
+    def merge_from(self, sources: Iterable[str | Path]) -> list[MergeReport]:
+        """Merge other stores into this one, every row checked first: a run this one lacks is
+        copied (run, points under new step ids, samples, events, calibrations); of a run it
+        has, what is new is brought over: points it lacks, a later status (a resumed run),
+        calibrations and events. A point both hold must be identical (fields, and its sample
+        blocks by hash), else MergeConflict; nothing is overwritten. A run still running in
+        a source is left for a later merge, one running here is not touched. Merging again
+        changes nothing.
 
         The whole merge is one transaction: any refused row rolls all of it back. Sources
         are opened read-only (immutable when they have no write-ahead log), so not even
-        their -wal or -shm files are created. Returns per source {"added": [...],
-        "skipped": [...], "running": [...]}.
+        their -wal or -shm files are created. Returns a MergeReport per source.
         """
         opened = []
         try:
@@ -663,7 +679,7 @@ class Store:
                 opened.append(_MergeSource(Path(path), self.version))
             with self.transaction():
                 here = set(self.run_ids())
-                return [src.copy_into(self.conn, here) for src in opened]
+                return [src.copy_into(self._read, here) for src in opened]
         finally:
             for src in opened:
                 src.close()
@@ -1155,24 +1171,14 @@ class _MergeSource:
             raise DataError(f"merge source {self.path}: {problem}; only the tables rigtool "
                             "makes are merged")
 
-    def copy_into(self, target: sqlite3.Connection, here: set[str]) -> dict[str, list[str]]:
-        """Copy the finished runs `here` lacks into `target` (in its transaction)."""
-        report: dict[str, list[str]] = {"added": [], "skipped": [], "running": []}
+    def copy_into(self, into: _Reader, here: set[str]) -> MergeReport:
+        """Merge every finished run into the target `into` reads (in its transaction)."""
+        report = MergeReport()
         run_id = None
         self.conn.execute("BEGIN")
         try:
             for run_id in self._run_ids():
-                if run_id in here:
-                    report["skipped"].append(run_id)
-                    continue
-                (run,) = self.read.rows(run_id, "runs", tuple(RUN_COLUMNS), "id = ?", (run_id,),
-                                        parse=False)
-                if run["status"] == "running":
-                    report["running"].append(run_id)
-                    continue
-                self._copy_run(target, run)
-                here.add(run_id)
-                report["added"].append(run_id)
+                self._merge_run(into, run_id, here, report)
         except sqlite3.IntegrityError as exc:
             raise self.read.damaged(run_id, "copying it", str(exc)) from None
         except sqlite3.OperationalError:
@@ -1194,45 +1200,286 @@ class _MergeSource:
                                         "(YYYYMMDDThhmmssmmmZ-xxxxxx)")
         return ids
 
-    def _copy_run(self, target: sqlite3.Connection, run: dict) -> None:
-        """One checked run, its points, samples, events and calibrations (new row ids)."""
-        run_id = run["id"]
-        _insert(target, "runs", run)
+    def _merge_run(self, into: _Reader, run_id: str, here: set[str], report: MergeReport
+                   ) -> None:
+        """Add a run the target lacks, or bring what is new of one it has; file the outcome."""
+        (run,) = self.read.rows(run_id, "runs", tuple(RUN_COLUMNS), "id = ?", (run_id,),
+                                parse=False)
+        if run["status"] == "running":
+            report.running.append(run_id)
+            return
+        change = RunChange(run_id)
+        if run_id not in here:
+            _insert(into.conn, "runs", run)
+            here.add(run_id)
+            self._merge_contents(into, run_id, change)
+            report.added.append(run_id)
+            return
+        (mine,) = into.rows(run_id, "runs", tuple(RUN_COLUMNS), "id = ?", (run_id,),
+                            parse=False)
+        if mine["status"] == "running":
+            report.busy.append(run_id)
+            return
+        self._merge_record(into, run, mine, change)
+        self._merge_contents(into, run_id, change)
+        if change.changed:
+            report.updated.append(change)
+        else:
+            report.present.append(run_id)
+
+    def _conflict(self, into: _Reader, run_id: str, where: str, problem: str) -> MergeConflict:
+        """The error for a run whose two copies disagree on something both hold."""
+        return MergeConflict(f"merge source {self.path}: run {run_label(run_id)}, {where}: "
+                             f"{problem} (the two copies of the run disagree, and {into.label} "
+                             "is not overwritten)")
+
+    def _merge_record(self, into: _Reader, run: dict, mine: dict, change: RunChange) -> None:
+        """Take the source's status, finish and resume time when its run ended later."""
+        for name in RUN_COLUMNS:
+            if name not in MERGE_MUTABLE and run[name] != mine[name]:
+                raise self._conflict(into, run["id"], f"runs.{name}",
+                                     f"{show(run[name])} here, {show(mine[name])} there")
+        if _run_time(run) < _run_time(mine):
+            return
+        differ = [name for name in MERGE_MUTABLE if run[name] != mine[name]]
+        if not differ:
+            return
+        if _run_time(run) == _run_time(mine):
+            raise self._conflict(into, run["id"], f"runs.{differ[0]}",
+                                 f"{show(run[differ[0]])} here, {show(mine[differ[0]])} there, "
+                                 "for the same start and end time")
+        into.conn.execute(f"UPDATE main.runs SET {', '.join(n + ' = ?' for n in MERGE_MUTABLE)} "
+                          "WHERE id = ? AND status != 'running'",
+                          (*(run[n] for n in MERGE_MUTABLE), run["id"]))
+        change.record = True
+        if run["status"] != mine["status"]:
+            change.status = (mine["status"], run["status"])
+
+    def _merge_contents(self, into: _Reader, run_id: str, change: RunChange) -> None:
+        """The run's points, samples, calibrations and events the target lacks."""
+        change.points = self._merge_points(into, run_id)
+        newer = self._merge_calibrations(into, run_id, change)
+        self._merge_events(into, run_id, newer, change)
+
+    def _merge_points(self, into: _Reader, run_id: str) -> int:
+        """Insert the points the target lacks; a point both hold must be the same. Returns
+        how many were inserted."""
         self.read.count(run_id, "steps", "run_id = ?", (run_id,), MAX_STORED_POINTS)
-        points = {}
+        theirs = {row["idx"]: _digest(_point_fields(row)) for row in into.rows(
+            run_id, "steps", tuple(STEP_COLUMNS), "run_id = ?", (run_id,), parse=False)}
+        new: dict[int, int] = {}
+        sizes: dict[int, int] = {}
         for step in self.read.rows(run_id, "steps", tuple(STEP_COLUMNS), "run_id = ?",
                                    (run_id,), "ORDER BY idx", parse=False):
-            points[step["idx"]] = (_insert(target, "steps", step, skip="id"), step["n"])
-        self._copy_blocks(target, run_id, points)
-        self.read.count(run_id, "events", "run_id = ?", (run_id,), MAX_STORED_EVENTS,
-                        "detail_json", MAX_EVENT_BYTES)
+            sizes[step["idx"]] = step["n"]
+            if step["idx"] not in theirs:
+                new[step["idx"]] = _insert(into.conn, "steps", step, skip="id")
+            elif theirs[step["idx"]] != _digest(_point_fields(step)):
+                raise self._point_conflict(into, step)
+        self._merge_blocks(into, run_id, new, sizes)
+        return len(new)
+
+    def _point_conflict(self, into: _Reader, step: dict) -> MergeConflict:
+        """The error for a point whose stored fields differ from the target's."""
+        (mine,) = into.rows(step["run_id"], "steps", tuple(STEP_COLUMNS),
+                            "run_id = ? AND idx = ?", (step["run_id"], step["idx"]), parse=False)
+        name = next(n for n in STEP_COLUMNS if n != "id" and step[n] != mine[n])
+        return self._conflict(into, step["run_id"], f"point {step['idx']}, steps.{name}",
+                              f"{show(step[name])} here, {show(mine[name])} there")
+
+    def _merge_blocks(self, into: _Reader, run_id: str, new: dict[int, int],
+                      sizes: dict[int, int]) -> None:
+        """Copy the blocks of the `new` points (idx -> target step id), each adding up to
+        its `n`; the blocks of every other point must hash as the target's do."""
+        self.read.check_blocks(run_id, "st.run_id = ?", (run_id,))
+        held = dict.fromkeys(sizes, 0)
+        ours: dict[int, Any] = {}
+        for idx, chunk, n, *values in self.conn.execute(BLOCKS_OF_RUN, (run_id,)):
+            held[idx] += n
+            if idx in new:
+                into.conn.execute(INSERT_BLOCK, (new[idx], chunk, n, *values))
+            else:
+                _feed(ours.setdefault(idx, hashlib.sha256()), (chunk, n, *values))
+        for idx, n in sizes.items():
+            if held[idx] != n:
+                raise self.read.damaged(run_id, f"point {idx}, steps.n",
+                                        f"{n:,} samples, but its blocks hold {held[idx]:,}")
+        if len(new) < len(sizes):
+            theirs = _block_digests(into.conn, run_id)
+            for idx in sorted(set(sizes) - set(new)):
+                if _hexdigest(ours.get(idx)) != _hexdigest(theirs.get(idx)):
+                    raise self._conflict(into, run_id, f"point {idx}, sample_blocks",
+                                         "its samples differ from those there")
+
+    def _merge_calibrations(self, into: _Reader, run_id: str, change: RunChange) -> bool:
+        """Insert the calibrations the target lacks; whether the source's newest is newer
+        than every one the target had."""
+        self.read.count(run_id, "calibrations", "run_id = ?", (run_id,),
+                        MAX_STORED_CALIBRATIONS)
+        theirs: Counter[bytes] = Counter()
+        newest_theirs = ""
+        for cal in into.rows(run_id, "calibrations", CALIBRATION_KEY, "run_id = ?", (run_id,),
+                             parse=False):
+            theirs[_digest(cal.values())] += 1
+            newest_theirs = max(newest_theirs, cal["created_utc"])
+        newest_ours = ""
+        for cal in self.read.rows(run_id, "calibrations", tuple(CALIBRATION_COLUMNS),
+                                  "run_id = ?", (run_id,), "ORDER BY id", parse=False):
+            newest_ours = max(newest_ours, cal["created_utc"])
+            key = _digest(cal[n] for n in CALIBRATION_KEY)
+            if theirs[key]:
+                theirs[key] -= 1
+                continue
+            _insert(into.conn, "calibrations", cal, skip="id")
+            change.calibrations += 1
+        return newest_ours > newest_theirs
+
+    def _events(self, run_id: str) -> Iterator[dict]:
+        """The run's events, each checked (its detail against its kind's shape)."""
         for event in self.read.rows(run_id, "events", tuple(EVENT_COLUMNS), "run_id = ?",
                                     (run_id,), "ORDER BY id", parse=False):
             self.read.detail(run_id, event, EVENT_COLUMNS["detail_json"].check(
                 event["detail_json"]))
-            _insert(target, "events", event, skip="id")
-        self.read.count(run_id, "calibrations", "run_id = ?", (run_id,),
-                        MAX_STORED_CALIBRATIONS)
-        for cal in self.read.rows(run_id, "calibrations", tuple(CALIBRATION_COLUMNS),
-                                  "run_id = ?", (run_id,), "ORDER BY id", parse=False):
-            _insert(target, "calibrations", cal, skip="id")
+            yield event
 
-    def _copy_blocks(self, target: sqlite3.Connection, run_id: str,
-                     points: dict[int, tuple[int, int]]) -> None:
-        """The run's checked blocks under the new point ids; each must add up to its `n`."""
-        self.read.check_blocks(run_id, "st.run_id = ?", (run_id,))
-        cols = ("chunk", "n", *SAMPLE_COLUMNS[1:])
-        held = dict.fromkeys(points, 0)
-        for idx, *values in self.conn.execute(
-                f"SELECT st.idx, {', '.join('b.' + c for c in cols)} FROM sample_blocks b "
-                "JOIN steps st ON st.id = b.step_id WHERE st.run_id = ? "
-                "ORDER BY st.idx, b.chunk", (run_id,)):
-            target.execute(INSERT_BLOCK, (points[idx][0], *values))
-            held[idx] += values[1]
-        for idx, (_, n) in points.items():
-            if held[idx] != n:
-                raise self.read.damaged(run_id, f"point {idx}, steps.n",
-                                        f"{n:,} samples, but its blocks hold {held[idx]:,}")
+    def _merge_events(self, into: _Reader, run_id: str, newer: bool, change: RunChange
+                      ) -> None:
+        """Insert the events the target lacks. A kind the target holds events of that the
+        source does not was rewritten by a calibration (ventilation): the side with the
+        newest calibration keeps its events of that kind."""
+        self.read.count(run_id, "events", "run_id = ?", (run_id,), MAX_STORED_EVENTS,
+                        "detail_json", MAX_EVENT_BYTES)
+        theirs = _event_digests(into, run_id)
+        ours: dict[str, Counter[bytes]] = {}
+        for event in self._events(run_id):
+            ours.setdefault(event["kind"], Counter())[_digest(_event_key(event))] += 1
+        rewritten = {k for k, held in theirs.items() if held - ours.get(k, Counter())}
+        for kind in rewritten if newer else ():
+            into.conn.execute("DELETE FROM main.events WHERE run_id = ? AND kind = ?",
+                              (run_id, kind))
+            change.events_replaced += sum(theirs.pop(kind).values())
+        wanted = {k: held - theirs.get(k, Counter()) for k, held in ours.items()
+                  if newer or k not in rewritten}
+        for event in self._events(run_id) if any(wanted.values()) else ():
+            key = _digest(_event_key(event))
+            if wanted.get(event["kind"], Counter())[key] > 0:
+                wanted[event["kind"]][key] -= 1
+                _insert(into.conn, "events", event, skip="id")
+                change.events += 1
+
+
+MERGE_MUTABLE = ("status", "finished_utc", "stop_reason", "started_utc", "host", "pid")
+CALIBRATION_KEY = ("created_utc", "tool_version", "out_dir", "summary_json", "state")
+BLOCKS_OF_RUN = (f"SELECT st.idx, b.chunk, b.n, {', '.join('b.' + c for c in SAMPLE_COLUMNS[1:])} "
+                 "FROM sample_blocks b JOIN steps st ON st.id = b.step_id WHERE st.run_id = ? "
+                 "ORDER BY st.idx, b.chunk")
+
+
+class MergeConflict(DataError):
+    """Two copies of a run disagree on something both hold; nothing is merged."""
+
+
+@dataclass
+class RunChange:
+    """What a merge brought to one run: points, run record, calibrations and events."""
+
+    run_id: str
+    points: int = 0
+    status: tuple[str, str] | None = None  # (before, after) when the status changed
+    record: bool = False  # status, finish or resume time taken from the source
+    calibrations: int = 0
+    events: int = 0
+    events_replaced: int = 0  # events of a kind a newer calibration rewrote
+
+    @property
+    def changed(self) -> bool:
+        """Whether the merge changed anything of the run."""
+        return any((self.points, self.record, self.calibrations, self.events,
+                    self.events_replaced))
+
+    def describe(self) -> str:
+        """One line: `+3 point(s), status interrupted -> completed, +1 calibration(s)`."""
+        parts = [f"+{self.points} point(s)"] if self.points else []
+        if self.status:
+            parts.append(f"status {self.status[0]} -> {self.status[1]}")
+        elif self.record:
+            parts.append("run record updated (resumed)")
+        parts += [f"+{n} {what}" for n, what in ((self.calibrations, "calibration(s)"),
+                                                   (self.events, "event(s)")) if n]
+        if self.events_replaced:
+            parts.append(f"{self.events_replaced} event(s) of an older calibration replaced")
+        return ", ".join(parts)
+
+
+@dataclass
+class MergeReport:
+    """What merging one source did, by run id."""
+
+    added: list[str] = field(default_factory=list)
+    updated: list[RunChange] = field(default_factory=list)
+    present: list[str] = field(default_factory=list)  # nothing new in the source
+    running: list[str] = field(default_factory=list)  # still running in the source
+    busy: list[str] = field(default_factory=list)  # running in the target: left alone
+
+
+def _run_time(run: dict) -> tuple[str, str]:
+    """When a run was last started and when it ended: the later copy of a run is ahead."""
+    return run["started_utc"] or "", run["finished_utc"] or ""
+
+
+def _point_fields(step: dict) -> list:
+    """A stored point's values but its row id and run id, in STEP_COLUMNS order."""
+    return [step[n] for n in STEP_COLUMNS if n not in ("id", "run_id")]
+
+
+def _event_key(event: dict) -> list:
+    """What identifies an event across copies of a run (its row id does not)."""
+    return [event["kind"], event["t_s"], event["step_idx"], event["detail_json"]]
+
+
+def _feed(digest: Any, values: Iterable[object]) -> None:
+    """Add SQL values to a hash, tagged by type and length so no two rows collide."""
+    for value in values:
+        if value is None:
+            digest.update(b"n;")
+        elif isinstance(value, bytes):
+            digest.update(b"b%d;" % len(value))
+            digest.update(value)
+        elif isinstance(value, str):
+            data = value.encode("utf-8")
+            digest.update(b"s%d;" % len(data))
+            digest.update(data)
+        else:
+            digest.update(f"{type(value).__name__}:{value!r};".encode())
+
+
+def _digest(values: Iterable[object]) -> bytes:
+    """The SHA-256 of a row's values."""
+    digest = hashlib.sha256()
+    _feed(digest, values)
+    return digest.digest()
+
+
+def _hexdigest(digest: Any) -> str | None:
+    """A running hash's value (None: no blocks)."""
+    return None if digest is None else digest.hexdigest()
+
+
+def _block_digests(conn: sqlite3.Connection, run_id: str) -> dict[int, Any]:
+    """Per point of a run in `conn`, the hash of its blocks in chunk order."""
+    out: dict[int, Any] = {}
+    for idx, *values in conn.execute(BLOCKS_OF_RUN, (run_id,)):
+        _feed(out.setdefault(idx, hashlib.sha256()), values)
+    return out
+
+
+def _event_digests(read: _Reader, run_id: str) -> dict[str, Counter[bytes]]:
+    """Per kind, how many of each event a run holds, by hash."""
+    out: dict[str, Counter[bytes]] = {}
+    for event in read.rows(run_id, "events", tuple(EVENT_COLUMNS), "run_id = ?", (run_id,),
+                           parse=False):
+        out.setdefault(event["kind"], Counter())[_digest(_event_key(event))] += 1
+    return out
 
 
 def _insert(conn: sqlite3.Connection, table: str, row: dict, skip: str = "") -> int:

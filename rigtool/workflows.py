@@ -4,10 +4,13 @@ artefacts, stored results) and report (render what calibrate stored, recompute n
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 import rigtool
 from rigtool.artefacts import state
@@ -137,9 +140,81 @@ def _stored_state(blob: bytes, run_id: str, db: Path) -> dict:
             raise _bad_state(db, run_id, f"holds a {type(cal).__name__}, not a calibration")
         if cal.run_id != run_id:
             raise _bad_state(db, run_id, f"is the calibration of run {run_label(cal.run_id)}")
+        problem = _inconsistency(cal)
+        if problem:
+            raise _bad_state(db, run_id, f"is inconsistent: {problem}")
     if cav is not None and type(cav).__name__ != "CavitationResult":
         raise _bad_state(db, run_id, f"holds a {type(cav).__name__}, not a cavitation result")
     return {"calibration": cal, "cavitation": cav, "notes": list(notes)}
+
+
+def _inconsistency(cal: Any) -> str | None:
+    """What makes a decoded calibration unusable by its readers (report, exports, the API),
+    beyond the field types the decoder checks: no section, arrays of one table that disagree
+    in length or are not numeric, scalars out of any physical range."""
+    if not cal.sections:
+        return "it has no section"
+    if not _finite_within(cal.neutral_command, 1e9):
+        return f"neutral_command is {cal.neutral_command!r}"
+    for name in ("propeller_diameter_m", "water_density_kg_m3"):
+        value = getattr(cal, name)
+        if value is not None and not math.isnan(value) and not (0 < value <= 1e4):
+            return f"{name} is {value!r}"
+    for i, sec in enumerate(cal.sections):
+        problem = _table_problem(sec.points) or (sec.curve and _curve_problem(sec.curve))
+        if problem:
+            return f"section {i}: {problem}"
+    return None
+
+
+def _finite_within(value: float, bound: float) -> bool:
+    return math.isfinite(value) and abs(value) <= bound
+
+
+def _columns_problem(owner: str, columns: dict[str, Any], allow_empty: bool = False) -> str | None:
+    """Columns of one table: one-dimensional, numeric (or text where named so), one length."""
+    lengths = set()
+    for name, values in columns.items():
+        if not isinstance(values, np.ndarray) or values.ndim != 1:
+            return f"{owner}.{name} is not a one-dimensional array"
+        if values.dtype.kind not in "biufU":
+            return f"{owner}.{name} holds {values.dtype} values"
+        if not (allow_empty and values.size == 0):
+            lengths.add(values.size)
+    return f"{owner} columns have lengths {sorted(lengths)}" if len(lengths) > 1 else None
+
+
+def _table_problem(points: Any) -> str | None:
+    """The point table: every column, and every channel's statistics, one row per point."""
+    columns = {f.name: getattr(points, f.name) for f in dataclasses.fields(points)
+               if isinstance(getattr(points, f.name), np.ndarray)}
+    for f in dataclasses.fields(points):
+        stats = getattr(points, f.name)
+        if dataclasses.is_dataclass(stats):
+            columns |= {f"{f.name}.{g.name}": getattr(stats, g.name)
+                        for g in dataclasses.fields(stats)
+                        if isinstance(getattr(stats, g.name), np.ndarray)}
+    if points.command.dtype.kind not in "biuf" or points.step_idx.dtype.kind not in "biuf":
+        return "points.command and points.step_idx must be numbers"
+    if points.step_idx.size and not np.all(np.abs(points.step_idx) < 2**53):
+        return "points.step_idx out of range"
+    return _columns_problem("points", columns, allow_empty=True)
+
+
+def _curve_problem(curve: Any) -> str | None:
+    """The command curve: its columns, and each branch's two pairs of columns."""
+    columns = {f.name: getattr(curve, f.name) for f in dataclasses.fields(curve)
+               if isinstance(getattr(curve, f.name), np.ndarray)}
+    problem = _columns_problem("curve", columns)
+    if problem or not _finite_within(curve.neutral_command, 1e9):
+        return problem or f"curve.neutral_command is {curve.neutral_command!r}"
+    for branch in curve.branches:
+        for pair in (("command", "thrust_fit_n"), ("lut_command", "lut_thrust_n")):
+            cols = {k: getattr(branch, k) for k in pair if hasattr(branch, k)}
+            problem = _columns_problem(f"curve branch {branch.direction}", cols)
+            if problem:
+                return problem
+    return None
 
 
 def _bad_state(db: Path, run_id: str, problem: str) -> DataError:
@@ -231,6 +306,10 @@ def _dynamics_source(store: Store, run_ref: str, cal: Calibration) -> DynamicsSo
     if other is None or other.dynamics is None:
         raise UsageError(f"run {run_id} has no identified dynamics: --dynamics takes a "
                          "calibrated step-response run (a protocol with command.steps)")
+    if not getattr(other.dynamics, "identified", True):
+        raise UsageError(f"run {run_id}: no dynamics were identified "
+                         f"({other.dynamics.reason or 'see its report'}), so no export carries "
+                         "time constants from it")
     if cal.thruster_id and other.thruster_id and cal.thruster_id != other.thruster_id:
         raise UsageError(f"run {run_id} is thruster {other.thruster_id!r}, run {cal.run_id} is "
                          f"thruster {cal.thruster_id!r}: their artefacts would mix two thrusters")

@@ -146,7 +146,8 @@ def test_can_run_curve_quality_and_windows(can_cal):
     assert sec.repeatability is not None and sec.repeatability.median_std_n < 0.05
     assert can_cal.drift.slope.value == pytest.approx(DRIFT_N_PER_H, rel=0.05)
     assert can_cal.drift.slope.unit == "N/h"
-    assert any("tare drift" in w for w in can_cal.warnings)
+    # 0.2 N/h moves the zero about 0.01 N over this 2-minute sweep, against 0.2 N of noise
+    assert not any("drift" in w for w in can_cal.warnings)
     p = sec.points
     assert not p.used_in_fits[p.command == 0].any()
     # The first point starts from standstill: its window starts later than the others.

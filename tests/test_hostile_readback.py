@@ -526,3 +526,12 @@ def test_fuzzed_calibration_csvs_load_or_raise_usage_errors(base, tmp_path, name
         return
     event("loaded")
     _use(cal)
+
+
+def test_a_refused_merge_creates_no_target(tmp_path, capsys):
+    junk = tmp_path / "junk.sqlite"
+    junk.write_bytes(b"not a database at all" * 100)
+    target = tmp_path / "lab.sqlite"
+    assert main(["merge", str(junk), "-o", str(target)]) == 2
+    assert "nothing was merged" in capsys.readouterr().err
+    assert not target.exists() and not list(tmp_path.glob("lab.sqlite-*"))

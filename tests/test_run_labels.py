@@ -234,7 +234,7 @@ def test_a_bridge_that_stops_replying_is_not_reported_at_neutral(write_yaml, db_
         rig = write_yaml("rigtool_rig: 1\nname: bridge\nthrust: {channel: fz, sign: -1}\n"
                          f"actuator: {{driver: stm32-bridge, url: '{fw.url}', timeout_s: 0.2}}\n"
                          + netft_section(box), "rig.yaml")
-        assert sweep(write_yaml(BRIDGE_PROTOCOL), rig, db_path) == 1
+        assert sweep(write_yaml(BRIDGE_PROTOCOL), rig, db_path) == 3  # not at neutral
     finally:
         stop.set()
         for part in (box, fw, live):

@@ -3,9 +3,14 @@ user would run it on the simulated rig (luo2020-cavitation after its deep base r
 
 from __future__ import annotations
 
+import re
+
 import pytest
+import yaml
 
 from rigtool.cli import main
+from rigtool.sim.profiles import profile_with_overrides
+from rigtool.store import Store
 
 from .conftest import PROTOCOLS
 
@@ -26,8 +31,38 @@ def test_sweep_calibrate_report(name, tmp_path, monkeypatch, capsys):
     for protocol in filter(None, (NEEDS.get(name), name)):
         assert main(["sweep", str(PROTOCOLS / f"{protocol}.yaml"), "--sim"]) == 0
     assert main(["calibrate", "last"]) == 0
+    drift = [w for w in capsys.readouterr().err.splitlines() if "drift" in w]
+    setting, matters = _twin_drift(name, tmp_path / "rigtool.sqlite")
+    assert len(drift) == int(matters), (setting, drift)
+    if matters:  # the rate quoted is the twin's
+        rate = float(re.search(r"at (\S+) N/h", drift[0]).group(1))
+        assert rate == pytest.approx(setting["drift_n_per_h"], rel=0.1), drift
     assert main(["report", "last"]) == 0
     report = capsys.readouterr().out.strip().splitlines()[-1]
     assert report.endswith("report.html") and (tmp_path / report).is_file()
     if name in NEEDS:
         assert 'id="cavitation"' in (tmp_path / report).read_text()
+
+
+def _twin_drift(name: str, db) -> tuple[dict, bool]:
+    """The twin's zero drift and force noise settings for protocol `name`, and whether that
+    drift moves the zero by more than the noise over the points that share one zero estimate
+    (a depth, at one supply voltage; the whole run where three tares or more give a trend):
+    the drift warning's criterion, applied to what the twin was given."""
+    sim = yaml.safe_load((PROTOCOLS / f"{name}.yaml").read_text())["simulator"]
+    profile = profile_with_overrides(sim["profile"], sim.get("overrides") or {})
+    with Store(db) as store:
+        run_id = store.resolve_run_id("last")
+        steps, n_tares = store.steps(run_id), len(store.events(run_id, "tare"))
+    groups: dict[tuple, list[dict]] = {}
+    for s in steps:
+        groups.setdefault((s["depth_m"], s.get("voltage_v")), []).append(s)
+    spans = [_span_h(g) for g in groups.values()] + ([_span_h(steps)] if n_tares >= 3 else [])
+    setting = {"profile": profile.name, "drift_n_per_h": profile.drift_n_per_h,
+               "force_noise_n": profile.force_noise_n, "span_h": max(spans)}
+    return setting, profile.drift_n_per_h * max(spans) > profile.force_noise_n
+
+
+def _span_h(steps: list[dict]) -> float:
+    """Hours from the first acquired sample of `steps` to the end of the last."""
+    return (max(s["t_end_s"] for s in steps) - min(s["t_acquire_s"] for s in steps)) / 3600

@@ -94,17 +94,39 @@ def test_fixture_decodes_to_its_expected_values(path: Path):
 
 @pytest.mark.parametrize("path", BLOBS, ids=lambda p: p.stem)
 def test_fixture_reencodes_to_the_current_tree(path: Path):
-    """Decoding and encoding again gives today's tree: v2 unchanged, v1 with its names
-    replaced by their tags."""
-    old = tree_of(path.read_bytes())
-    new = tree_of(state.encode(state.decode(path.read_bytes())))
-    assert new["format_version"] == state.FORMAT_VERSION
-    if old["format_version"] == 1:
-        text = json.dumps(old["root"])
-        for name, tag in state_types.LEGACY_V1.items():
-            text = text.replace(json.dumps(name), json.dumps(tag))
-        old["root"] = json.loads(text)
-    assert new["root"] == old["root"]
+    """A fixture decoded, encoded by today's rigtool and decoded again is the same object, and
+    today's encoding names every class by a current tag."""
+    first = state.decode(path.read_bytes())
+    blob = state.encode(first)
+    tree = tree_of(blob)
+    assert tree["format_version"] == state.FORMAT_VERSION
+    assert tags_in(tree["root"]) <= state_types.TYPES.keys()
+    _assert_same(first, state.decode(blob), "root")
+
+
+def _assert_same(a, b, where: str) -> None:
+    """Equal objects: dataclasses field by field, arrays element by element (NaN equal)."""
+    assert type(a) is type(b), (where, type(a), type(b))
+    if dataclasses.is_dataclass(a):
+        for f in dataclasses.fields(a):
+            _assert_same(getattr(a, f.name), getattr(b, f.name), f"{where}.{f.name}")
+    elif isinstance(a, np.ndarray):
+        assert a.shape == b.shape and a.dtype == b.dtype, where
+        if a.dtype.kind == "O":
+            for i, (x, y) in enumerate(zip(a.tolist(), b.tolist(), strict=True)):
+                _assert_same(x, y, f"{where}[{i}]")
+        else:
+            assert np.array_equal(a, b, equal_nan=a.dtype.kind in "fc"), where
+    elif isinstance(a, dict):
+        assert a.keys() == b.keys(), where
+        for key in a:
+            _assert_same(a[key], b[key], f"{where}.{key}")
+    elif isinstance(a, list | tuple):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_same(x, y, f"{where}[{i}]")
+    else:
+        assert a == b or (a != a and b != b), (where, a, b)  # NaN is NaN
 
 
 def test_v1_fixtures_hold_legacy_names_and_v2_fixtures_tags():
@@ -176,7 +198,7 @@ def _stored_state(db: Path) -> bytes:
 def test_a_real_calibration_encodes_with_registered_tags_only(calibrated):
     blob = _stored_state(calibrated)
     assert format_of(blob) == state.FORMAT_VERSION
-    assert {"calibrate.Calibration/1", "dynamics.Dynamics/1"} <= tags_in(tree_of(blob)["root"])
+    assert {"calibrate.Calibration/1", "dynamics.Dynamics/2"} <= tags_in(tree_of(blob)["root"])
     assert state.decode(blob)["calibration"].dynamics is not None
 
 
@@ -330,3 +352,49 @@ def test_no_module_imports_by_name_from_stored_data():
     users = {str(p.relative_to(package.parent)) for p in package.rglob("*.py")
              if IMPORT_BY_NAME.search(p.read_text())}
     assert users == set(ALLOWED_IMPORT_BY_NAME)
+
+
+def _shorter(cal):
+    sec = cal.sections[0]
+    points = dataclasses.replace(sec.points, command=sec.points.command[:-3])
+    return dataclasses.replace(cal, sections=[dataclasses.replace(sec, points=points)])
+
+
+def _text_commands(cal):
+    sec = cal.sections[0]
+    text = np.array(["=1+1"] * sec.points.command.size)
+    points = dataclasses.replace(sec.points, command=text)
+    return dataclasses.replace(cal, sections=[dataclasses.replace(sec, points=points)])
+
+
+WELL_TYPED_BUT_BROKEN = {
+    "no section": lambda cal: dataclasses.replace(cal, sections=[]),
+    "a short column": _shorter,
+    "text commands": _text_commands,
+    "a huge neutral": lambda cal: dataclasses.replace(cal, neutral_command=10.0**300),
+    "a negative diameter": lambda cal: dataclasses.replace(cal, propeller_diameter_m=-1e308),
+}
+
+
+@pytest.mark.parametrize("case", WELL_TYPED_BUT_BROKEN, ids=str)
+def test_well_typed_but_inconsistent_states_are_refused(calibrated, tmp_path, capsys, case):
+    """Field types right, contents unusable: report, export-cal and the API refuse with one
+    line (exit 2) instead of failing inside the readers."""
+    import rigtool
+    from rigtool.errors import DataError
+
+    db = tmp_path / "db.sqlite"
+    db.write_bytes(calibrated.read_bytes())
+    results = state.decode(_stored_state(db))
+    results["calibration"] = WELL_TYPED_BUT_BROKEN[case](results["calibration"])
+    conn = sqlite3.connect(db)
+    with conn:
+        conn.execute("UPDATE calibrations SET state = ?", (state.encode(results),))
+    conn.close()
+    for argv in (["report", "last"], ["export-cal", "last", "--format", "c-header"]):
+        assert main([*argv, "--db", str(db), "--out", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err
+        assert "is inconsistent" in err and "Traceback" not in err and len(err.splitlines()) == 1
+    lab = rigtool.open(db)
+    with pytest.raises(DataError, match="is inconsistent"):
+        lab.calibration(lab.run("last"))

@@ -55,14 +55,19 @@ def voltage_law_b(cal: Calibration, sec: DepthSection) -> float:
 
 
 def betm_from_section(sec: DepthSection, **kw: float) -> Betm:
-    """Betm with the section's coefficients and its per-sample residual spreads as variances."""
+    """Betm with the section's coefficients and its per-sample residual spreads as variances;
+    where the free current law replaced I = C_n |n|^3 + I_0 (`current_exponent` among the
+    fits), it carries that law, the one its C_i was fitted with."""
     f = sec.fits
 
     def v(name: str, fallback: str | None = None) -> float:
         c = f.get(name) or (f.get(fallback) if fallback else None)
         return float(c.value) if c is not None else math.nan
 
-    return Betm(cp_fwd=v("C_p_fwd"), cp_rev=v("C_p_rev", "C_p_fwd"), c_n=v("C_n"), i_0=v("I_0"),
+    free = "current_exponent" in f  # the free current law replaced the textbook one
+    law = ({"c_n": v("C_free"), "i_0": v("I_0_free"), "current_exponent": v("current_exponent")}
+           if free else {"c_n": v("C_n"), "i_0": v("I_0")})
+    return Betm(cp_fwd=v("C_p_fwd"), cp_rev=v("C_p_rev", "C_p_fwd"), **law,
                 ci_fwd=v("C_i_fwd_direct", "C_i_fwd"),
                 ci_rev=v("C_i_rev_direct", "C_i_rev_direct") if "C_i_rev_direct" in f
                 else v("C_i_rev", "C_i_fwd_direct"),

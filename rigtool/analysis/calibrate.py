@@ -10,8 +10,8 @@ import numpy as np
 import rigtool
 from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
-from rigtool.analysis.dynamics import Dynamics, StepSeries, identify
-from rigtool.analysis.fits import SECONDS_PER_HOUR, Coefficient, ZeroLine
+from rigtool.analysis.dynamics import Dynamics, StepSeries, identify, no_dynamics_reason
+from rigtool.analysis.fits import SECONDS_PER_HOUR, Z95, Coefficient, ZeroLine
 from rigtool.analysis.models import (
     FitParams,
     ModelFits,
@@ -24,6 +24,7 @@ from rigtool.analysis.quality import (
     Hysteresis,
     Repeatability,
     TareDrift,
+    drift_over_sweep,
     hysteresis,
     repeatability,
     tare_drift,
@@ -48,7 +49,10 @@ class CalibrationParams:
     fit: FitParams = field(default_factory=FitParams)
     min_r2: float = 0.98
     min_points: int = 5
-    drift_warn_n_per_h: float = 0.1
+    drift_warn_n_per_h: float = 0.1  # unused (kept: stored calibrations name it)
+    # a drift is warned about when its interval excludes zero and it moves the zero over the
+    # sweep by more than this many times the thrust noise
+    drift_warn_noise_ratio: float = 1.0
     deep_depth_m: float = DEEP_DEPTH_M  # shallower points may ventilate: no zero fitted there
 
 
@@ -132,12 +136,18 @@ class Calibration:
             for c in (law.k_inverse, law.k, law.b):
                 rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, c.note))
         if self.dynamics is not None:
-            m = self.dynamics.model
-            for c in (m.tau_n_s, m.tau_a_s, m.gain, m.delay_s):
-                if c is not None:
-                    rows.append((c.name, c.value, c.lo, c.hi, c.unit,
-                                 f"{m.name} model (selected by BIC)"))
+            rows += _dynamics_rows(self.dynamics)
         return rows
+
+
+def _dynamics_rows(d: Dynamics) -> list[SummaryRow]:
+    """The selected model's parameters, or one row saying no dynamics were identified."""
+    if not d.identified:
+        return [("dynamics", NAN, NAN, NAN, "", f"no dynamics identified: {d.reason}")]
+    m = d.model
+    return [(c.name, c.value, c.lo, c.hi, c.unit, f"{m.name} model (selected by held-out steps)")
+            for c in (m.tau_n_s, m.alpha, m.tau_a_s, m.gain, m.delay_s, m.reverse_ratio)
+            if c is not None]
 
 
 def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None) -> Calibration:
@@ -167,9 +177,8 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
     for law in laws:
         prefix = "" if law.depth_m is None else f"{law.depth_m:g} m: "
         warnings += [prefix + w for w in law.warnings]
-    dynamics = _dynamics(run) if run.step_response else None
-    if dynamics is not None:
-        warnings += dynamics.warnings
+    dynamics, notes = _dynamics(run) if run.step_response else (None, [])
+    warnings += notes
     return Calibration(
         run_id=run.run_id, run_name=run.name, run_status=run.status,
         command_unit=run.command_unit, neutral_command=run.neutral_command,
@@ -180,14 +189,19 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
     )
 
 
-def _dynamics(run: RunData) -> Dynamics | None:
-    """Identify the dynamics of a step-response run from its points in time order."""
+def _dynamics(run: RunData) -> tuple[Dynamics | None, list[str]]:
+    """Identify the dynamics of a step-response run from its points in time order; the
+    warnings say why when there are none."""
     ok = np.flatnonzero(run.steps.status == "ok")
     s = run.samples
     keep = np.isin(s.point, ok)
     series = StepSeries(s.t_s[keep], s.thrust_n[keep], run.steps.t_acquire_s[ok],
                         run.steps.command[ok], run.neutral_command)
-    return identify(series)
+    dynamics = identify(series)
+    if dynamics is not None:
+        return dynamics, dynamics.warnings
+    reason = no_dynamics_reason(series) or "no model could be fitted to the steps"
+    return None, [f"dynamics: no dynamics identified: {reason}"]
 
 
 def _groups(steps) -> list[np.ndarray]:
@@ -258,7 +272,8 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
             points.speed_signed_rpm[ok], points.current.mean[ok], command_unit=run.command_unit,
             neutral_command=run.neutral_command, zero=zero,
             zero_scatter_n=drift.zero_scatter_n if drift else None,
-            speed_se=points.speed.se[ok], params=p.curve)
+            speed_se=points.speed.se[ok], params=p.curve, tare_t_s=run.tares.t_s,
+            tare_drift=_drift_per_s(drift))
 
     if shallow:
         # Points near the surface may be ventilating: the zero comes from dead points or tares.
@@ -293,10 +308,14 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
                 "> 1): check the torque channel and mount transform, and the current and "
                 "voltage scaling")
     f = points.thrust_corrected_n
-    hyst = hysteresis(points.command[ok], points.direction[ok], f[ok], points.thrust.se[ok])
+    # Hysteresis only from sweeps built for it: a step run's up/down labels are its steps'.
+    hyst = None if run.step_response else hysteresis(points.command[ok], points.direction[ok],
+                                                      f[ok], points.thrust.se[ok])
     rep = repeatability(points.command[ok], points.direction[ok], points.repeat[ok], f[ok])
     depth = float(points.depth_m[0]) if np.isfinite(points.depth_m[0]) else None
     warnings = _section_warnings(points, models.coefficients, curve, zero, p) + models.warnings
+    if curve is not None:
+        warnings += curve.warnings
     if zero is not None and zero.source.startswith("assumed"):
         warnings.append("no tare and no dead points at this depth: the sensor zero is assumed "
                         "to be 0 (points here may ventilate, so none is fitted through them)")
@@ -306,6 +325,17 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
                         "coefficients come from a deep run")
     return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep, warnings,
                         models.speed_sign)
+
+
+def _drift_per_s(drift: TareDrift | None) -> tuple[float, float] | None:
+    """The tares' drift and its standard error in N/s (None without an interval: < 3 tares)."""
+    if drift is None or not math.isfinite(drift.slope.lo):
+        return None
+    from scipy import special
+
+    t = special.stdtrit(max(drift.slope.n - 2, 1), 0.975)
+    se = (drift.slope.hi - drift.slope.lo) / (2 * t)
+    return drift.slope.value / SECONDS_PER_HOUR, se / SECONDS_PER_HOUR
 
 
 def tare_zero(tares: Tares, drift: TareDrift | None, t_s: np.ndarray) -> ZeroLine:
@@ -336,19 +366,44 @@ def _run_warnings(run: RunData, table: PointTable, drift: TareDrift | None,
     if unsteady:
         out.append(f"{unsteady} point(s) have excursions inside their steady window "
                    "(transient longer than the window cap, or ventilation)")
-    if drift is not None and abs(drift.slope.value) > p.drift_warn_n_per_h:
-        out.append(f"tare drift {drift.slope.value:.3g} N/h exceeds "
-                   f"{p.drift_warn_n_per_h:g} N/h")
+    moved = None if drift is None else drift_over_sweep(
+        drift.slope.value, (drift.slope.lo, drift.slope.hi), *_span_and_noise(table),
+        p.drift_warn_noise_ratio)
+    if moved:
+        out.append(f"tare drift: the tares show the sensor zero moving {moved}")
     return out
+
+
+def _span_and_noise(points: PointTable) -> tuple[float, float]:
+    """The time the ok points span (s), and the thrust noise: their smallest per-point standard
+    deviation, the sensor's own where the propeller adds least (NaN without one)."""
+    ok = (points.status == "ok") & np.isfinite(points.t_mid_s)
+    spread = points.thrust.std[ok]
+    spread = spread[np.isfinite(spread) & (spread > 0)]
+    span = float(np.ptp(points.t_mid_s[ok])) if ok.any() else 0.0
+    return span, float(spread.min()) if spread.size else NAN
+
+
+def _zero_drift_interval(zero: ZeroLine) -> tuple[float, float]:
+    """95 % interval (N/h) of a zero line's drift; NaN where the line carries no variance for
+    it (a zero taken from the tares: the tare drift warning speaks for it)."""
+    var = zero.cov[1][1] if zero.cov is not None else 0.0
+    if not var > 0:
+        return NAN, NAN
+    rate, half = zero.drift_n_per_s, Z95 * math.sqrt(var)
+    return (rate - half) * SECONDS_PER_HOUR, (rate + half) * SECONDS_PER_HOUR
 
 
 def _section_warnings(points: PointTable, fits: dict[str, Coefficient],
                       curve: CommandCurve | None, zero: ZeroLine | None,
                       p: CalibrationParams) -> list[str]:
     out = []
-    if zero is not None and abs(zero.drift_n_per_s) * 3600 > p.drift_warn_n_per_h:
-        out.append(f"sensor zero drifts {zero.drift_n_per_s * 3600:.3g} N/h during the sweep "
-                   f"(from the {zero.source}; removed from the results)")
+    moved = None if zero is None else drift_over_sweep(
+        zero.drift_n_per_s * SECONDS_PER_HOUR, _zero_drift_interval(zero),
+        *_span_and_noise(points), p.drift_warn_noise_ratio)
+    if moved:
+        out.append(f"sensor zero drifts {moved} (from the {zero.source}; removed from the "
+                   "results)")
     if not points.speed.measured and curve is None:
         out.append("no speed feedback and no command curve: nothing to fit")
     elif points.speed.measured and not fits:

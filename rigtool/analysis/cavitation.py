@@ -190,6 +190,15 @@ def _thruster_id(run: dict) -> str | None:
         ((run.get("protocol") or {}).get("metadata") or {}).get("thruster_id")
 
 
+def _other_thruster(store: Store, run_id: str, other_id: str) -> str | None:
+    """Why run `other_id` cannot join `run_id`'s model: another thruster id (None when the
+    ids agree, or either run has none)."""
+    mine, theirs = _thruster_id(store.run(run_id)), _thruster_id(store.run(other_id))
+    if mine and theirs and mine != theirs:
+        return f"run {other_id} is thruster {theirs!r}, run {run_id} is thruster {mine!r}"
+    return None
+
+
 def _latest_base_run(store: Store, run_id: str) -> str | None:
     """Most recent completed base run of the same thruster with >= 10 commands, or None."""
     tid = _thruster_id(store.run(run_id))
@@ -235,8 +244,8 @@ class CavitationStage:
 def cavitation_stage(store: Store, run_id: str, base_ref: str | None) -> CavitationStage:
     """Decide the quasi-cavitation stage of a run (the one decision calibrate and report share).
 
-    A `base_ref` (--base) is checked: UsageError when the run does not qualify or the base
-    run is not a deep run with speed and current feedback.
+    A `base_ref` (--base) is checked: UsageError when the run does not qualify, or the base
+    run is not a deep run with speed and current feedback, or is another thruster id's.
     """
     reason = cavitation_applicable(store, run_id)
     if reason is not None:
@@ -245,7 +254,7 @@ def cavitation_stage(store: Store, run_id: str, base_ref: str | None) -> Cavitat
         return CavitationStage(None, reason)
     if base_ref:
         base_id = store.resolve_run_id(base_ref)
-        problem = base_run_problem(store, base_id)
+        problem = base_run_problem(store, base_id) or _other_thruster(store, run_id, base_id)
         if problem:
             raise UsageError(f"--base {base_ref}: not usable as a base run: {problem}")
         return CavitationStage(base_id)
@@ -540,12 +549,14 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
 
 def training_runs(store: Store, run_id: str, refs: Sequence[str]) -> list[str]:
     """Full ids of the extra training runs `refs` for `run_id`'s model; UsageError for one
-    that is `run_id` itself, repeated, or not a shallow run with speed and current feedback."""
+    that is `run_id` itself, repeated, of another thruster id, or not a shallow run with speed
+    and current feedback."""
     ids = []
     for ref in refs:
         rid = store.resolve_run_id(ref)
         problem = ("it is the run being calibrated" if rid == run_id else
-                   "it is given twice" if rid in ids else cavitation_applicable(store, rid))
+                   "it is given twice" if rid in ids else
+                   cavitation_applicable(store, rid) or _other_thruster(store, run_id, rid))
         if problem:
             raise UsageError(f"--train-with {ref}: {problem}")
         ids.append(rid)

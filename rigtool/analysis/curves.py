@@ -2,13 +2,16 @@
 
 Works on the per-command aggregate of the steady-state point means (repeats and sweep
 directions pooled), after removing the sensor zero (offset and drift since the tare, given by
-the model fit, or fitted here to the dead points). A command is dead when its thrust is
+the model fit, or found here together with the dead points, anchored at the tare: see
+zero_search.py). A command is dead when its thrust is
 statistically indistinguishable from zero: |mean| < max(k_se * SE, floor), the floor being the
 largest of a fixed sensor floor, k_tare times the zero scatter between tare events, and k_zero
 times the dead points' own scatter about zero. Live commands form branches (maximal runs of
 live commands with one thrust sign); each branch gets a monotone (isotonic, piecewise-linear
 between points) fit in its own direction, a saturated range at its extreme end, break-away
-jumps, and an inverse lookup table over its usable part.
+jumps, and an inverse lookup table over its usable part. Live commands beside a dead zone that
+the data cannot tell from it (a drift could make them read zero instead) are counted as dead
+and named in `CommandCurve.warnings`.
 """
 
 from __future__ import annotations
@@ -19,15 +22,25 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rigtool.analysis.fits import LinearFit, ZeroLine, wls
+from rigtool.analysis.fits import ZeroLine
+from rigtool.analysis.zero_search import (
+    NO_ANCHORS,
+    Anchors,
+    Imitation,
+    ZeroPoints,
+    fit_zero_line,
+    imitations,
+    runs,
+    search_zero,
+    section_anchors,
+    zone_cores,
+)
 
 CURVE_UNITS = ("pwm_counts", "pulse_us", "percent")
 ZERO_PASSES = 4
 MIN_ZERO_POINTS = 5  # dead commands needed to judge the zero's scatter
 JUMP_SIDE = 3  # points each side of a gap that define the local lines of the break-away test
 JUMP_LEVERAGE = 2.0  # variance inflation of a line extrapolated half a step past its points
-OUTLIER_K = 5.0
-DRIFT_K = 3.0  # a zero drift is kept when it exceeds this many standard errors  # zero-line points further than this many robust SDs from the line are dropped
 
 
 @dataclass(frozen=True)
@@ -96,6 +109,7 @@ class CommandCurve:
     dead_zones: list[tuple[float, float]] = field(default_factory=list)
     saturated: list[tuple[float, float]] = field(default_factory=list)
     break_aways: list[float] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # zero/dead-zone doubts, naming commands
 
     def is_dead(self, commands: np.ndarray) -> np.ndarray:
         """True for commands that fall inside a dead zone."""
@@ -163,16 +177,7 @@ def find_dead(mean: np.ndarray, se: np.ndarray, floor_n: float, params: CurvePar
 
 def ranges(command: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
     """Contiguous runs of True in `mask` as (first command, last command)."""
-    out = []
-    for start, stop in _runs(mask):
-        out.append((float(command[start]), float(command[stop - 1])))
-    return out
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    padded = np.concatenate(([False], mask, [False])).astype(np.int8)
-    edges = np.flatnonzero(np.diff(padded))
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+    return [(float(command[start]), float(command[stop - 1])) for start, stop in runs(mask)]
 
 
 def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
@@ -180,18 +185,26 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
                   speed_mean: np.ndarray, current_mean: np.ndarray, *, command_unit: str,
                   neutral_command: float, zero: ZeroLine | None = None,
                   zero_scatter_n: float | None = None, speed_se: np.ndarray | None = None,
-                  params: CurveParams | None = None) -> CommandCurve:
+                  params: CurveParams | None = None, tare_t_s: np.ndarray | None = None,
+                  tare_drift: tuple[float, float] | None = None) -> CommandCurve:
     """Analyse thrust vs command of one depth's points (one entry per point, any order).
 
     Thrust is taken relative to `zero` (offset + drift of the sensor zero at each point's
-    time t_s); without one, the zero is estimated from the dead points themselves. Where the
-    propeller speed is measured (signed, `speed_se` its standard errors), a command is dead
-    when the propeller does not turn, and branches follow the direction it turns: near a
-    deadband the thrust is too small to tell either.
+    time t_s); without one, the zero and the dead points are found together (zero_search.py),
+    anchored at the tares (`tare_t_s`, where the zero is 0; `tare_drift` (N/s, SE) when the
+    tares show it) or at the neutral command. Where the propeller speed is measured (signed,
+    `speed_se` its standard errors), a command is dead when the propeller does not turn, and
+    branches follow the direction it turns: near a deadband the thrust is too small to tell
+    either. Live commands beside a dead zone that a drift could equally make dead are counted
+    as dead and named in `warnings`.
     """
     p = params or CurveParams()
     floor = max(p.floor_n, p.k_tare * zero_scatter_n if zero_scatter_n else 0.0)
-    line = zero or _zero_from_dead_points(command, t_s, thrust_mean, thrust_se, floor, p)
+    ok = np.isfinite(thrust_mean) & np.isfinite(t_s)
+    pts = ZeroPoints(command[ok], t_s[ok], thrust_mean[ok], np.nan_to_num(thrust_se[ok]))
+    anchors = section_anchors(tare_t_s, t_s, tare_drift)
+    hint = _not_turning(speed_mean[ok], None if speed_se is None else speed_se[ok], p)
+    line = zero or _find_zero(pts, anchors, hint, neutral_command, floor, p)
     z = line.at(t_s) if line else np.zeros(command.size)
     var_z = line.var_at(t_s) if line else np.zeros(command.size)
     n_se = np.full(command.size, np.nan) if speed_se is None else speed_se
@@ -205,11 +218,14 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
         floor = max(floor, p.k_zero * 1.4826 * float(np.median(np.abs(m[dead]))))
         dead = find_dead(m, se_dead, floor, p)
     direction = np.sign(m)
+    notes: list[str] = []
     if np.isfinite(spd).all() and np.any(spd != 0):
         turning = np.abs(spd) > np.maximum(p.k_se * np.nan_to_num(spd_se),
                                            p.speed_floor_frac * float(np.max(np.abs(spd))))
         dead = ~turning
         direction = np.where(spd != 0, np.sign(spd), direction)
+    elif zero is None and line is not None:
+        dead, notes = _imitated(pts, anchors, cmd, dead, floor, neutral_command, command_unit, p)
     state = np.where(dead, "dead", "live").astype("<U9")
     branch_of = np.full(cmd.size, -1)
     fit = np.zeros(cmd.size)
@@ -228,88 +244,85 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
         thrust_max_n=hi, speed_mean_rpm=spd, current_mean_a=cur, thrust_fit_n=fit, state=state,
         branch=branch_of, branches=branches, dead_zones=ranges(cmd, dead),
         saturated=[b.saturated for b in branches if b.saturated],
-        break_aways=sorted(c for b in branches for c in b.break_aways),
+        break_aways=sorted(c for b in branches for c in b.break_aways), warnings=notes,
     )
 
 
-def _zero_from_dead_points(command: np.ndarray, t_s: np.ndarray, mean: np.ndarray,
-                           se: np.ndarray, floor: float, p: CurveParams) -> ZeroLine | None:
-    """Sensor zero (offset + linear drift in time) read from every dead zone, iterated.
+def _not_turning(speed: np.ndarray, speed_se: np.ndarray | None,
+                 p: CurveParams) -> np.ndarray | None:
+    """Per point: the propeller does not turn (None without speed feedback on every point)."""
+    if not speed.size or not np.isfinite(speed).all() or not np.any(speed != 0):
+        return None
+    noise = p.k_se * np.nan_to_num(speed_se) if speed_se is not None else 0.0
+    return np.abs(speed) <= np.maximum(noise, p.speed_floor_frac * float(np.max(np.abs(speed))))
+
+
+def _find_zero(pts: ZeroPoints, anchors: Anchors, hint: np.ndarray | None, neutral: float,
+               floor: float, p: CurveParams) -> ZeroLine | None:
+    """The zero from the joint search, or, with nothing to anchor it (no tare, no neutral
+    command, no feedback), iterated from a zero of 0 over the dead points."""
+    if hint is None and anchors.empty and not (pts.command == neutral).any():
+        return _zero_from_dead_points(pts, floor, p)
+    return search_zero(pts, anchors, neutral, floor, p.k_se, hint)
+
+
+def _imitated(pts: ZeroPoints, anchors: Anchors, cmd: np.ndarray, dead: np.ndarray,
+              floor: float, neutral: float, unit: str, p: CurveParams
+              ) -> tuple[np.ndarray, list[str]]:
+    """The dead mask with the commands a drift could equally make dead added, and warnings."""
+    thr = np.maximum(p.k_se * pts.se, floor)
+    found = imitations(pts, anchors, cmd, dead, thr, neutral, p.k_se)
+    out = dead.copy()
+    for f in found:
+        out |= np.isin(cmd, f.commands)
+    return out, [_imitation_text(f, cmd, unit) for f in found]
+
+
+def _imitation_text(f: Imitation, cmd: np.ndarray, unit: str) -> str:
+    """The warning for one dead zone whose neighbours a drift could make dead."""
+    names = ", ".join(f"{a:g}" if a == b else f"{a:g}-{b:g}"
+                      for a, b in ranges(cmd, np.isin(cmd, f.commands)))
+    known = (f"they read the zero that the other dead points and the tares give, within its "
+             f"uncertainty there (+-{f.band_n:.2g} N)" if math.isfinite(f.band_n) else
+             "the other dead points and the tares do not fix the zero's drift there")
+    return (f"cannot tell a zero drift from a small thrust at {unit} {names}: beside the dead "
+            f"zone {f.zone[0]:g}-{f.zone[1]:g}, {known}; counted as dead, so the inverse table "
+            "does not use them (tare during the sweep, sweep up and down, or measure speed to "
+            "tell)")
+
+
+def _zero_from_dead_points(pts: ZeroPoints, floor: float, p: CurveParams) -> ZeroLine | None:
+    """Sensor zero (offset + linear drift in time) read from every dead zone, iterated from 0.
 
     Each pass finds the dead commands relative to the current zero line, allowing for the
     line's own uncertainty at each point's time, then fits the line through all their points
     (weighted, serially correlated errors, gross outliers such as a zone's live edge dropped).
-    A zone far in time from the others is judged with the drift the others show, so a second
-    zone that sits above the first zone's level is found, and then steadies the drift.
+    Used only when nothing anchors the zero: no tare, no feedback, neutral command not swept.
     """
-    ok = np.isfinite(mean) & np.isfinite(t_s)
     line = None
     previous = None
     for _ in range(ZERO_PASSES):
-        z = line.at(t_s) if line else np.zeros(command.size)
-        var = line.var_at(t_s) if line else np.zeros(command.size)
-        cmd, _k, m, s, _lo, _hi, var_zero = aggregate(command[ok], (mean - z)[ok], se[ok],
-                                                      mean[ok], mean[ok], var[ok])
+        z = line.at(pts.t_s) if line else np.zeros(pts.command.size)
+        var = line.var_at(pts.t_s) if line else np.zeros(pts.command.size)
+        cmd, _k, m, s, _lo, _hi, var_zero = aggregate(pts.command, pts.mean - z, pts.se,
+                                                      pts.mean, pts.mean, var)
         s = np.sqrt(s**2 + var_zero)
         dead = find_dead(m, s, floor, p)
         if dead.sum() >= MIN_ZERO_POINTS:
             scatter = p.k_zero * 1.4826 * float(np.median(np.abs(m[dead])))
             dead = find_dead(m, s, max(floor, scatter), p)
-        pts = ok & np.isin(command, _zone_cores(cmd, dead))
-        if not pts.any() or (previous is not None and np.array_equal(pts, previous)):
+        keep = np.isin(pts.command, zone_cores(cmd, dead))
+        if not keep.any() or (previous is not None and np.array_equal(keep, previous)):
             break
-        previous = pts
-        line = _fit_zero_line(t_s[pts], mean[pts], se[pts])
+        previous = keep
+        line = fit_zero_line(pts.take(keep), NO_ANCHORS)
     return line
-
-
-def _zone_cores(cmd: np.ndarray, dead: np.ndarray) -> np.ndarray:
-    """Dead commands away from their zone's edges, where live thrust can leak into the zone.
-
-    A zone of four or more commands keeps its inner half; shorter zones are kept whole.
-    """
-    keep = []
-    for start, stop in _runs(dead):
-        size = stop - start
-        cut = size // 4 if size >= 4 else 0
-        keep.append(cmd[start + cut:stop - cut])
-    return np.concatenate(keep) if keep else np.zeros(0)
-
-
-def _fit_zero_line(t: np.ndarray, y: np.ndarray, se: np.ndarray) -> ZeroLine:
-    """Offset, plus a drift when it is significant (zone cores only, so a drift read from one
-    zone swept in one direction is not the thrust leaking in at its edges)."""
-    t_ref = float(np.mean(t))
-    fit = _robust_wls(np.ones((t.size, 1)), y, se, t)
-    if t.size >= 4 and np.ptp(t) > 0:
-        sloped = _robust_wls(np.column_stack([np.ones(t.size), t - t_ref]), y, se, t)
-        if abs(sloped.beta[1]) > DRIFT_K * math.sqrt(max(sloped.cov[1, 1], 0.0)):
-            c = sloped.cov
-            return ZeroLine(float(sloped.beta[0]), float(sloped.beta[1]), t_ref, "dead zones",
-                            ((float(c[0, 0]), float(c[0, 1])), (float(c[1, 0]), float(c[1, 1]))))
-    return ZeroLine(float(fit.beta[0]), 0.0, t_ref, "dead zones",
-                    ((float(fit.cov[0, 0]), 0.0), (0.0, 0.0)))
-
-
-def _robust_wls(design: np.ndarray, y: np.ndarray, se: np.ndarray, t: np.ndarray) -> LinearFit:
-    """wls with points further than OUTLIER_K robust SDs from the line dropped (refitted once)."""
-    keep = np.ones(y.size, dtype=bool)
-    fit = wls(design, y, se, t)
-    for _ in range(2):
-        resid = y - design @ fit.beta
-        scale = 1.4826 * float(np.median(np.abs(resid[keep]))) or float(np.std(resid[keep]))
-        now = np.abs(resid) <= max(OUTLIER_K * scale, 1e-12)
-        if now.sum() < design.shape[1] + 1 or np.array_equal(now, keep):
-            break
-        keep = now
-        fit = wls(design[keep], y[keep], se[keep], t[keep])
-    return fit
 
 
 def _live_segments(direction: np.ndarray, dead: np.ndarray) -> list[tuple[int, int]]:
     """Runs of live commands, split where the direction (sign of thrust or speed) changes."""
     out = []
-    for start, stop in _runs(~dead):
+    for start, stop in runs(~dead):
         sign = direction[start:stop]
         cuts = np.flatnonzero(sign[1:] != sign[:-1]) + 1
         bounds = [0, *cuts.tolist(), stop - start]

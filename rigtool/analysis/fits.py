@@ -9,7 +9,16 @@ errors say: the covariance is scaled by the reduced chi-square when it exceeds 1
 the acquisition order is given, computed as a sandwich with AR(1)-correlated errors in that
 order (slow drift gives neighbouring points a shared offset), with r1 the lag-1
 autocorrelation of the weighted residuals, bias-corrected as r1 + (1 + 3 r1) / n. Intervals
-use Student's t with n_eff - p degrees of freedom, n_eff = n (1 - r1) / (1 + r1).
+use Student's t with n_eff - p degrees of freedom, n_eff = n (1 - r1) / (1 + r1). The
+thruster-model fits (C_p, C_n) scale by the reduced chi-square both ways once they have
+MIN_SCALE_DOF degrees of freedom: the point standard errors are deliberately cautious (the
+larger of two estimates), so the residual scatter is the better measure of the error scale.
+
+C_i is a function of several fits (C_p and C_n, or the direct fit against the C_p fit's zero
+and the current fit's I_0): its variance is a sandwich over the points of every path a point's
+error takes into it (`sandwich_variance`), so errors that cancel (a speed error moves C_p and
+C_n together; the thrust noise that set the zero also sets the direct fit) are not counted
+twice.
 """
 
 from __future__ import annotations
@@ -25,6 +34,9 @@ RPM_PER_RPS = 60.0
 SECONDS_PER_HOUR = 3600.0
 MAX_R1 = 0.98
 DIRECT_MIN_K = 10.0  # direct C_i fit: I - I_0 must exceed this many of its standard errors
+MIN_SCALE_DOF = 20  # model fits with this many degrees of freedom take their scale from the scatter
+CUBIC = 3.0  # the textbook exponent of I = C_n |n|^3 + I_0
+Z95 = 1.96
 
 
 @dataclass(frozen=True)
@@ -67,6 +79,14 @@ class LinearFit:
     chi2_red: float
     resid: np.ndarray
     influence: np.ndarray  # beta = influence @ y: one row per coefficient, one column per point
+    leverage: np.ndarray | None = None  # diagonal of the hat matrix, one value per point
+    serial: np.ndarray | None = None  # per coefficient: variance with / without AR(1) errors
+
+    @property
+    def hc2_resid(self) -> np.ndarray:
+        """Residuals scaled by 1 / sqrt(1 - leverage): their squares are unbiased for the
+        points' error variances (HC2), as a residual sandwich needs."""
+        return hc2(self.resid, self.leverage)
 
     def half_width(self, i: int) -> float:
         from scipy import special  # not scipy.stats: 0.6 s more to import
@@ -76,8 +96,9 @@ class LinearFit:
 
 
 def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
-        order: np.ndarray | None = None) -> LinearFit:
-    """Weighted LS; covariance scaled for excess scatter and for serial correlation in `order`."""
+        order: np.ndarray | None = None, scale_down: bool = False) -> LinearFit:
+    """Weighted LS; covariance scaled for excess scatter and for serial correlation in `order`
+    (`scale_down`: also for less scatter than `sigma` says, given MIN_SCALE_DOF)."""
     w = 1.0 / _floor_sigma(sigma, y)
     a = design * w[:, None]
     scale = np.sqrt(np.sum(a**2, axis=0))
@@ -90,7 +111,7 @@ def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
     dof = len(y) - design.shape[1]
     chi2_red = float(np.sum((resid * w) ** 2) / dof) if dof > 0 else math.nan
     a_s = a / scale
-    bread = np.linalg.pinv(a_s.T @ a_s)
+    bread = white = np.linalg.pinv(a_s.T @ a_s)
     if order is not None and dof > 1:
         sort = np.argsort(order, kind="stable")
         r = (resid * w)[sort]
@@ -102,9 +123,20 @@ def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
             bread = bread @ (a_t.T @ _ar1_correlate(a_t, r1)) @ bread
             dof = max(int(len(y) * (1 - r1) / (1 + r1)) - design.shape[1], 1)
     cov = bread / np.outer(scale, scale)
-    if dof > 0 and chi2_red > 1.0:
+    if dof > 0 and (chi2_red > 1.0 or (scale_down and len(y) - design.shape[1] >= MIN_SCALE_DOF)):
         cov = cov * chi2_red
-    return LinearFit(beta, cov, dof, chi2_red, resid, influence)
+    leverage = np.sum(design * influence.T, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        serial = np.where(np.diag(white) > 0, np.diag(bread) / np.diag(white), 1.0)
+    return LinearFit(beta, cov, dof, chi2_red, resid, influence, leverage,
+                     np.maximum(np.nan_to_num(serial, nan=1.0), 1.0))
+
+
+def hc2(resid: np.ndarray, leverage: np.ndarray | None) -> np.ndarray:
+    """`resid` / sqrt(1 - leverage) (as they are without leverages)."""
+    if leverage is None:
+        return resid
+    return resid / np.sqrt(np.clip(1.0 - leverage, 0.05, 1.0))
 
 
 def coefficient_correlation(fit_a: LinearFit, i: int, rows_a: np.ndarray, fit_b: LinearFit,
@@ -122,18 +154,57 @@ def coefficient_correlation(fit_a: LinearFit, i: int, rows_a: np.ndarray, fit_b:
     ub[rows_b] = fit_b.influence[j] * fit_b.resid
     if np.intersect1d(rows_a, rows_b).size < 3:
         return 0.0
-    lags = int(np.ceil(size ** (1 / 3)))
-
-    def long_run(x: np.ndarray, y: np.ndarray) -> float:
-        total = float(x @ y)
-        for k in range(1, min(lags, size - 1) + 1):
-            total += (1 - k / (lags + 1)) * float(x[:-k] @ y[k:] + y[:-k] @ x[k:])
-        return total
-
-    va, vb = long_run(ua, ua), long_run(ub, ub)
+    lags = _lags(size)
+    va, vb = _long_run(ua, ua, lags), _long_run(ub, ub, lags)
     if va <= 0 or vb <= 0:
         return 0.0
-    return float(np.clip(long_run(ua, ub) / math.sqrt(va * vb), -1.0, 1.0))
+    return float(np.clip(_long_run(ua, ub, lags) / math.sqrt(va * vb), -1.0, 1.0))
+
+
+def _lags(size: int) -> int:
+    """Bartlett window length for `size` points in time order."""
+    return int(np.ceil(size ** (1 / 3)))
+
+
+def _long_run(x: np.ndarray, y: np.ndarray, lags: int) -> float:
+    """Newey-West long-run covariance of two per-point series (Bartlett weights)."""
+    total = float(x @ y)
+    for k in range(1, min(lags, x.size - 1) + 1):
+        total += (1 - k / (lags + 1)) * float(x[:-k] @ y[k:] + y[:-k] @ x[k:])
+    return total
+
+
+Part = tuple[np.ndarray, np.ndarray]  # (point index of each row, error contribution per row)
+
+
+def sandwich_variance(parts: list[Part], n_params: int) -> tuple[float, int]:
+    """Variance of an estimate whose error is the sum of `parts`, and its degrees of freedom.
+
+    Each part gives, for the points of one fit, the fit residual (HC2-scaled, see
+    `LinearFit.hc2_resid`) times the weight that point has in the estimate along one path;
+    contributions of a point are added before squaring (paths that share a point's error
+    cancel or add as they should). Errors are taken as independent between points: scale the
+    result for serial correlation (`LinearFit.serial`). A Newey-West lag window would not
+    do: a fit's weighted residuals sum to zero, so their lagged products are biased low.
+    """
+    size = int(max(rows.max(initial=-1) for rows, _ in parts)) + 1
+    u = np.zeros(size)
+    for rows, values in parts:
+        np.add.at(u, rows, np.nan_to_num(values))
+    n = int(np.unique(np.concatenate([rows for rows, _ in parts])).size)
+    return float(u @ u), max(n - n_params, 1)
+
+
+def t95(dof: int) -> float:
+    """Two-sided 95 % quantile of Student's t."""
+    from scipy import special
+
+    return float(special.stdtrit(max(dof, 1), 0.975))
+
+
+def with_interval(c: Coefficient, half_width: float) -> Coefficient:
+    """`c` with the symmetric 95 % interval value -+ `half_width` (NaN: none)."""
+    return dataclasses.replace(c, lo=c.value - half_width, hi=c.value + half_width)
 
 
 def _ar1_correlate(a: np.ndarray, r1: float) -> np.ndarray:
@@ -287,10 +358,11 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
             cols.append((t - t_ref) / SECONDS_PER_HOUR)
             names.append("drift")
     design = np.column_stack(cols)
-    fit = wls(design, yy, se, t)
+    fit = wls(design, yy, se, t, scale_down=True)
     if dx_se is not None:
         slope = sum(np.where(masks[k][used], fit.beta[i], 0.0) for i, k in enumerate(keys))
-        fit = wls(design, yy, np.sqrt(se**2 + (slope * np.nan_to_num(dx_se[used])) ** 2), t)
+        fit = wls(design, yy, np.sqrt(se**2 + (slope * np.nan_to_num(dx_se[used])) ** 2), t,
+                  scale_down=True)
     return DirectionalFit(fit, names, masks, used, yy, t_ref, zero)
 
 
@@ -314,19 +386,25 @@ def thrust_coefficient(cp: Coefficient, diameter_m: float, density_kg_m3: float,
 
 
 def fit_current_speed(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
-                      se_n: np.ndarray | None, order: np.ndarray | None = None
-                      ) -> tuple[Coefficient, Coefficient, LinearFit]:
+                      se_n: np.ndarray | None, order: np.ndarray | None = None,
+                      exponent: float = CUBIC) -> tuple[Coefficient, Coefficient, LinearFit]:
     """C_n (A/(r/min)^3) and idle current I_0 (A) in I = C_n |n|^3 + I_0 (linear in |n|^3),
-    and the fit they come from."""
+    and the fit they come from; with another `exponent` k, C (A/(r/min)^k) and I_0 of
+    I = C |n|^k + I_0 with k held."""
     u = np.abs(n_rpm)
-    design = np.column_stack([u**3, np.ones_like(u)])
-    fit = wls(design, i_a, se_i, order)
+    design = np.column_stack([u**exponent, np.ones_like(u)])
+    fit = wls(design, i_a, se_i, order, scale_down=True)
     if se_n is not None:
-        sigma = np.sqrt(se_i**2 + (fit.beta[0] * 3 * u**2 * np.nan_to_num(se_n)) ** 2)
-        fit = wls(design, i_a, sigma, order)
-    note = "I = C_n |n|^3 + I_0"
-    return (_coef("C_n", fit, 0, "A/(r/min)^3", i_a, "A", note),
-            _coef("I_0", fit, 1, "A", i_a, "A", note), fit)
+        slope = fit.beta[0] * exponent * u ** (exponent - 1)
+        sigma = np.sqrt(se_i**2 + (slope * np.nan_to_num(se_n)) ** 2)
+        fit = wls(design, i_a, sigma, order, scale_down=True)
+    if exponent == CUBIC:
+        note = "I = C_n |n|^3 + I_0"
+        return (_coef("C_n", fit, 0, "A/(r/min)^3", i_a, "A", note),
+                _coef("I_0", fit, 1, "A", i_a, "A", note), fit)
+    note = f"I = C |n|^k + I_0 with k = {exponent:.4g} held"
+    return (_coef("C_free", fit, 0, "A/(r/min)^k", i_a, "A", note),
+            _coef("I_0_free", fit, 1, "A", i_a, "A", note), fit)
 
 
 def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
@@ -353,7 +431,7 @@ def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
     resid = i_a - model(x, *popt)
     dof = len(u) - 3
     chi2_red = float(np.sum((resid / sigma) ** 2) / dof) if dof > 0 else math.nan
-    if dof > 0 and chi2_red > 1.0:
+    if dof > 0 and (chi2_red > 1.0 or dof >= MIN_SCALE_DOF):
         pcov = pcov * chi2_red
     t = special.stdtrit(max(dof, 1), 0.975)
     a, k, i0 = popt
@@ -369,44 +447,77 @@ def fit_current_exponent(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray,
     return (
         Coefficient("k_free", float(k), float(k - hw[1]), float(k + hw[1]), "1", n, r2, rms, "A",
                     note),
-        Coefficient("C_free", float(c), float(c * math.exp(-hw_log)), float(c * math.exp(hw_log)),
+        Coefficient("C_free", float(c), float(c * _exp(-hw_log)), float(c * _exp(hw_log)),
                     "A/(r/min)^k", n, r2, rms, "A", note),
         Coefficient("I_0_free", float(i0), float(i0 - hw[2]), float(i0 + hw[2]), "A", n, r2, rms,
                     "A", note),
     )
 
 
+def current_power_unit(exponent: float = CUBIC) -> str:
+    """Unit of C_i for the current law I = C |n|^k + I_0: N/A^(2/3) for k = 3, else N/A^(2/k)."""
+    return "N/A^(2/3)" if exponent == CUBIC else "N/A^(2/k)"
+
+
+def _exp(x: float) -> float:
+    """exp that saturates at inf instead of raising (an interval too wide to state)."""
+    return math.exp(x) if x < 709.0 else math.inf
+
+
+def current_law_influence(n_rpm: np.ndarray, i_a: np.ndarray, se_i: np.ndarray, c: float,
+                          k: float, i_0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                         np.ndarray]:
+    """For I = C |n|^k + I_0 fitted with k free (as `fit_current_exponent` weights it): the
+    residuals and, per point, the influence of its residual on log C, on k and on I_0
+    (weighted least squares linearised at the estimates); residuals HC2-scaled."""
+    u = np.abs(n_rpm)
+    w = 1.0 / _floor_sigma(se_i, i_a)
+    power = np.where(u > 0, u, 1.0) ** k
+    jac = np.column_stack([power, c * power * np.log(np.where(u > 0, u, 1.0)), np.ones(u.size)])
+    a = jac * w[:, None]
+    scale = np.sqrt(np.sum(a**2, axis=0))
+    scale[scale == 0] = 1.0
+    influence = np.linalg.pinv(a / scale) * w[None, :] / scale[:, None]
+    resid = hc2(i_a - (c * power + i_0), np.sum(jac * influence.T, axis=1))
+    return resid, influence[0] / c, influence[1], influence[2]
+
+
 def derive_thrust_current(cp: Coefficient, cn: Coefficient, name: str,
-                          rho: float = 0.0) -> Coefficient:
+                          rho: float = 0.0, exponent: float = CUBIC) -> Coefficient:
     """C_i = C_p / C_n^(2/3) (N/A^(2/3)), statistical interval by first-order propagation of
     the statistical intervals of C_p and C_n with their correlation `rho`.
 
     From f = C_p n^2 and I - I_0 = C_n |n|^3: f = C_i (I - I_0)^(2/3). A common speed error
-    moves C_p and C_n the same way (rho > 0), and cancels in the ratio.
+    moves C_p and C_n the same way (rho > 0), and cancels in the ratio. With the current law
+    I = C |n|^k + I_0 (`exponent` k, `cn` its C), C_i = C_p / C^(2/k) and f = C_i (I - I_0)^(2/k).
     """
+    unit = current_power_unit(exponent)
     if cn.value <= 0 or cp.value <= 0:
-        return Coefficient(name, math.nan, math.nan, math.nan, "N/A^(2/3)", min(cp.n, cn.n),
+        return Coefficient(name, math.nan, math.nan, math.nan, unit, min(cp.n, cn.n),
                            note="not derivable: C_p or C_n not positive")
-    value = cp.value / cn.value ** (2 / 3)
+    power = 2 / exponent
+    value = cp.value / cn.value**power
     (p_lo, p_hi), (n_lo, n_hi) = cp.statistical, cn.statistical
     rel_p = (p_hi - p_lo) / 2 / cp.value
-    rel_n = 2 / 3 * (n_hi - n_lo) / 2 / cn.value
+    rel_n = power * (n_hi - n_lo) / 2 / cn.value
     hw = value * math.sqrt(max(rel_p**2 + rel_n**2 - 2 * rho * rel_p * rel_n, 0.0))
-    return Coefficient(name, value, value - hw, value + hw, "N/A^(2/3)", min(cp.n, cn.n),
-                       note="derived: C_p / C_n^(2/3); f = C_i (I - I_0)^(2/3)")
+    note = ("derived: C_p / C_n^(2/3); f = C_i (I - I_0)^(2/3)" if exponent == CUBIC else
+            f"derived: C_p / C_free^(2/k); f = C_i (I - I_0_free)^(2/k), k = {exponent:.4g}")
+    return Coefficient(name, value, value - hw, value + hw, unit, min(cp.n, cn.n), note=note)
 
 
 def fit_thrust_current(i_a: np.ndarray, i_0: float, f_n: np.ndarray, se_f: np.ndarray,
                        se_i: np.ndarray | None, t_s: np.ndarray,
                        masks: dict[str, np.ndarray], zero: ZeroLine | None = None,
-                       se_i0: float = 0.0) -> DirectionalFit | None:
+                       se_i0: float = 0.0, power: float = 2 / 3) -> DirectionalFit | None:
     """f = +-C_i (I - I_0)^(2/3) fitted directly, C_i per direction, with the zero terms
     (or against a given `zero`: the C_p fit's, which the low-current points cannot bias).
 
     The sign is + for the "fwd" mask and - for "rev" (the current gives no direction). Only
     points whose I - I_0 exceeds DIRECT_MIN_K times its error (point SE and I_0's) enter:
     nearer I_0 the power 2/3 turns current noise into thrust error no linearisation holds.
-    The error of I_0 itself is shared by all points: propagate it separately.
+    The error of I_0 itself is shared by all points: propagate it separately. `power` is
+    2/k for the current law I = C |n|^k + I_0.
     """
     d = i_a - i_0
     se_point = np.nan_to_num(se_i) if se_i is not None else np.zeros(d.size)
@@ -416,8 +527,8 @@ def fit_thrust_current(i_a: np.ndarray, i_0: float, f_n: np.ndarray, se_f: np.nd
     sign = np.where(masks.get("rev", np.zeros(d.size, bool)), -1.0, 1.0)
     dx = None
     if se_i is not None:
-        dx = np.where(clear, 2 / 3 * np.where(clear, d, 1.0) ** (-1 / 3) * se_point, 0.0)
-    return fit_directional(sign * d ** (2 / 3), f_n, se_f, dx, t_s, masks, zero=zero)
+        dx = np.where(clear, power * np.where(clear, d, 1.0) ** (power - 1) * se_point, 0.0)
+    return fit_directional(sign * d**power, f_n, se_f, dx, t_s, masks, zero=zero)
 
 
 def widen(c: Coefficient, se: float, z: float = 1.96) -> Coefficient:

@@ -9,6 +9,12 @@ C_i) are given per point mean and per sample, after removing the fitted zero, fo
 sensor-fusion model. Model coefficient intervals carry `rel_systematic` (sensor scale).
 Points that carry no error of their own (table rows, means of a few samples) are weighted by
 the scatter about a first fit, modelled as growing with the thrust (or current).
+
+The current law is I = C_n |n|^3 + I_0 unless the free exponent k (I = C |n|^k + I_0) is
+further from 3 than LAW_Z standard errors and than LAW_MIN_DK: then a warning says so, and
+C_i, sigma_i and the coefficient `current_exponent` carry that law (f = C_i (I - I_0_free)^(2/k),
+C_i in N/A^(2/k), its interval including the error of k). C_i intervals are sandwiches over
+every fit a point's error passes through (fits.sandwich_variance).
 """
 
 from __future__ import annotations
@@ -21,11 +27,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rigtool.analysis.fits import (
+    CUBIC,
     RPM_PER_RPS,
+    SECONDS_PER_HOUR,
+    Z95,
     Coefficient,
     DirectionalFit,
+    LinearFit,
+    Part,
     ZeroLine,
-    coefficient_correlation,
+    current_law_influence,
+    current_power_unit,
     derive_thrust_current,
     fit_current_exponent,
     fit_current_speed,
@@ -33,8 +45,10 @@ from rigtool.analysis.fits import (
     fit_thrust_current,
     fit_thrust_speed,
     residual_spread,
+    sandwich_variance,
+    t95,
     thrust_coefficient,
-    widen,
+    with_interval,
     with_systematic,
 )
 from rigtool.analysis.steady import PointTable
@@ -47,6 +61,8 @@ WRONG_SIGN_FRAC = 0.2  # signed feedback contradicting the thrust on more fast p
 COMMAND_SIDE_AGREE = 0.95  # the command side of neutral gives the direction when this consistent
 SCATTER_ITERATIONS = 4  # reweighted fits of the scatter model of table rows
 SCATTER_FLOOR = 1e-3  # no row's scatter variance below this x the mean (none noiseless)
+LAW_Z = 3.29  # the free exponent replaces 3 when further from it than this many SEs (99.9 %)
+LAW_MIN_DK = 0.05  # ... and than this: a smaller change moves C_i by < 3 % over 10:1 in current
 
 
 @dataclass(frozen=True)
@@ -250,7 +266,10 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
                                   density_kg_m3, p))
     if points.current.measured:
         weighted = _current_scatter_weights(points, n, single & result.used)
-        out.update(_current_models(weighted, samples, n, masks, thrust_fit, cp, p))
+        coefs, warnings = _current_models(weighted, samples, n, masks, thrust_fit, cp, p,
+                                          single)
+        out.update(coefs)
+        result.warnings = result.warnings + warnings
     return result
 
 
@@ -299,15 +318,22 @@ def _scatter_weights(fit: DirectionalFit, se: np.ndarray, rows: np.ndarray) -> n
 
 def _current_scatter_weights(points: PointTable, n: np.ndarray, rows: np.ndarray) -> PointTable:
     """`points` with the current SE at `rows` (one reading each) from the scatter about a
-    first I = C_n |n|^3 + I_0 fit, so C_n weighs table rows by their noise, not equally."""
+    first fit of I = C |n|^k + I_0 (k free, so a law that is not cubic leaves no misfit in
+    the scatter), so the current fits weigh table rows by their noise, not equally."""
     cur = points.current
     m = rows & np.isfinite(cur.mean)
     if m.sum() < 4:
         return points
     i_abs = np.abs(cur.mean[m])
-    fit = fit_current_speed(n[m], i_abs, cur.se[m], None)[2]
+    c_n, i_0, fit = fit_current_speed(n[m], i_abs, cur.se[m], None)
+    resid = fit.resid
+    try:
+        k, c, i0_free = fit_current_exponent(n[m], i_abs, cur.se[m], c_n.value, i_0.value)
+        resid = i_abs - (c.value * np.abs(n[m]) ** k.value + i0_free.value)
+    except (RuntimeError, ValueError):
+        pass
     se = cur.se.copy()
-    se[m] = scatter_se(i_abs - fit.resid, fit.resid, cur.se[m])
+    se[m] = scatter_se(i_abs - resid, resid, cur.se[m])
     return dataclasses.replace(points, current=dataclasses.replace(cur, se=se))
 
 
@@ -323,92 +349,249 @@ def _signed_model(coef: dict[str, Coefficient], x: np.ndarray,
     return out
 
 
+@dataclass
+class CurrentLaw:
+    """The current law current-based thrust uses, I = C |n|^k + I_0 (k = 3, or the free
+    exponent when it excludes 3), and its fit: the point index of each fit row, the
+    residuals (HC2-scaled), and the influence of each residual on log C, k (0 when k is
+    held) and I_0."""
+
+    k: float
+    c: Coefficient
+    i_0: Coefficient
+    rows: np.ndarray
+    resid: np.ndarray
+    infl_log_c: np.ndarray
+    infl_k: np.ndarray
+    infl_i0: np.ndarray
+    serial: tuple[float, float] = (1.0, 1.0)  # C's and I_0's LinearFit.serial
+    dof: int = 10**6
+
+    @classmethod
+    def cubic(cls, c_n: Coefficient, i_0: Coefficient, fit: LinearFit,
+              rows: np.ndarray) -> CurrentLaw:
+        """I = C_n |n|^3 + I_0 from its linear fit."""
+        return cls(CUBIC, c_n, i_0, rows, fit.hc2_resid, fit.influence[0] / c_n.value,
+                   np.zeros(rows.size), fit.influence[1],
+                   (float(fit.serial[0]), float(fit.serial[1])), fit.dof)
+
+    @property
+    def power(self) -> float:
+        """The power of I - I_0 in f = C_i (I - I_0)^(2/k)."""
+        return 2 / self.k
+
+    @property
+    def se_i0(self) -> float:
+        """Standard error of I_0 (0 without an interval)."""
+        hw = (self.i_0.hi - self.i_0.lo) / 2
+        return hw / Z95 if math.isfinite(hw) else 0.0
+
+    def log_ci_part(self) -> Part:
+        """Error of log C^(2/k), the current fit's share of log C_i, from each residual."""
+        log_c = math.log(self.c.value)
+        infl = self.power * self.infl_log_c - 2 / self.k**2 * log_c * self.infl_k
+        return self.rows, infl * self.resid * math.sqrt(self.serial[0])
+
+
 def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
                     masks: dict[str, np.ndarray], thrust_fit: DirectionalFit,
-                    cp: dict[str, Coefficient], p: FitParams) -> dict[str, Coefficient]:
-    used, zero_line = thrust_fit.used, thrust_fit.zero
+                    cp: dict[str, Coefficient], p: FitParams,
+                    single: np.ndarray) -> tuple[dict[str, Coefficient], list[str]]:
+    """C_n and I_0, the free-exponent law, C_i derived and direct, sigma_i; and the warning
+    when the current law is not cubic."""
     cur, se_i = points.current.mean, points.current.se
-    cur_s = samples.current_a
-    m = used & np.isfinite(cur)
+    m = thrust_fit.used & np.isfinite(cur)
     if m.sum() < 3:
-        return {}
-    if (m & (n < 0)).any() and np.median(cur[m & (n < 0)]) < 0:
-        # The driver reports signed current: the model is in its magnitude.
-        cur, cur_s = np.abs(cur), np.abs(cur_s)
-    out: dict[str, Coefficient] = {}
+        return {}, []
+    signed = bool((m & (n < 0)).any() and np.median(cur[m & (n < 0)]) < 0)
+    if signed:
+        cur = np.abs(cur)  # the driver reports signed current: the model is in its magnitude
+    rows = np.flatnonzero(m)
     c_n, i_0, cn_fit = fit_current_speed(n[m], cur[m], se_i[m], points.speed.se[m],
                                          points.t_mid_s[m])
-    c_n = with_systematic(c_n, p.rel_systematic)
-    out["C_n"], out["I_0"] = c_n, i_0
-    if m.sum() >= 4:
-        try:
-            for c in fit_current_exponent(n[m], cur[m], se_i[m], c_n.value, i_0.value):
-                out[c.name] = with_systematic(c, p.rel_systematic) if c.name == "C_free" else c
-        except (RuntimeError, ValueError):
-            pass
+    out = {"C_n": with_systematic(c_n, p.rel_systematic), "I_0": i_0}
+    out.update(_free_exponent(n[m], cur[m], se_i[m], c_n, i_0, p))
+    law, warnings = CurrentLaw.cubic(c_n, i_0, cn_fit, rows), []
+    if _excludes_cubic(out.get("k_free")):
+        law = _free_law(n, cur, se_i, rows, out)
+        out["current_exponent"] = dataclasses.replace(
+            out["k_free"], name="current_exponent",
+            note="exponent k of the current law C_i and sigma_i use: I = C_free |n|^k + "
+                 "I_0_free (k_free, whose interval excludes 3)")
+        warnings.append(_law_warning(out["k_free"], i_0))
     for key in cp:
-        rho = coefficient_correlation(thrust_fit.fit, thrust_fit.columns.index(key),
-                                      np.flatnonzero(used), cn_fit, 0, np.flatnonzero(m))
-        out[f"C_i_{key}"] = with_systematic(
-            derive_thrust_current(cp[key], c_n, f"C_i_{key}", rho), p.rel_systematic)
+        out[f"C_i_{key}"] = with_systematic(_derived_ci(cp[key], key, law, thrust_fit),
+                                            p.rel_systematic)
     cur_masks = {k: v & m for k, v in masks.items()}
-    se_i0 = (i_0.hi - i_0.lo) / 2 / 1.96 if np.isfinite(i_0.hi - i_0.lo) else 0.0
+    direct = _direct_fit(points, cur, cur_masks, law, thrust_fit.zero, single)
+    if direct is not None:
+        ci = _direct_coefficients(direct, points, cur, law, thrust_fit, p)
+        out.update({c.name: c for c in ci.values()})
+        out.update(_current_spreads(points, samples, n, cur, ci, law, direct, signed))
+    return out, warnings
 
-    def direct_fit(i0: float, zero: ZeroLine) -> DirectionalFit | None:
-        return fit_thrust_current(cur, i0, points.thrust.mean, points.thrust.se, se_i,
-                                  points.t_mid_s, cur_masks, zero, se_i0)
 
-    direct = direct_fit(i_0.value, zero_line)
-    if direct is None:
-        return out
-    shared = _shared_error_spread(direct, direct_fit, i_0.value, se_i0, zero_line)
-    ci = {}
+def _free_exponent(n: np.ndarray, cur: np.ndarray, se: np.ndarray, c_n: Coefficient,
+                   i_0: Coefficient, p: FitParams) -> dict[str, Coefficient]:
+    """k_free, C_free and I_0_free of I = C |n|^k + I_0 (none when the fit fails)."""
+    if n.size < 4:
+        return {}
+    try:
+        fitted = fit_current_exponent(n, cur, se, c_n.value, i_0.value)
+    except (RuntimeError, ValueError):
+        return {}
+    return {c.name: with_systematic(c, p.rel_systematic) if c.name == "C_free" else c
+            for c in fitted}
+
+
+def _excludes_cubic(k: Coefficient | None) -> bool:
+    """True when the free exponent is further from 3 than LAW_Z of its standard errors and
+    than LAW_MIN_DK (a significant difference that matters)."""
+    if k is None or not (math.isfinite(k.lo) and math.isfinite(k.hi)):
+        return False
+    se = (k.hi - k.lo) / (2 * Z95)
+    return se > 0 and abs(k.value - CUBIC) > max(LAW_Z * se, LAW_MIN_DK)
+
+
+def _free_law(n: np.ndarray, cur: np.ndarray, se_i: np.ndarray, rows: np.ndarray,
+              free: dict[str, Coefficient]) -> CurrentLaw:
+    """The current law with the free exponent (k_free, C_free, I_0_free in `free`)."""
+    k, c, i_0 = free["k_free"], free["C_free"], free["I_0_free"]
+    resid, infl_c, infl_k, infl_i0 = current_law_influence(n[rows], cur[rows], se_i[rows],
+                                                           c.value, k.value, i_0.value)
+    return CurrentLaw(k.value, c, i_0, rows, resid, infl_c, infl_k, infl_i0,
+                      dof=max(rows.size - 3, 1))
+
+
+def _law_warning(k: Coefficient, i_0: Coefficient) -> str:
+    """The warning that the cubic current law does not hold."""
+    return (f"current law: I = C_n |n|^3 + I_0 does not fit this thruster (free exponent "
+            f"k_free = {k.value:.2f}, 95 % {k.lo:.2f} .. {k.hi:.2f}, excludes 3; the cubic fit "
+            f"gives I_0 = {i_0.value:.3g} A): C_i and sigma_i use I = C_free |n|^k + I_0_free, "
+            "f = C_i (I - I_0_free)^(2/k), C_i in N/A^(2/k) (calibration.json current_law)")
+
+
+def _derived_ci(cp: Coefficient, key: str, law: CurrentLaw,
+                thrust_fit: DirectionalFit) -> Coefficient:
+    """C_i = C_p / C^(2/k); its interval a sandwich over the points of both fits (a point's
+    speed error moves C_p and C together and cancels in the ratio)."""
+    c = derive_thrust_current(cp, law.c, f"C_i_{key}", exponent=law.k)
+    if not math.isfinite(c.value):
+        return c
+    col = thrust_fit.columns.index(key)
+    rows, law_part = law.log_ci_part()
+    parts = [(np.flatnonzero(thrust_fit.used),
+              _serial_part(thrust_fit.fit, col) / cp.value), (rows, -law_part)]
+    var, dof = sandwich_variance(parts, len(thrust_fit.columns))
+    dof = min(dof, thrust_fit.fit.dof, law.dof)
+    return with_interval(c, t95(dof) * c.value * math.sqrt(var))
+
+
+def _serial_part(fit: LinearFit, col: int) -> np.ndarray:
+    """A fit's influence on coefficient `col` times its HC2 residuals, scaled for the serial
+    correlation of its errors (the AR(1) variance factor of that coefficient)."""
+    return fit.influence[col] * fit.hc2_resid * math.sqrt(float(fit.serial[col]))
+
+
+def _direct_fit(points: PointTable, cur: np.ndarray, cur_masks: dict[str, np.ndarray],
+                law: CurrentLaw, zero: ZeroLine, single: np.ndarray) -> DirectionalFit | None:
+    """f = +-C_i (I - I_0)^(2/k) against the C_p fit's zero; points that are one reading each
+    are weighted by the scatter about a first fit."""
+    def run(se_f: np.ndarray) -> DirectionalFit | None:
+        return fit_thrust_current(cur, law.i_0.value, points.thrust.mean, se_f,
+                                  points.current.se, points.t_mid_s, cur_masks, zero,
+                                  law.se_i0, law.power)
+
+    direct = run(points.thrust.se)
+    if direct is None or not (single & direct.used).any():
+        return direct
+    return run(_scatter_weights(direct, points.thrust.se, single)) or direct
+
+
+def _direct_coefficients(direct: DirectionalFit, points: PointTable, cur: np.ndarray,
+                         law: CurrentLaw, thrust_fit: DirectionalFit,
+                         p: FitParams) -> dict[str, Coefficient]:
+    """C_i_fwd_direct and C_i_rev_direct with intervals from every path a point's error takes
+    into them (see `_direct_parts`)."""
+    out = {}
+    note = ("fitted directly: f = C_i (I - I_0)^(2/3)" if law.k == CUBIC else
+            f"fitted directly: f = C_i (I - I_0_free)^(2/k), k = {law.k:.4g}")
     for key in ("fwd", "rev"):
-        if key in direct.columns:
-            c = widen(direct.coefficient(
-                key, f"C_i_{key}_direct", "N/A^(2/3)",
-                "fitted directly: f = C_i (I - I_0)^(2/3)"), shared.get(key, 0.0))
-            ci[key] = with_systematic(c, p.rel_systematic)
-            out[ci[key].name] = ci[key]
+        if key not in direct.columns:
+            continue
+        c = direct.coefficient(key, f"C_i_{key}_direct", current_power_unit(law.k), note)
+        var, dof = sandwich_variance(_direct_parts(key, direct, points, cur, law, thrust_fit),
+                                     len(direct.columns))
+        dof = min(dof, direct.fit.dof)
+        var += _fixed_zero_variance(direct, key, points.t_mid_s, thrust_fit)
+        out[key] = with_systematic(with_interval(c, t95(dof) * math.sqrt(var)),
+                                   p.rel_systematic)
+    return out
+
+
+def _direct_parts(key: str, direct: DirectionalFit, points: PointTable, cur: np.ndarray,
+                  law: CurrentLaw, thrust_fit: DirectionalFit) -> list[Part]:
+    """Error paths into a direct C_i: each point's own residual; the thrust zero the C_p fit
+    set (its offset and drift, from the thrust residuals there); I_0, from the current
+    residuals of the current fit."""
+    col = direct.columns.index(key)
+    rows = np.flatnonzero(direct.used)
+    infl = direct.fit.influence[col]
+    parts = [(rows, _serial_part(direct.fit, col))]
+    if thrust_fit.fixed_zero is None:
+        cols, fit = thrust_fit.columns, thrust_fit.fit
+        hours = (points.t_mid_s[rows] - thrust_fit.t_ref_s) / SECONDS_PER_HOUR
+        zero = float(np.sum(infl)) * _serial_part(fit, cols.index("offset"))
+        if "drift" in cols:
+            zero = zero + float(np.sum(infl * hours)) * _serial_part(fit, cols.index("drift"))
+        parts.append((np.flatnonzero(thrust_fit.used), -zero))
+    beta = sum(np.where(direct.masks[k][rows], direct.fit.beta[i], 0.0)
+               for i, k in enumerate(direct.columns))
+    side = np.where(direct.masks.get("rev", np.zeros(len(points), bool))[rows], -1.0, 1.0)
+    d = np.maximum(cur[rows] - law.i_0.value, 1e-12)
+    slope = infl * side * beta * d**law.power  # d C_i / d x, times x
+    grad_i0 = float(np.sum(slope * law.power / d))
+    grad_k = float(np.sum(slope * np.log(d))) * 2 / law.k**2
+    idle = grad_i0 * law.infl_i0 * math.sqrt(law.serial[1]) + grad_k * law.infl_k
+    parts.append((law.rows, idle * law.resid))
+    return parts
+
+
+def _fixed_zero_variance(direct: DirectionalFit, key: str, t_s: np.ndarray,
+                         thrust_fit: DirectionalFit) -> float:
+    """Variance a direct C_i gets from a zero given to the fits (shallow depths: from dead
+    points or tares), from that zero's covariance."""
+    zero = thrust_fit.fixed_zero
+    if zero is None or zero.cov is None:
+        return 0.0
+    rows = np.flatnonzero(direct.used)
+    infl = direct.fit.influence[direct.columns.index(key)]
+    a, b = float(np.sum(infl)), float(np.sum(infl * (t_s[rows] - zero.t_ref_s)))
+    (c00, c01), (_, c11) = zero.cov
+    return max(a * a * c00 + 2 * a * b * c01 + b * b * c11, 0.0)
+
+
+def _current_spreads(points: PointTable, samples: WindowSamples, n: np.ndarray,
+                     cur: np.ndarray, ci: dict[str, Coefficient], law: CurrentLaw,
+                     direct: DirectionalFit, signed: bool) -> dict[str, Coefficient]:
+    """sigma_i per point mean and per sample: thrust minus zero minus the direct C_i law."""
     zero = direct.zero.at(points.t_mid_s)
+    cur_s = np.abs(samples.current_a) if signed else samples.current_a
 
     def model(c: float, v: np.ndarray) -> np.ndarray:
-        return c * np.maximum(v - i_0.value, 0.0) ** (2 / 3)
+        return c * np.maximum(v - law.i_0.value, 0.0) ** law.power
 
     sign = np.sign(n)
     pred = _signed_model(ci, cur, model, sign) * sign
     pred_s = _signed_model(ci, cur_s, model, sign[samples.point]) * sign[samples.point]
     in_fit = direct.used[samples.point] & np.isfinite(cur_s)
     f = points.thrust.mean
-    out["sigma_i_point"] = residual_spread(
-        (f - zero - pred)[direct.used], "sigma_i_point",
-        "RMS of point-mean thrust minus zero minus C_i_direct (I - I_0)^(2/3)", interval=True)
-    out["sigma_i_sample"] = residual_spread(
-        (samples.thrust_n - zero[samples.point] - pred_s)[in_fit], "sigma_i_sample",
-        "RMS of sample thrust minus zero minus C_i_direct (I - I_0)^(2/3) over the steady "
-        "windows; no interval (samples are autocorrelated)", interval=False)
-    return out
-
-
-def _shared_error_spread(direct: DirectionalFit,
-                         refit: Callable[[float, ZeroLine], DirectionalFit | None],
-                         i_0: float, se_i0: float, zero: ZeroLine) -> dict[str, float]:
-    """Standard error each direct C_i gets from errors every point shares: the idle current
-    I_0 and the thrust zero's offset and drift (refits at +-1 SE of each; the point scatter
-    cannot show them)."""
-    cov = zero.cov or ((0.0, 0.0), (0.0, 0.0))
-    sd_offset, sd_drift = math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0))
-    var = dict.fromkeys(direct.columns, 0.0)
-    for d_i0, d_offset, d_drift in ((se_i0, 0.0, 0.0), (0.0, sd_offset, 0.0),
-                                    (0.0, 0.0, sd_drift)):
-        if d_i0 == d_offset == d_drift == 0.0:
-            continue
-        up = refit(i_0 + d_i0, dataclasses.replace(
-            zero, offset_n=zero.offset_n + d_offset, drift_n_per_s=zero.drift_n_per_s + d_drift))
-        down = refit(i_0 - d_i0, dataclasses.replace(
-            zero, offset_n=zero.offset_n - d_offset, drift_n_per_s=zero.drift_n_per_s - d_drift))
-        if up is None or down is None or not up.columns == down.columns == direct.columns:
-            continue
-        for k, a, b in zip(direct.columns, up.fit.beta, down.fit.beta, strict=True):
-            var[k] += ((a - b) / 2) ** 2
-    return {k: math.sqrt(v) for k, v in var.items()}
+    law_text = "(I - I_0)^(2/3)" if law.k == CUBIC else "(I - I_0_free)^(2/k)"
+    return {
+        "sigma_i_point": residual_spread(
+            (f - zero - pred)[direct.used], "sigma_i_point",
+            f"RMS of point-mean thrust minus zero minus C_i_direct {law_text}", interval=True),
+        "sigma_i_sample": residual_spread(
+            (samples.thrust_n - zero[samples.point] - pred_s)[in_fit], "sigma_i_sample",
+            f"RMS of sample thrust minus zero minus C_i_direct {law_text} over the steady "
+            "windows; no interval (samples are autocorrelated)", interval=False)}

@@ -111,6 +111,20 @@ def repeatability(command: np.ndarray, direction: np.ndarray, repeat: np.ndarray
     )
 
 
+def drift_over_sweep(rate_n_per_h: float, interval: tuple[float, float], span_s: float,
+                     noise_n: float, noise_ratio: float = 1.0) -> str | None:
+    """How far a drift moves the zero over the sweep, when it matters: its 95 % interval
+    excludes zero and that move exceeds `noise_ratio` times the thrust noise; else None."""
+    lo, hi = interval
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0.0 <= hi:
+        return None
+    moved_n = rate_n_per_h * span_s / SECONDS_PER_HOUR
+    if not (math.isfinite(noise_n) and abs(moved_n) > noise_ratio * noise_n):
+        return None
+    return (f"{moved_n:+.2g} N over the sweep ({span_s / 60:.3g} min at {rate_n_per_h:.3g} N/h, "
+            f"95 %: {lo:.3g} .. {hi:.3g} N/h), more than the thrust noise {noise_n:.2g} N")
+
+
 def tare_drift(t_s: np.ndarray, bias_n: np.ndarray | None) -> TareDrift | None:
     """Linear trend (N/h, 95 % interval) of the thrust-channel tare bias; None under 2 tares."""
     from scipy import special

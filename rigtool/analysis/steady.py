@@ -23,6 +23,10 @@ from rigtool.analysis.dataset import Samples, Steps
 CHANNEL_UNITS = {"thrust_n": "N", "speed_rpm": "r/min", "current_a": "A", "voltage_v": "V",
                  "power_w": "W", "torque_nm": "N m"}
 RAD_S_PER_RPM = 2 * np.pi / 60
+MAX_ROUNDING = 0.05  # efficiency only where half a printed step moves power and thrust < 5 %
+MIN_DISTINCT = 5  # a step is recognised in a channel with at least this many distinct values
+MAX_STEP_DIVISOR = 10  # the step may be up to this many times finer than the smallest gap
+RESOLUTION_SAMPLES = 200_000  # values looked at to find a channel's step
 
 
 @dataclass(frozen=True)
@@ -101,6 +105,10 @@ class PointTable:
     thrust_zero_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
     torque_zero_nm: np.ndarray = field(default_factory=lambda: np.zeros(0))
     speed_sign: np.ndarray = field(default_factory=lambda: np.zeros(0))  # set by the fits
+    # Below these the data's own resolution (a table's printed step) decides the efficiency
+    # more than MAX_ROUNDING: it is not reported there (empty: no floor).
+    power_floor_w: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    thrust_floor_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def speed_signed_rpm(self) -> np.ndarray:
@@ -116,11 +124,23 @@ class PointTable:
         return self.thrust.mean - self.thrust_zero_n
 
     @property
+    def efficiency_resolved(self) -> np.ndarray:
+        """Points whose power and thrust are at or above their resolution floors."""
+        ok = np.ones(len(self.step_idx), dtype=bool)
+        if self.power_floor_w.size == ok.size:
+            ok &= self.power.mean >= self.power_floor_w
+        if self.thrust_floor_n.size == ok.size:
+            ok &= np.abs(self.thrust_corrected_n) >= self.thrust_floor_n
+        return ok
+
+    @property
     def efficiency_n_per_w(self) -> np.ndarray:
-        """|thrust| / electrical power (N/W); NaN where the power is not positive or unknown."""
+        """|thrust| / electrical power (N/W); NaN where the power is not positive or unknown,
+        or below the floor the data's resolution supports (`efficiency_resolved`)."""
         p = self.power.mean
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(p > 0, np.abs(self.thrust_corrected_n) / p, np.nan)
+            return np.where((p > 0) & self.efficiency_resolved,
+                            np.abs(self.thrust_corrected_n) / p, np.nan)
 
     @property
     def efficiency_se_n_per_w(self) -> np.ndarray:
@@ -204,7 +224,44 @@ class SteadyWindows:
             dead=np.zeros(n, bool), used_in_fits=np.zeros(n, bool), thrust_zero_n=np.zeros(n),
             torque_zero_nm=np.zeros(n),
             speed_sign=np.zeros(n),
+            **resolution_floors(self.channels, samples),
         )
+
+
+def resolution(x: np.ndarray) -> float:
+    """The step a channel's values are printed in (0.05 A, 0.01 kgf in N, ...): the smallest
+    gap between distinct values, or a whole fraction of it, that every value is a whole
+    multiple of; 0 when there is none (live readings) or too few distinct values to tell."""
+    v = x[np.isfinite(x)]
+    if v.size > RESOLUTION_SAMPLES:
+        v = v[:: v.size // RESOLUTION_SAMPLES + 1]
+    v = np.unique(np.abs(v))
+    gaps = np.diff(v)
+    if v.size < MIN_DISTINCT or not (gaps > 0).any():
+        return 0.0
+    smallest = float(gaps[gaps > 0].min())
+    for divisor in range(1, MAX_STEP_DIVISOR + 1):
+        step = smallest / divisor
+        ratio = v / step
+        if ratio.max() < 1e9 and np.all(np.abs(ratio - np.round(ratio)) < 1e-6):
+            return step
+    return 0.0
+
+
+def resolution_floors(channels: dict[str, ChannelStats], samples: Samples) -> dict[str, np.ndarray]:
+    """Per point, the power and thrust below which half a printed step of current, voltage or
+    thrust moves the efficiency by more than MAX_ROUNDING. A channel whose readings scatter
+    by half a step or more within the point's window is dithered by its noise (rounding then
+    biases its mean by under 1 % of a step; the standard error covers the rest) and sets no
+    floor."""
+    def step(name: str) -> np.ndarray:
+        q = resolution(samples.channel(name)) if samples.has(name) else 0.0
+        return np.where(np.nan_to_num(channels[name].std) < q / 2, q, 0.0)
+
+    k = 1.0 / (2 * MAX_ROUNDING)
+    volts, amps = np.abs(channels["voltage_v"].mean), np.abs(channels["current_a"].mean)
+    power = k * (np.nan_to_num(volts) * step("current_a") + np.nan_to_num(amps) * step("voltage_v"))
+    return {"power_floor_w": power, "thrust_floor_n": k * step("thrust_n")}
 
 
 def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None) -> SteadyWindows:

@@ -20,6 +20,8 @@ import numpy as np
 from rigtool.analysis.fits import Coefficient, derive_thrust_current, with_systematic, wls
 
 Z95 = 1.96
+CP_DIFFERS_P = 1e-3  # C_p differs between voltages when chance gives its scatter less often
+CP_DIFFERS_REL = 0.01  # ... and one voltage's C_p is this far (relative) from the common one
 
 
 @dataclass
@@ -33,6 +35,7 @@ class VoltagePoint:
     cn: Coefficient | None
     ci_fwd: Coefficient | None
     ci_rev: Coefficient | None
+    current_exponent: float = 3.0  # k of the current law ci_* hold for: f = C_i (I - I_0)^(2/k)
 
 
 @dataclass
@@ -76,7 +79,8 @@ def voltage_point(voltage_v: float, bus_v: float, fits: dict[str, Coefficient]) 
         ci_fwd = derive_thrust_current(cp_fwd, cn, "C_i_fwd")
     if ci_rev is None and _usable(cp_rev) and _usable(cn):
         ci_rev = derive_thrust_current(cp_rev, cn, "C_i_rev")
-    return VoltagePoint(voltage_v, bus_v, cp_fwd, cp_rev, cn, ci_fwd, ci_rev)
+    k = fits["current_exponent"].value if "current_exponent" in fits else 3.0
+    return VoltagePoint(voltage_v, bus_v, cp_fwd, cp_rev, cn, ci_fwd, ci_rev, k)
 
 
 def fit_voltage_law(depth_m: float | None, points: list[VoltagePoint]) -> VoltageLaw | None:
@@ -114,14 +118,18 @@ def fit_voltage_law(depth_m: float | None, points: list[VoltagePoint]) -> Voltag
     chi2, consistent = _cp_consistency([p.cp_fwd for p in points])
     if not consistent:
         warnings.append(f"C_p_fwd differs between supply voltages beyond its intervals "
-                        f"(reduced chi-square {chi2:.2f}); C_p should not depend on U: check "
-                        "for ventilation, a sensor zero that moved, or a limit that cut points")
+                        f"(reduced chi-square {chi2:.2f}, by {CP_DIFFERS_REL:.0%} or more); "
+                        "C_p should not depend on U: check for ventilation, a sensor zero that "
+                        "moved, or a limit that cut points")
     return VoltageLaw(depth_m, points, k, b_coef, k_inv, chi2, consistent, warnings)
 
 
 def _cp_consistency(cps: list[Coefficient | None]) -> tuple[float, bool]:
-    """Reduced chi-square of the C_p values about their weighted mean, and whether it is
-    within what chance gives 95 % of the time."""
+    """Reduced chi-square of the C_p values about their weighted mean, and whether they agree:
+    C_p differs only when chance would give that scatter less than CP_DIFFERS_P of the time
+    and a voltage's C_p is at least CP_DIFFERS_REL from the common value (a 5 % test on six
+    voltages cries wolf in one table of four when the intervals are a little narrow, and a
+    difference far below 1 % is no sign of ventilation or a moved zero)."""
     use = [c for c in cps if _usable(c)]
     if len(use) < 2:
         return math.nan, True
@@ -132,4 +140,6 @@ def _cp_consistency(cps: list[Coefficient | None]) -> tuple[float, bool]:
     chi2 = float(np.sum(w * (v - mean) ** 2))
     from scipy import special  # not scipy.stats: 0.6 s more to import
 
-    return chi2 / dof, bool(special.chdtrc(dof, chi2) > 0.05)
+    significant = special.chdtrc(dof, chi2) < CP_DIFFERS_P
+    material = float(np.max(np.abs(v / mean - 1))) >= CP_DIFFERS_REL
+    return chi2 / dof, not (significant and material)

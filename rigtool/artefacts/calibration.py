@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from rigtool.analysis.calibrate import Calibration, DepthSection
-from rigtool.analysis.dynamics import Dynamics, DynamicsModel
+from rigtool.analysis.dynamics import MAX_MODEL_ERROR, Dynamics, DynamicsModel
 from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.voltage import VoltageLaw
 from rigtool.artefacts.write import (
@@ -130,17 +130,24 @@ def _coef_doc(c: Coefficient) -> dict:
 
 
 def _efficiency_doc(sec: DepthSection) -> dict | None:
-    """Best thrust per electrical watt among the live points (None without power)."""
+    """Best thrust per electrical watt among the live points at or above the resolution
+    floor (None without power)."""
     p = sec.points
-    eff = np.where((p.status == "ok") & ~p.dead, p.efficiency_n_per_w, np.nan)
+    live = (p.status == "ok") & ~p.dead
+    eff = np.where(live, p.efficiency_n_per_w, np.nan)
     if not np.isfinite(eff).any():
         return None
     i = int(np.nanargmax(eff))
+    below = live & (p.power.mean > 0) & ~p.efficiency_resolved
+    floor = p.power_floor_w[i] if p.power_floor_w.size == len(p) else 0.0
     return {"max_n_per_w": float(eff[i]), "max_g_per_w": float(eff[i]) * GRAMS_PER_NEWTON,
             "se_n_per_w": float(p.efficiency_se_n_per_w[i]), "at_command": float(p.command[i]),
             "at_thrust_n": float(p.thrust_corrected_n[i]), "power_w": float(p.power.mean[i]),
             "n_points": int(np.isfinite(eff).sum()),
             "power": "mean over the steady window of V * |I| sample by sample",
+            "power_floor_w": float(floor), "n_below_floor": int(below.sum()),
+            "floor": "no efficiency where half a printed step of current, voltage or thrust "
+                     "moves it by more than 5 % (points.csv: nan)",
             "overall": _overall_doc(p)}
 
 
@@ -190,6 +197,7 @@ def _section_doc(sec: DepthSection) -> dict:
         "n_points_used_in_fits": int(sec.points.used_in_fits.sum()),
         "speed_sign": sec.speed_sign,
         "coefficients": {name: _coef_doc(c) for name, c in sec.fits.items()},
+        "current_law": _current_law_doc(sec.fits),
         "command_curve": curve,
         "hysteresis": None if h is None else {
             "max_abs_n": h.max_abs_n, "at_command": h.at_command, "n_commands": int(h.command.size)},
@@ -201,28 +209,57 @@ def _section_doc(sec: DepthSection) -> dict:
     }
 
 
+def _current_law_doc(fits: dict[str, Coefficient]) -> dict | None:
+    """The current law the current-based thrust (C_i, sigma_i) uses (None without one)."""
+    if "C_n" not in fits:
+        return None
+    if "current_exponent" in fits:
+        return {"exponent": fits["current_exponent"].value, "coefficient": "C_free",
+                "idle_current": "I_0_free", "law": "I = C_free |n|^k + I_0_free",
+                "thrust_from_current": "f = C_i (I - I_0_free)^(2/k), k = exponent",
+                "why": "the free exponent k_free excludes 3 (see warnings)"}
+    return {"exponent": 3.0, "coefficient": "C_n", "idle_current": "I_0",
+            "law": "I = C_n |n|^3 + I_0", "thrust_from_current": "f = C_i (I - I_0)^(2/3)",
+            "why": "textbook law; the free exponent k_free does not exclude 3"}
+
+
 def _model_doc(m: DynamicsModel) -> dict:
+    optional = {"tau_a": m.tau_a_s, "g": m.gain, "alpha": m.alpha, "beta": m.inflow_beta,
+                "rho": m.reverse_ratio}
     return {"tau_n": _coef_doc(m.tau_n_s), "delay": _coef_doc(m.delay_s),
-            "tau_a": None if m.tau_a_s is None else _coef_doc(m.tau_a_s),
-            "g": None if m.gain is None else _coef_doc(m.gain),
-            "rms_n": m.rms_n, "bic": m.bic, "aic": m.aic, "n_samples": m.n_samples}
+            **{k: None if c is None else _coef_doc(c) for k, c in optional.items()},
+            "rms_n": m.rms_n, "bic": m.bic, "aic": m.aic, "n_samples": m.n_samples,
+            "heldout_rms_n": m.heldout_rms_n, "heldout_noise_n": m.heldout_noise_n,
+            "model_error_n": m.model_error_n()}
 
 
 def _dynamics_doc(d: Dynamics) -> dict:
+    m = d.model
     return {
-        "model": "s' = (s_k - s) / tau_n; m' = (s - m) / tau_a; thrust = s|s| + g (s|s| - m|m|); "
-                 "s in sqrt(N) (s|s| is the steady thrust of the command), the command acts "
-                 "`delay` s after it is sent; one-state: g = 0",
+        "model": "x' = (X - x) / tau_n (one-state, two-state, healey-lag) or x' = alpha (X|X| - "
+                 "x|x|) (yoerger, healey); two-state: m' = (x - m) / tau_a and thrust c (x|x| + "
+                 "g (x|x| - m|m|)); healey, healey-lag: m' = beta (x|x| - m|m|) and thrust c "
+                 "(x|x| + g |x| (x - m)); else thrust c x|x|; x in sqrt(N), X|X| the steady "
+                 "thrust of the command (divided by rho in reverse), c = 1 for x >= 0 and rho = "
+                 "C_p_rev / C_p_fwd below; the command acts `delay` s after it is sent "
+                 "(docs/dynamics.md)",
         "selected": d.selected,
-        "models": {"one-state": _model_doc(d.one_state),
-                   "two-state": None if d.two_state is None else _model_doc(d.two_state)},
-        "time_constant_s": d.model.tau_n_s.value,
+        "selected_by": "held-out steps (two-state also by BIC and its gain)",
+        "identified": d.identified,
+        "reason": d.reason,
+        "models": {name: None if mm is None else _model_doc(mm) for name, mm in d.slots()},
+        "adequacy": {"heldout_rms_n": m.heldout_rms_n, "noise_rms_n": m.heldout_noise_n,
+                     "model_error_n": m.model_error_n(), "full_scale_n": d.full_scale_n,
+                     "model_error_frac": m.model_error_n() / d.full_scale_n
+                     if d.full_scale_n else None, "limit_frac": MAX_MODEL_ERROR},
+        "time_constant_s": m.tau_n_s.value if d.identified else None,
         "zero_n": d.zero_n,
         "levels": [{"command": c, "thrust_n": f} for c, f in sorted(d.levels.items())],
         "steps": [{"command_from": s.command_from, "command_to": s.command_to,
                    "thrust_from_n": s.thrust_from_n, "thrust_to_n": s.thrust_to_n,
                    "direction": s.direction, "t10_s": s.t10_s, "rise_s": s.rise_s,
-                   "settling_s": s.settling_s, "overshoot_frac": s.overshoot_frac}
+                   "settling_s": s.settling_s, "settled": s.settled, "window_s": s.window_s,
+                   "overshoot_frac": s.overshoot_frac}
                   for s in d.steps],
         "warnings": list(d.warnings),
     }
@@ -231,7 +268,9 @@ def _dynamics_doc(d: Dynamics) -> dict:
 def _voltage_law_doc(law: VoltageLaw) -> dict:
     return {
         "depth_m": law.depth_m,
-        "law": "C_n(U) = k * U**b, U the supply voltage set (V); C_i(U) = C_p / C_n(U)**(2/3)",
+        "law": "C_n(U) = k * U**b, U the supply voltage set (V), fitted to the cubic-law C_n "
+               "of each voltage; C_i(U) = C_p / C_n(U)**(2/3). Each voltage's C_i is that of "
+               "its own current law (current_exponent; 3 unless its depth says otherwise)",
         "k": _coef_doc(law.k), "b": _coef_doc(law.b), "k_inverse": _coef_doc(law.k_inverse),
         "cp_fwd_reduced_chi2": law.cp_chi2_red, "cp_consistent": law.cp_consistent,
         "voltages": [{
@@ -239,6 +278,7 @@ def _voltage_law_doc(law: VoltageLaw) -> dict:
             **{name: None if c is None else _coef_doc(c) for name, c in (
                 ("C_p_fwd", v.cp_fwd), ("C_p_rev", v.cp_rev), ("C_n", v.cn),
                 ("C_i_fwd", v.ci_fwd), ("C_i_rev", v.ci_rev))},
+            "current_exponent": v.current_exponent,
         } for v in law.points],
         "warnings": list(law.warnings),
     }
@@ -276,7 +316,8 @@ POINT_COLUMNS = (
       for stat, text in (("mean", "mean"), ("std", "standard deviation"),
                          ("se", "standard error of the mean"), ("min", "minimum"),
                          ("max", "maximum"))),
-    ("efficiency_n_per_w", "N/W", "|thrust_mean_n - thrust_zero_n| / power_mean_w"),
+    ("efficiency_n_per_w", "N/W", "|thrust_mean_n - thrust_zero_n| / power_mean_w; nan below "
+     "the power floor the data's resolution supports"),
     ("efficiency_se_n_per_w", "N/W", "standard error of efficiency_n_per_w"),
     ("efficiency_g_per_w", "g/W", "efficiency in grams-force per watt (manufacturer tables)"),
     ("voltage_set_v", "V", "supply voltage set for the point (nan: not swept)"),
@@ -320,11 +361,13 @@ VOLTAGE_COLUMNS = (
     ("bus_voltage_mean_v", "V", "mean bus voltage measured over the fitted points"),
     *((f"{name}{part}", unit, f"{name} {text}")
       for name, unit in (("C_p_fwd", "N/(r/min)^2"), ("C_p_rev", "N/(r/min)^2"),
-                         ("C_n", "A/(r/min)^3"), ("C_i_fwd", "N/A^(2/3)"),
-                         ("C_i_rev", "N/A^(2/3)"))
+                         ("C_n", "A/(r/min)^3"), ("C_i_fwd", "N/A^(2/k)"),
+                         ("C_i_rev", "N/A^(2/k)"))
       for part, text in (("", "fitted at this voltage"), ("_lo", "95 % interval, low end"),
                          ("_hi", "95 % interval, high end"))),
     ("C_n_law", "A/(r/min)^3", "C_n from the fitted law k U^b at this voltage"),
+    ("current_exponent", "1", "k of the current law C_i uses at this voltage: f = C_i (I - "
+     "I_0)^(2/k); 3 unless the free exponent excludes it"),
 )
 VOLTAGE_DOC = ["one row per (depth, supply voltage): the coefficients at that voltage;",
                "calibration.json voltage_laws holds the fitted C_n(U) = k U^b"]
@@ -405,7 +448,7 @@ def voltage_rows(cal: Calibration) -> Iterable[list[object]]:
                                  v.bus_v]
             for c in (v.cp_fwd, v.cp_rev, v.cn, v.ci_fwd, v.ci_rev):
                 row += [math.nan] * 3 if c is None else [c.value, c.lo, c.hi]
-            row.append(float(law.cn_at(v.voltage_v)))
+            row += [float(law.cn_at(v.voltage_v)), v.current_exponent]
             yield row
 
 
@@ -429,7 +472,8 @@ def performance_rows(cal: Calibration) -> list[list[float]]:
                 return float(v.mean()) if v.size else math.nan
 
             thrust, power = mean(f), mean(p.power.mean)
-            g_per_w = abs(thrust) / power * GRAMS_PER_NEWTON if power > 0 else math.nan
+            resolved = power > 0 and bool(np.all(p.efficiency_resolved[m]))
+            g_per_w = abs(thrust) / power * GRAMS_PER_NEWTON if resolved else math.nan
             row = [_depth(sec), float(command), mean(p.speed.mean), mean(p.current.mean),
                    mean(p.voltage.mean), power, thrust, thrust / 9.80665, g_per_w]
             if swept:

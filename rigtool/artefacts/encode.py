@@ -8,8 +8,9 @@ only, so no bidirectional control, line-break character or byte-order mark reach
 
 Lone surrogates (not Unicode scalar values, so no UTF-8 file can hold them) become U+FFFD in
 every grammar; the other losses are stated per function. rigtool.artefacts.vehicle uses
-c_string, yaml_string and xml_text; c_identifier and csv_field are for a writer that derives a
-C name from text or puts text into a CSV field (none does yet).
+c_string, yaml_string and xml_text; the CSV writers (rigtool.artefacts.write, rigtool.export)
+use csv_safe_text; c_identifier and csv_field are for a writer that derives a C name from text or
+writes a CSV field itself.
 """
 
 from __future__ import annotations
@@ -107,13 +108,18 @@ def _xml_reference(match: re.Match[str]) -> str:
     return _XML_NAMED.get(char) or f"&#x{ord(char):x};"
 
 
+def csv_safe_text(text: str) -> str:
+    """`text` as spreadsheet-safe CSV text (quoting left to the writer): lone surrogates
+    replaced, and a leading = + - @ tab or CR (a formula to a spreadsheet) behind a `'`."""
+    field = scalar_text(text)
+    return "'" + field if field.startswith(_CSV_FORMULA) else field
+
+
 def csv_field(text: str) -> str:
     """`text` as one RFC 4180 CSV field: a text a spreadsheet would run as a formula (first
     character = + - @ tab or CR) gets a leading `'`; a field holding a comma, quote, CR or
     LF is quoted, with quotes doubled."""
-    field = scalar_text(text)
-    if field.startswith(_CSV_FORMULA):
-        field = "'" + field
+    field = csv_safe_text(text)
     if any(c in field for c in ',"\r\n'):
         return '"' + field.replace('"', '""') + '"'
     return field

@@ -60,8 +60,11 @@ TYPES: Mapping[str, type] = MappingProxyType({
     "curves.CommandCurve/1": curves.CommandCurve,
     "curves.CurveParams/1": curves.CurveParams,
     "dynamics.Dynamics/1": dynamics.Dynamics,
+    "dynamics.Dynamics/2": dynamics.Dynamics,
     "dynamics.DynamicsModel/1": dynamics.DynamicsModel,
+    "dynamics.DynamicsModel/2": dynamics.DynamicsModel,
     "dynamics.StepMetrics/1": dynamics.StepMetrics,
+    "dynamics.StepMetrics/2": dynamics.StepMetrics,
     "events.EventParams/1": events.EventParams,
     "events.MatchResult/1": events.MatchResult,
     "fits.Coefficient/1": fits.Coefficient,
@@ -82,8 +85,21 @@ TYPES: Mapping[str, type] = MappingProxyType({
     "voltage.VoltagePoint/1": voltage.VoltagePoint,
 })
 
+
+
+def _same_fields(fields: Fields) -> Fields:
+    """An old version whose fields all kept their meaning; the fields it lacks take their
+    defaults (dynamics version 1: no yoerger candidate, reverse ratio, held-out error,
+    identification verdict or censored settling; its models were selected by BIC)."""
+    return fields
+
+
 # Fields of an old tag's version -> fields of the class now (see the rules above).
-UPGRADES: Mapping[str, Callable[[Fields], Fields]] = MappingProxyType({})
+UPGRADES: Mapping[str, Callable[[Fields], Fields]] = MappingProxyType({
+    "dynamics.Dynamics/1": _same_fields,
+    "dynamics.DynamicsModel/1": _same_fields,
+    "dynamics.StepMetrics/1": _same_fields,
+})
 
 LEGACY_V1: Mapping[str, str] = MappingProxyType({
     "rigtool.analysis.betm:EstimatorErrors": "betm.EstimatorErrors/1",

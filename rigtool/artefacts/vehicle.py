@@ -38,20 +38,78 @@ class DynamicsSource:
     run_id: str
     dynamics: Dynamics
 
-    def params(self) -> dict[str, float | str]:
-        """The selected model's parameters in SI units, as the artefacts name them."""
+    def params(self, cp_fwd: float = math.nan, cp_rev: float = math.nan
+               ) -> dict[str, float | str]:
+        """The selected model's parameters in SI units, as the artefacts name them; a yoerger
+        model's alpha and beta in propeller speed (r/min) when C_p_fwd is given."""
         m = self.dynamics.model
-        return {"dynamics_model": m.name, "dynamics_source_run": self.run_id,
-                "time_constant_s": m.tau_n_s.value,
-                "inflow_time_constant_s": m.tau_a_s.value if m.tau_a_s else math.nan,
-                "inflow_gain": m.gain.value if m.gain else 0.0,
-                "command_delay_s": m.delay_s.value}
+        rho = m.reverse_ratio.value if m.reverse_ratio else math.nan
+        out: dict[str, float | str] = {
+            "dynamics_model": m.name, "dynamics_source_run": self.run_id,
+            "time_constant_s": m.tau_n_s.value,
+            "inflow_time_constant_s": m.tau_a_s.value if m.tau_a_s else math.nan,
+            "inflow_gain": m.gain.value if m.gain else 0.0,
+            "command_delay_s": m.delay_s.value, "dynamics_reverse_ratio": rho}
+        if m.alpha is not None:
+            out |= _yoerger_params(m.alpha.value, rho, cp_fwd, cp_rev)
+        if m.inflow_beta is not None:
+            out["healey_inflow_beta"] = _scaled_beta(m.inflow_beta.value, out, cp_fwd)
+        return out
+
+
+def usable(dynamics: DynamicsSource | None) -> DynamicsSource | None:
+    """`dynamics` when it holds identified dynamics, else None (no export carries them)."""
+    return dynamics if dynamics is not None and dynamics.dynamics.identified else None
+
+
+def _no_dynamics(dynamics: DynamicsSource | None) -> str:
+    """Why an artefact has no time constants."""
+    if dynamics is None:
+        return "no step-response run was given (--dynamics RUN)"
+    return "the step-response run gave no identified dynamics (see its calibration warnings)"
+
+
+def _yoerger_params(alpha: float, rho: float, cp_fwd: float, cp_rev: float) -> dict[str, float | str]:
+    """Yoerger's n' = beta f_cmd - alpha n|n| for a thrust command f_cmd (N): in r/min with the
+    calibration's C_p (thrust C_p n|n|), else in sqrt(N) with C_p_fwd = 1, C_p_rev = rho."""
+    if math.isfinite(cp_fwd) and cp_fwd > 0:
+        rev = cp_rev if math.isfinite(cp_rev) and cp_rev > 0 else cp_fwd * rho
+        a = alpha * math.sqrt(cp_fwd)
+        return {"yoerger_state_unit": "r/min", "yoerger_alpha": a,
+                "yoerger_beta_forward": a / cp_fwd, "yoerger_beta_reverse": a / rev}
+    rev = rho if math.isfinite(rho) else 1.0
+    return {"yoerger_state_unit": "sqrt(N)", "yoerger_alpha": alpha,
+            "yoerger_beta_forward": alpha, "yoerger_beta_reverse": alpha / rev}
+
+
+def _scaled_beta(beta: float, params: dict[str, float | str], cp_fwd: float) -> float:
+    """Healey's inflow beta in the units of the speed state (r/min when C_p_fwd is known)."""
+    in_rpm = params.get("yoerger_state_unit") == "r/min"
+    return beta * math.sqrt(cp_fwd) if in_rpm and math.isfinite(cp_fwd) and cp_fwd > 0 else beta
 
 
 DYNAMICS_MODEL = ("speed s follows its steady value (s|s| = the steady thrust) with "
                   "time_constant_s; the inflow m follows s with inflow_time_constant_s; thrust = "
                   "s|s| + inflow_gain (s|s| - m|m|); a command acts command_delay_s after it is "
                   "sent (docs/dynamics.md)")
+YOERGER_MODEL = ("Yoerger: state n' = yoerger_beta f_cmd - yoerger_alpha n|n| for a thrust "
+                 "command f_cmd (N; beta per direction), thrust C_p n|n| (n in "
+                 "yoerger_state_unit: r/min with the C_p above, or sqrt(N) with C_p = 1 forward, "
+                 "dynamics_reverse_ratio reverse); time_constant_s is its time constant at the "
+                 "largest thrust measured; a command acts command_delay_s after it is sent "
+                 "(docs/dynamics.md)")
+
+
+HEALEY_MODEL = ("; Healey inflow instead of that: m' = healey_inflow_beta (s|s| - m|m|) and "
+                "thrust = C_p (s|s| + inflow_gain |s| (s - m)), s the speed state in its units "
+                "above; inflow_time_constant_s is the inflow's time constant at the largest "
+                "thrust measured")
+
+
+def _model_text(params: dict[str, float | str]) -> str:
+    """The model description of an artefact's dynamics parameters."""
+    text = YOERGER_MODEL if "yoerger_alpha" in params else DYNAMICS_MODEL
+    return text + HEALEY_MODEL if "healey_inflow_beta" in params else text
 
 
 def write_vehicle_artefacts(cal: Calibration, out_dir: str | Path, formats: Sequence[str],
@@ -190,7 +248,7 @@ def c_header(cal: Calibration, sec: DepthSection, created: str,
              _c_array("rigtool_lut_thrust", np.concatenate([f for _, f, _ in tables]))
              + " /* N, ascending per branch */",
              _c_array("rigtool_lut_command", np.concatenate([c for _, _, c in tables])),
-             "", *_c_dynamics(dynamics),
+             "", *_c_dynamics(dynamics, sec),
              "",
              "/* The command giving thrust_n (N): the neutral command for 0 N, linear",
              "   interpolation in the first branch whose thrust range holds thrust_n, NAN",
@@ -225,21 +283,36 @@ def c_header(cal: Calibration, sec: DepthSection, created: str,
     return "\n".join(lines)
 
 
-def _c_dynamics(dynamics: DynamicsSource | None) -> list[str]:
-    if dynamics is None:
-        return ["#define RIGTOOL_HAS_DYNAMICS 0 /* no step-response run: no time constants */"]
-    d = dynamics.params()
-    return ["/* Dynamics, " + DYNAMICS_MODEL.replace("inflow_time_constant_s", "RIGTOOL_TAU_A_S")
-            .replace("time_constant_s", "RIGTOOL_TAU_N_S")
-            .replace("inflow_gain", "RIGTOOL_INFLOW_GAIN")
-            .replace("command_delay_s", "RIGTOOL_DELAY_S") + ". Seconds. */",
-            "#define RIGTOOL_HAS_DYNAMICS 1",
-            f"#define RIGTOOL_DYNAMICS_RUN {c_string(str(d['dynamics_source_run']))}",
-            f"#define RIGTOOL_DYNAMICS_MODEL {c_string(str(d['dynamics_model']))}",
-            f"#define RIGTOOL_TAU_N_S {_c(d['time_constant_s'])}",
-            f"#define RIGTOOL_TAU_A_S {_c(d['inflow_time_constant_s'])} /* NAN: one-state */",
-            f"#define RIGTOOL_INFLOW_GAIN {_c(d['inflow_gain'])}",
-            f"#define RIGTOOL_DELAY_S {_c(d['command_delay_s'])}"]
+def _c_dynamics(dynamics: DynamicsSource | None, sec: DepthSection) -> list[str]:
+    if usable(dynamics) is None:
+        return [f"#define RIGTOOL_HAS_DYNAMICS 0 /* {_no_dynamics(dynamics)}: no time "
+                "constants */"]
+    d = dynamics.params(_coef(sec, "C_p_fwd"), _coef(sec, "C_p_rev"))
+    names = {"inflow_time_constant_s": "RIGTOOL_TAU_A_S", "time_constant_s": "RIGTOOL_TAU_N_S",
+             "inflow_gain": "RIGTOOL_INFLOW_GAIN", "command_delay_s": "RIGTOOL_DELAY_S",
+             "dynamics_reverse_ratio": "RIGTOOL_DYNAMICS_REVERSE_RATIO",
+             "yoerger_alpha": "RIGTOOL_YOERGER_ALPHA", "yoerger_state_unit":
+             "RIGTOOL_YOERGER_STATE_UNIT", "yoerger_beta_forward": "RIGTOOL_YOERGER_BETA_FWD",
+             "yoerger_beta_reverse": "RIGTOOL_YOERGER_BETA_REV"}
+    text = _model_text(d)
+    for key, macro in names.items():
+        text = text.replace(key, macro)
+    lines = ["/* Dynamics, " + text + ". Seconds. */",
+             "#define RIGTOOL_HAS_DYNAMICS 1",
+             f"#define RIGTOOL_DYNAMICS_RUN {c_string(str(d['dynamics_source_run']))}",
+             f"#define RIGTOOL_DYNAMICS_MODEL {c_string(str(d['dynamics_model']))}",
+             f"#define RIGTOOL_TAU_N_S {_c(d['time_constant_s'])}",
+             f"#define RIGTOOL_TAU_A_S {_c(d['inflow_time_constant_s'])} /* NAN: one-state */",
+             f"#define RIGTOOL_INFLOW_GAIN {_c(d['inflow_gain'])}",
+             f"#define RIGTOOL_DELAY_S {_c(d['command_delay_s'])}",
+             f"#define RIGTOOL_DYNAMICS_REVERSE_RATIO {_c(d['dynamics_reverse_ratio'])} "
+             "/* C_p_rev / C_p_fwd seen in steps through zero; NAN: none */"]
+    if "yoerger_alpha" in d:
+        lines += [f"#define RIGTOOL_YOERGER_STATE_UNIT {c_string(str(d['yoerger_state_unit']))}",
+                  f"#define RIGTOOL_YOERGER_ALPHA {_c(d['yoerger_alpha'])}",
+                  f"#define RIGTOOL_YOERGER_BETA_FWD {_c(d['yoerger_beta_forward'])}",
+                  f"#define RIGTOOL_YOERGER_BETA_REV {_c(d['yoerger_beta_reverse'])}"]
+    return lines
 
 
 def _first(tables: list, direction: str) -> tuple[list[float], list[float]]:
@@ -266,16 +339,23 @@ def ros2_params(cal: Calibration, sec: DepthSection, created: str,
         "thrust_coefficient_unit": "N/(r/min)^2, f = C |n| n",
         "map_forward_thrust_n": fwd_f, "map_forward_command": fwd_c,
         "map_reverse_thrust_n": rev_f, "map_reverse_command": rev_c,
-        **(dynamics.params() if dynamics else {"dynamics_model": "none"}),
+        **(_ros2_dynamics(dynamics, sec)),
     }
     head = "".join(f"# {line}\n" for line in _head(sec, list(texts)))
     head += ("# map_*: thrust (N, ascending) -> command; interpolate linearly; neutral for 0 N.\n"
              "# NaN (.nan) marks a value this run could not give.\n")
-    head += (f"# dynamics: {DYNAMICS_MODEL}.\n" if dynamics else
-             "# dynamics_model none: no step-response run was given (--dynamics RUN), so there"
-             " are\n# no time constants.\n")
+    head += (f"# dynamics: {_model_text(params)}.\n" if usable(dynamics) else
+             f"# dynamics_model none: {_no_dynamics(dynamics)},\n# so there are no time "
+             "constants.\n")
     return head + "/**:\n  ros__parameters:\n    rigtool:\n" + "".join(
         _yaml_entry(k, v, " " * 6) + "\n" for k, v in params.items())
+
+
+def _ros2_dynamics(dynamics: DynamicsSource | None, sec: DepthSection) -> dict:
+    """The ROS 2 dynamics parameters (only dynamics_model none without identified ones)."""
+    if usable(dynamics) is None:
+        return {"dynamics_model": "none"}
+    return dynamics.params(_coef(sec, "C_p_fwd"), _coef(sec, "C_p_rev"))
 
 
 def _yaml_entry(key: str, value: str | float | list[float], indent: str) -> str:
@@ -335,20 +415,25 @@ def gazebo_sdf(cal: Calibration, sec: DepthSection, created: str,
     thrusts = [float(v) for _, f, _ in tables for v in (f[0], f[-1])]
     clamp = "" if not thrusts else (f"  <max_thrust_cmd>{max(thrusts):.9g}</max_thrust_cmd>\n"
                                     f"  <min_thrust_cmd>{min(thrusts):.9g}</min_thrust_cmd>\n")
-    if dynamics is None:
-        lag_note = " No time constant: no step-response run was given (the dynamics option)."
+    if usable(dynamics) is None:
+        lag_note = (" No time constant: no step-response run was given (the dynamics option)."
+                    if dynamics is None else " No time constant: the step-response run gave "
+                    "no identified dynamics.")
         lag = ""
     else:
-        dp = dynamics.params()
+        dp = dynamics.params(cp, rev)
         lag_note = (" The rigtool_* dynamics elements are those of the model "
                     "rigtool_dynamics_model of the run rigtool_dynamics_source_run: "
-                    f"{DYNAMICS_MODEL}. The Thruster system has no lag and ignores them; with "
-                    "use_angvel_cmd, a first-order filter of time constant "
-                    "rigtool_time_constant_s on the angular-velocity command is the one-state "
-                    "model.")
-        texts |= {f"rigtool_{k}": str(dp[k]) for k in ("dynamics_model", "dynamics_source_run")}
+                    f"{_model_text(dp)}. The Thruster system has no lag and ignores them"
+                    + ("." if "yoerger_alpha" in dp else "; with use_angvel_cmd, a first-order "
+                       "filter of time constant rigtool_time_constant_s on the angular-velocity "
+                       "command is the one-state model."))
+        texts |= {f"rigtool_{k}": str(dp[k]) for k in ("dynamics_model", "dynamics_source_run",
+                                                       "yoerger_state_unit") if k in dp}
         lag = "".join(f"  <rigtool_{k}>{_xml_num(dp[k])}</rigtool_{k}>\n" for k in (
-            "time_constant_s", "inflow_time_constant_s", "inflow_gain", "command_delay_s"))
+            "time_constant_s", "inflow_time_constant_s", "inflow_gain", "command_delay_s",
+            "dynamics_reverse_ratio", "yoerger_alpha", "yoerger_beta_forward",
+            "yoerger_beta_reverse") if k in dp)
     return (f"<!-- {comment} -->\n"
             f"<!-- thrust = C_T rho D^4 w|w|, w in rad/s; C_T from C_p_fwd = {cp:.6g} "
             f"N/(r/min)^2.{rev_note} Thrust commands are clamped to the measured range (N)."

@@ -11,13 +11,14 @@ import dataclasses
 import json
 import math
 import os
+import unicodedata
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rigtool.artefacts.encode import scalar_text
+from rigtool.artefacts.encode import csv_safe_text, scalar_text
 
 MISSING = "nan"
 
@@ -70,7 +71,8 @@ def json_text(obj: Any, indent: int | None = 2, digits: int | None = 10) -> str:
 
 
 def csv_cell(v: object) -> str:
-    """One CSV cell: booleans 0/1, floats %.9g (never -0), missing as `nan`, no commas."""
+    """One CSV cell: booleans 0/1, floats %.9g (never -0), missing as `nan`; text on one line
+    with no comma or double quote (the files are unquoted), never starting like a formula."""
     if isinstance(v, bool | np.bool_):
         return "1" if v else "0"
     if isinstance(v, int | np.integer):
@@ -81,7 +83,18 @@ def csv_cell(v: object) -> str:
             return MISSING
         s = f"{x:.9g}"
         return "0" if s == "-0" else s
-    return " ".join(scalar_text(str(v)).replace(",", ";").splitlines())
+    text = " ".join(str(v).replace(",", ";").replace('"', "'").splitlines())
+    return csv_safe_text(text)  # a stored text that would run as a spreadsheet formula is defused
+
+
+def _visible(text: str) -> str:
+    """`text` with every control, format (bidi) or private character as a \\u escape: a
+    comment shows what it holds and cannot reorder or hide the text around it."""
+    return "".join(c if unicodedata.category(c) not in _HIDDEN else f"\\u{ord(c):04x}"
+                   for c in text)
+
+
+_HIDDEN = {"Cc", "Cf", "Co", "Cs", "Zl", "Zp"}
 
 
 def csv_text(comments: Sequence[str], columns: Sequence[tuple[str, str, str]],
@@ -91,7 +104,8 @@ def csv_text(comments: Sequence[str], columns: Sequence[tuple[str, str, str]],
     can start a row), and header cells are single cells."""
     notes = [*comments, *(f"{name}{f' [{unit}]' if unit else ''}: {text}"
                           for name, unit, text in columns)]
-    lines = [f"# {line}" for c in notes for line in (scalar_text(str(c)).splitlines() or [""])]
+    lines = [f"# {_visible(line)}" for c in notes
+             for line in (scalar_text(str(c)).splitlines() or [""])]
     lines.append(",".join(csv_cell(name) for name, _, _ in columns))
     lines += [",".join(csv_cell(v) for v in row) for row in rows]
     return "\n".join(lines) + "\n"

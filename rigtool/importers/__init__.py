@@ -10,7 +10,7 @@ from pathlib import Path
 from rigtool.errors import UsageError
 from rigtool.importers.generic import Parsed, parse
 from rigtool.importers.mapping import Mapping, load_mapping, with_overrides
-from rigtool.importers.steps import choose_format, point_steps, timeseries_steps
+from rigtool.importers.steps import ImportedPoints, choose_format, point_steps, timeseries_steps
 from rigtool.importers.table import read_table
 from rigtool.importers.writer import protocol_for, write_run
 from rigtool.store import Store
@@ -70,6 +70,20 @@ def _rig(path: Path, parsed: Parsed, mapping: Mapping, fmt: str) -> dict:
     }
 
 
+def _points(path: Path, parsed: Parsed, fmt: str, m: Mapping,
+            depth_m: float | None) -> tuple[ImportedPoints, list[str]]:
+    """The points of a table in format `fmt`: a time series (or step log: every sample kept,
+    each command's first row its step time) grouped by command, or one point per row."""
+    if fmt in ("timeseries", "steps") and "time" not in parsed.values:
+        raise UsageError(f"{path}: format {fmt} needs a time column (--col time=COLUMN)")
+    if fmt == "steps" and m.settle_s > 0:
+        raise UsageError(f"{path}: a step log keeps every sample from each step on: drop "
+                         f"--settle-s {m.settle_s:g} (format steps)")
+    if fmt in ("timeseries", "steps"):
+        return timeseries_steps(parsed, m.settle_s, depth_m)
+    return point_steps(parsed, depth_m)
+
+
 def import_file(store: Store, path: str | Path, mapping: Mapping | None = None, *,
                 name: str | None = None, thruster_id: str | None = None,
                 depth_m: float | None = None, strict: bool = False) -> ImportResult:
@@ -89,12 +103,7 @@ def import_file(store: Store, path: str | Path, mapping: Mapping | None = None, 
         raise UsageError(f"{path}: no readable data rows"
                          + (":\n" + "\n".join(parsed.errors[:20]) if parsed.errors else ""))
     fmt = choose_format(parsed, m.format, depth_m)
-    if fmt == "timeseries" and "time" not in parsed.values:
-        raise UsageError(f"{path}: format timeseries needs a time column (--col time=COLUMN)")
-    if fmt == "timeseries":
-        points, notes = timeseries_steps(parsed, m.settle_s, depth_m)
-    else:
-        points, notes = point_steps(parsed, depth_m)
+    points, notes = _points(path, parsed, fmt, m, depth_m)
     if not len(points):
         raise UsageError(f"{path}: no points left after the settling cut: lower --settle-s")
     warnings = parsed.warnings + notes
@@ -102,7 +111,8 @@ def import_file(store: Store, path: str | Path, mapping: Mapping | None = None, 
                           parsed.n_skipped, len(points), parsed.errors, warnings)
     metadata = {"thruster_id": thruster_id, "source_file": path.name}
     run_name = name or path.stem
-    protocol = protocol_for(run_name, parsed.command_unit, m.neutral, points, metadata, path.name)
+    protocol = protocol_for(run_name, parsed.command_unit, m.neutral, points, metadata, path.name,
+                            steps=fmt == "steps")
     events = [("import", {"message": result.summary().replace(", run None", ""),
                           "rows": parsed.n_rows, "skipped": parsed.n_skipped,
                           "errors": parsed.errors[:MAX_STORED_ERRORS]})]

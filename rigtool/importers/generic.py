@@ -14,6 +14,8 @@ from rigtool.importers.table import RawTable
 
 REQUIRED = ("command", "thrust")
 MAX_SHOWN_CELL = 40  # characters of a bad cell quoted in its error message
+MAX_SUPPLY_LEVELS = 20  # a voltage column with at most this many levels may hold set voltages
+MIN_LEVEL_ROWS = 5  # ... each level a sweep of at least this many commands
 
 
 @dataclass
@@ -95,9 +97,8 @@ def resolve_columns(table: RawTable, mapping: Mapping) -> tuple[str, dict[str, C
     """Choose importer and columns: Tyto/RCbenchmark headers are recognised, the mapping wins."""
     path = str(table.path)
     given = {k: v for k, v in mapping.columns.model_dump().items() if v is not None}
-    guessed = rcbenchmark.guess_columns(table.header) if rcbenchmark.detect(table.header) else {}
-    importer = "rcbenchmark" if guessed else "generic"
-    chosen = {**guessed, **given}
+    importer = "rcbenchmark" if rcbenchmark.detect(table.header) else "generic"
+    chosen = {**_recognised(table, given, importer == "rcbenchmark"), **given}
     missing = [f for f in REQUIRED if f not in chosen]
     if missing:
         raise UsageError(
@@ -130,6 +131,18 @@ def resolve_columns(table: RawTable, mapping: Mapping) -> tuple[str, dict[str, C
         raise UsageError(f"{path}: unknown command unit for column {refs['command'].header!r}: "
                          "give --command-unit (pulse_us, percent, pwm_counts, rpm, amps)")
     return importer, refs, command_unit, warnings
+
+
+def _recognised(table: RawTable, given: dict[str, str | int], detected: bool) -> dict[str, str]:
+    """Columns recognised by their headers: every known one in a Tyto/RCbenchmark-style log;
+    in any other table the supply voltage (`Supply Voltage (V)`) only, unless the mapping
+    gives its column to another field."""
+    found = rcbenchmark.guess_columns(table.header)
+    if detected:
+        return found
+    taken = {_find(table.header, ref, fld, str(table.path)) for fld, ref in given.items()}
+    return {f: h for f, h in found.items() if f in rcbenchmark.ALWAYS_RECOGNISED
+            and table.header.index(h) not in taken}
 
 
 def _column(cells: list[str], fld: str, ref: ColumnRef, widths: np.ndarray, decimal: str,
@@ -191,6 +204,42 @@ def parse(table: RawTable, mapping: Mapping) -> Parsed:
     errors = [(row_lines[i], p) for i, ps in problems.items() for p in ps] + table.bad
     errors.sort(key=lambda e: e[0])
     values = {f: v[good] for f, v in columns.items()}
+    _refuse_pooled_supplies(values, refs, str(table.path))
     lines = np.asarray(row_lines, dtype=int)[good]
     return Parsed(importer, refs, command_unit, values, lines, len(table.rows) + len(table.bad),
                   [f"{table.path}:{n}: {p}" for n, p in errors], warnings)
+
+
+def supply_levels(values: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The levels of a `voltage` column that holds a few set voltages, each with its own sweep
+    of the same commands (a maker's table of several voltages in one file, read without its
+    supply column); None for anything else."""
+    if "supply" in values or "voltage" not in values:
+        return None
+    v, cmd = values["voltage"], values["command"]
+    ok = np.isfinite(v)
+    levels, counts = np.unique(v[ok], return_counts=True)
+    if not 2 <= levels.size <= MAX_SUPPLY_LEVELS or counts.min() < MIN_LEVEL_ROWS:
+        return None
+    sweeps = [np.unique(cmd[ok & (v == level)]) for level in levels]
+    distinct = all(s.size == c for s, c in zip(sweeps, counts, strict=True))
+    shared = sweeps[0]
+    for s in sweeps[1:]:
+        shared = np.intersect1d(shared, s)
+    return levels if distinct and shared.size >= MIN_LEVEL_ROWS else None
+
+
+def _refuse_pooled_supplies(values: dict[str, np.ndarray], refs: dict[str, ColumnRef],
+                            path: str) -> None:
+    """UsageError naming the voltage column when it holds several supply voltages that would
+    otherwise be pooled into one calibration."""
+    levels = supply_levels(values)
+    if levels is None:
+        return
+    header = refs["voltage"].header
+    shown_levels = ", ".join(f"{x:g}" for x in levels)
+    raise UsageError(
+        f"{path}: column {header!r} holds {levels.size} voltages ({shown_levels} V), each with "
+        "its own sweep of the commands: a table of several supply voltages. Map it as the "
+        f"supply voltage too (--col supply={header!r}, or a `Supply Voltage (V)` column) so "
+        "each voltage is calibrated on its own, or import one voltage per file")

@@ -2,7 +2,10 @@
 
 Their logs name each column with a unit suffix, e.g. `Time (s)`, `ESC signal (µs)` (older
 software: `ESC (µs)`), `Thrust (kgf)` or `Thrust (N)`, `Torque (N·m)`, `Voltage (V)`,
-`Current (A)`, `Motor Electrical Speed (RPM)`, `Motor Optical Speed (RPM)`.
+`Current (A)`, `Motor Electrical Speed (RPM)`, `Motor Optical Speed (RPM)`. Manufacturer
+tables in the same style (Blue Robotics: `PWM (µs)`, `RPM`, `Current (A)`, `Voltage (V)`,
+`Force (Kg f)`, and `Supply Voltage (V)` where one file holds several voltages) are read the
+same way.
 """
 
 from __future__ import annotations
@@ -15,15 +18,19 @@ from rigtool.importers.units import split_header
 PATTERNS: dict[str, tuple[str, ...]] = {
     "time": (r"time",),
     "command": (r"esc signal", r"esc", r"pwm", r"throttle"),
-    "thrust": (r"thrust",),
+    "thrust": (r"thrust", r"force"),  # `Force (Kg f)`: manufacturer tables (Blue Robotics)
     "voltage": (r"voltage",),
     "depth": (r"depth",),  # rigtool's own performance.csv
-    "supply": (r"supply voltage",),  # performance.csv of a voltage sweep
+    # the voltage set in a voltage sweep (performance.csv, manufacturer tables of several
+    # voltages); recognised in every table, see ALWAYS_RECOGNISED
+    "supply": (r"supply voltage", r"supply voltage set", r"set voltage", r"voltage set",
+               r"supply"),
     "current": (r"current",),
     "speed": (r"motor optical speed", r"optical speed", r"motor speed", r"rpm",
               r"motor electrical speed", r"electrical speed"),
 }
 ELECTRICAL = re.compile(r"electrical", re.IGNORECASE)
+ALWAYS_RECOGNISED = ("supply",)  # recognised by header in any table, with a mapping too
 
 
 def detect(header: list[str]) -> bool:

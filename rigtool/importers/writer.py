@@ -19,8 +19,9 @@ INCOMPLETE = ("incomplete import: rigtool import stopped before every point was 
 
 
 def protocol_for(name: str, command_unit: str, neutral: float | None, points: ImportedPoints,
-                 metadata: dict, source: str) -> dict:
-    """A protocol-shaped dict describing the imported run (what analysis and report read)."""
+                 metadata: dict, source: str, steps: bool = False) -> dict:
+    """A protocol-shaped dict describing the imported run (what analysis and report read); a
+    step log lists its levels as `command.steps`, which makes it a step-response run."""
     depths = points.depth_m[np.isfinite(points.depth_m)]
     voltages = points.voltage_v[np.isfinite(points.voltage_v)]
     doc = {
@@ -35,6 +36,9 @@ def protocol_for(name: str, command_unit: str, neutral: float | None, points: Im
     }
     if voltages.size:
         doc["voltage"] = {"unit": "V", "values": np.unique(voltages).tolist(), "mode": "manual"}
+    if steps:
+        doc["command"]["steps"] = points.command.tolist()
+        doc["timing"] = {"settle": {"seconds": 0}, "rest_s": 0}
     return doc
 
 

@@ -8,6 +8,10 @@ estimate (the noisier one) is dropped for that sample. Fitting lives in rigtool.
 A Betm calibrated over supply voltages carries the voltage its C_n and C_i hold at and the
 exponent b of C_n(U) = k U^b; the current estimate then takes the bus voltage as an input,
 with C_i(U) = C_i (U / U_cal)^(-2b/3) (C_p does not depend on U).
+
+A thruster whose current does not follow |n|^3 (calibration.json `current_law`) has the
+exponent k of I = c_n |n|^k + i_0 in `current_exponent`: f_i = s C_i (|I| - I_0)^(2/k), and
+C_i(U) = C_i (U / U_cal)^(-2b/k).
 """
 
 from __future__ import annotations
@@ -40,14 +44,28 @@ class Betm:
     sigma_i_level: tuple[float, ...] = ()  # std of f_i's error at each knot (N)
     voltage_v: float = math.nan  # supply voltage c_n and ci_* hold at (NaN: not calibrated)
     cn_law_b: float = math.nan  # exponent b of C_n(U) = k U^b (NaN: no voltage law)
+    current_exponent: float = 3.0  # k of I = c_n |n|^k + i_0 (3: the textbook law)
 
     def to_dict(self) -> dict:
-        """The fields; the voltage pair only where set, so files without it stay as before."""
+        """The fields; the voltage pair only where set and the current exponent only where it
+        is not 3, so files without them stay as before (and a reader that does not know the
+        exponent refuses the file instead of using the wrong law)."""
         out = asdict(self)
         for key in ("voltage_v", "cn_law_b"):
             if math.isnan(out[key]):
                 del out[key]
+        if out["current_exponent"] == 3.0:
+            del out["current_exponent"]
         return out
+
+    @property
+    def current_power(self) -> float:
+        """The power of |I| - I_0 in the current estimate: 2/k."""
+        return 2.0 / self.current_exponent
+
+    def expected_current(self, speed_rpm: np.ndarray) -> np.ndarray:
+        """I = c_n |n|^k + i_0 (A) at the given speeds."""
+        return self.c_n * np.abs(np.asarray(speed_rpm, dtype=float)) ** self.current_exponent + self.i_0
 
     def voltage_scale(self, voltage_v: float | np.ndarray | None) -> float | np.ndarray:
         """(U / U_cal)^b, the factor on C_n at supply voltage U; 1 without a voltage law or
@@ -61,8 +79,9 @@ class Betm:
         k = float(self.voltage_scale(voltage_v))
         if k == 1.0:
             return self
-        return dataclasses.replace(self, c_n=self.c_n * k, ci_fwd=self.ci_fwd * k ** (-2 / 3),
-                                   ci_rev=self.ci_rev * k ** (-2 / 3), voltage_v=float(voltage_v))
+        ci = k ** -self.current_power
+        return dataclasses.replace(self, c_n=self.c_n * k, ci_fwd=self.ci_fwd * ci,
+                                   ci_rev=self.ci_rev * ci, voltage_v=float(voltage_v))
 
     def speed_estimate(self, speed_rpm: np.ndarray) -> np.ndarray:
         """f_n = C_p |n| n with the forward or reverse coefficient."""
@@ -71,12 +90,13 @@ class Betm:
 
     def current_estimate(self, current_a: np.ndarray, sign: np.ndarray,
                          voltage_v: np.ndarray | None = None) -> np.ndarray:
-        """f_i = sign C_i(U) (|I| - I_0)^(2/3); sign from the speed (or command) direction,
-        U the bus voltage per sample (None: the calibration's voltage)."""
+        """f_i = sign C_i(U) (|I| - I_0)^(2/k) (k = 3 unless `current_exponent`); sign from
+        the speed (or command) direction, U the bus voltage per sample (None: the
+        calibration's voltage)."""
         s = np.sign(np.asarray(sign, dtype=float))
         d = np.maximum(np.abs(np.asarray(current_a, dtype=float)) - self.i_0, 0.0)
-        scale = np.asarray(self.voltage_scale(voltage_v)) ** (-2 / 3)
-        return s * np.where(s >= 0, self.ci_fwd, self.ci_rev) * scale * d ** (2 / 3)
+        scale = np.asarray(self.voltage_scale(voltage_v)) ** -self.current_power
+        return s * np.where(s >= 0, self.ci_fwd, self.ci_rev) * scale * d**self.current_power
 
     def variances(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(sigma_n^2, sigma_i^2) at thrust level f: interpolated in |f| when knots exist."""

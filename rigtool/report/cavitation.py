@@ -11,15 +11,19 @@ from rigtool.report import figures as fg
 
 
 def time_series_figure(res: CavitationResult) -> Figure:
-    """Measured, BETM and QCTM-GP thrust over the run, detected events shaded."""
+    """Measured, BETM and QCTM-GP thrust over the run, detected events shaded; nothing is
+    drawn across the rests and depth moves between points."""
     s = res.series
+    keys = ("thrust_n", "betm_n", "pred_n", "lo95_n", "hi95_n")
+    t, *cols = fg.break_at_gaps(s["t_s"], *(s[k] for k in keys), segment=s.get("point"))
+    y = dict(zip(keys, cols, strict=True))
     fig = fg.figure((8.0, 3.2))
     ax = fig.add_subplot(111)
-    ax.fill_between(s["t_s"], s["lo95_n"], s["hi95_n"], color="C2", alpha=0.25, lw=0,
+    ax.fill_between(t, y["lo95_n"], y["hi95_n"], color="C2", alpha=0.25, lw=0,
                     label="95 % interval")
-    ax.plot(s["t_s"], s["thrust_n"], ".", ms=1.5, color="C0", label="measured")
-    ax.plot(s["t_s"], s["betm_n"], ".", ms=1.0, color="C1", label="BETM")
-    ax.plot(s["t_s"], s["pred_n"], ".", ms=1.0, color="C2", label="QCTM-GP (held-out fold)")
+    ax.plot(t, y["thrust_n"], ".", ms=1.5, color="C0", label="measured")
+    ax.plot(t, y["betm_n"], ".", ms=1.0, color="C1", label="BETM")
+    ax.plot(t, y["pred_n"], ".", ms=1.0, color="C2", label="QCTM-GP (held-out fold)")
     for i, e in enumerate(res.events):
         ax.axvspan(e["t_start_s"], e["t_end_s"], color="C3", alpha=0.15, lw=0,
                    label="detected event" if i == 0 else None)

@@ -39,6 +39,7 @@ WIDE = (7.2, 3.6)
 TALL = (7.2, 4.6)
 SMALL = (4.6, 3.1)
 MAX_TRACE_POINTS = 4000
+GAP_FACTOR = 3.0  # a time step this many times the typical one is a gap: lines break there
 LEGEND_ROW_IN = 0.2
 STYLE = {
     "font.size": 8.5,
@@ -387,7 +388,7 @@ def step_responses(t_s: np.ndarray, measured: np.ndarray, fitted: dict[str, np.n
     ax = fig.subplots()
     t, f = _decimate(t_s, measured, 20_000)
     ax.plot(t, f, "-", lw=0.5, color=GREY, label="measured")
-    for (name, y), color in zip(fitted.items(), (FWD, REV), strict=False):
+    for (name, y), color in zip(fitted.items(), (FWD, REV, SAT), strict=False):
         tt, yy = _decimate(t_s, y, 20_000)
         ax.plot(tt, yy, "-", lw=1.0, color=color, label=f"{name} model")
     for s in switch_s:
@@ -414,8 +415,9 @@ def tare_drift(drift: TareDrift) -> Figure:
     s = drift.slope
     trend = s.value * (drift.t_s - drift.t_s[0]) / 3600.0
     trend += float(np.mean(drift.bias_n - trend))
-    ax.plot(x, trend, "-", color=REV, lw=1.0,
-            label=f"trend {s.value:.3g} N/h (95 %: {s.lo:.3g} .. {s.hi:.3g})")
+    interval = (f"95 %: {s.lo:.3g} .. {s.hi:.3g}" if math.isfinite(s.lo) and math.isfinite(s.hi)
+                else f"{s.n} tares: no interval")
+    ax.plot(x, trend, "-", color=REV, lw=1.0, label=f"trend {s.value:.3g} N/h ({interval})")
     ax.set_xlabel(f"time since first tare ({tunit})")
     ax.set_ylabel("bias on the thrust channel (N)")
     ax.set_title("Tare drift")
@@ -423,7 +425,42 @@ def tare_drift(drift: TareDrift) -> Figure:
     return fig
 
 
+def gap_starts(t: np.ndarray, segment: np.ndarray | None = None) -> np.ndarray:
+    """Indices i where a gap lies between samples i-1 and i: a time step over GAP_FACTOR times
+    the median one, or (given `segment`, e.g. the point of each sample) a new segment."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return np.zeros(0, dtype=int)
+    dt = np.diff(t)
+    step = dt[np.isfinite(dt) & (dt > 0)]
+    jump = dt > GAP_FACTOR * float(np.median(step)) if step.size else np.zeros(dt.size, bool)
+    if segment is not None:
+        jump |= np.diff(np.asarray(segment)) != 0
+    return np.flatnonzero(jump) + 1
+
+
+def break_at_gaps(t: np.ndarray, *ys: np.ndarray,
+                  segment: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    """`t` and each of `ys` with a NaN inserted at every gap (`gap_starts`), so that no line or
+    band is drawn across a rest, a depth move or lost samples."""
+    at = gap_starts(t, segment)
+    return tuple(np.insert(np.asarray(a, dtype=float), at, np.nan) for a in (t, *ys))
+
+
 def _decimate(t: np.ndarray, y: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:
+    """A trace to plot: min/max per bucket past `limit` samples (spikes survive), broken by a
+    NaN at every gap in time."""
+    at = gap_starts(t)
+    if not at.size:
+        return _min_max(t, y, limit)
+    pieces = [_min_max(tt, yy, max(2, limit * tt.size // t.size))
+              for tt, yy in zip(np.split(t, at), np.split(y, at), strict=True)]
+    starts = np.cumsum([0] + [tt.size for tt, _ in pieces[:-1]])[1:]
+    return (np.insert(np.concatenate([tt for tt, _ in pieces]).astype(float), starts, np.nan),
+            np.insert(np.concatenate([yy for _, yy in pieces]).astype(float), starts, np.nan))
+
+
+def _min_max(t: np.ndarray, y: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:
     """Min/max per bucket so spikes survive when a trace has more than `limit` samples."""
     if t.size <= limit:
         return t, y

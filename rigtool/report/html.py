@@ -15,6 +15,7 @@ from markupsafe import Markup
 
 import rigtool
 from rigtool.analysis.calibrate import Calibration, DepthSection
+from rigtool.analysis.dynamics import Dynamics
 from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.steady import PointTable
 from rigtool.analysis.voltage import VoltageLaw
@@ -92,7 +93,7 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
                 view.figures.append(_time_series(store, sec, step_ids, vent, unit,
                                                  suffix, image_format))
                 sections.append(view)
-            drift = _drift_figure(cal, events, image_format)
+            drift = _drift_figure(cal, events, image_format, imported=_imported(run))
             voltages = [_voltage_view(law, cal, i, image_format)
                         for i, law in enumerate(cal.voltage_laws)]
             dynamics = _dynamics_view(store, run_id, cal, image_format)
@@ -197,12 +198,29 @@ def _meta_rows(run: dict, steps: list[dict], cal: Calibration | None) -> list[tu
                      f"order {command.get('order', '?')}, {command.get('repeats', 1)} repeat(s)"
          if commands else "–"),
         ("depths", ", ".join(f"{d:g} m" for d in depths) or "not set"),
+        *_voltage_rows(protocol.get("voltage") or {}, plan),
         ("points", f"{len(steps)} recorded of {run['n_planned']} planned"),
         ("samples", f"{sum(int(s['n']) for s in steps):,}"),
     ]
     if cal is not None:
         rows.append(("analysed with", f"rigtool {cal.tool_version}"))
     return rows
+
+
+def _voltage_rows(axis: dict, plan: list[dict]) -> list[tuple[str, str]]:
+    """The supply voltages of a run with a voltage axis, in the order visited, and how they
+    were set and held; none for a run without one."""
+    volts = list(dict.fromkeys(float(s["voltage_v"]) for s in plan
+                               if s.get("voltage_v") is not None))
+    volts = volts or [float(v) for v in axis.get("values") or []]
+    if not volts:
+        return []
+    mode = axis.get("mode", "?")
+    how = {"preset": "set by the rig's supply", "manual": "set by the operator"}.get(mode, "")
+    held = (f", each held within {100 * float(axis['tolerance_frac']):g} %"
+            if axis.get("tolerance_frac") is not None else "")
+    return [("supply voltages", f"{', '.join(f'{v:g}' for v in volts)} V, order "
+             f"{axis.get('order', '?')}; mode {mode}" + (f" ({how})" if how else "") + held)]
 
 
 def _duration(seconds: float) -> str:
@@ -395,12 +413,14 @@ def _voltage_view(law: VoltageLaw, cal: Calibration, i: int, fmt: str) -> Voltag
 
 @dataclass
 class DynamicsView:
-    """The dynamics section: both models' parameters, the selection, the step timings."""
+    """The dynamics section: the candidates' parameters, the selection, its adequacy and the
+    step timings."""
 
     selected: str
-    models: list[tuple[str, list[Coefficient], float, float]]  # name, params, RMS, BIC
-    steps: list
+    models: list[tuple[str, list[Coefficient], float, float, float]]  # name, params, RMS, BIC,
+    steps: list  # held-out RMS
     figure: FigureItem
+    verdict: str = ""  # identified or not, and the adequacy
 
 
 def _dynamics_view(store: Store, run_id: str, cal: Calibration, fmt: str) -> DynamicsView | None:
@@ -414,20 +434,45 @@ def _dynamics_view(store: Store, run_id: str, cal: Calibration, fmt: str) -> Dyn
     series = StepSeries(data["t_s"], data["thrust_n"],
                         np.array([s["t_acquire_s"] for s in ok], dtype=float),
                         np.array([s["command"] for s in ok], dtype=float), cal.neutral_command)
-    models = [m for m in (d.one_state, d.two_state) if m is not None]
+    models = d.candidates
     fitted = {m.name: d.fitted(series, m) for m in models}
     figure = FigureItem(
         "dynamics", "fig-dynamics", "Step responses",
         "Measured thrust (N) through the command steps (dotted lines) with the fitted "
-        f"one-state and two-state models; the {d.selected} model is selected (BIC).",
+        f"candidate models; the {d.selected} model predicts held-out steps best.",
         fg.encode(fg.step_responses(series.t_s, series.thrust_n, fitted, series.switch_s), fmt))
-    rows = [(m.name, [c for c in (m.tau_n_s, m.tau_a_s, m.gain, m.delay_s) if c is not None],
-             m.rms_n, m.bic) for m in models]
-    return DynamicsView(d.selected, rows, d.steps, figure)
+    rows = [(m.name, [c for c in (m.tau_n_s, m.alpha, m.tau_a_s, m.gain, m.delay_s,
+                                  m.reverse_ratio) if c is not None],
+             m.rms_n, m.bic, m.heldout_rms_n) for m in models]
+    return DynamicsView(d.selected, rows, d.steps, figure, _dynamics_verdict(d))
 
 
-def _drift_figure(cal: Calibration, events: list[dict], fmt: str) -> FigureItem:
+def _dynamics_verdict(d: Dynamics) -> str:
+    """One sentence: the selected model's adequacy, and whether dynamics were identified."""
+    m = d.model
+    scale = d.full_scale_n
+    share = (f" ({100 * m.model_error_n() / scale:.2f} % of the full scale {scale:.4g} N)"
+             if math.isfinite(scale) and scale > 0 else "")
+    adequacy = (f"Held-out steps: RMS error {m.heldout_rms_n:.3g} N, of which sensor noise "
+                f"{m.heldout_noise_n:.3g} N; model error {m.model_error_n():.3g} N{share}.")
+    if d.identified:
+        return f"{adequacy} The {m.name} model is exported."
+    return f"{adequacy} No dynamics identified: {d.reason}. No export carries time constants."
+
+
+def _imported(run: dict) -> bool:
+    """Whether the run came from `rigtool import` (no protocol ran it: no tares, no timing)."""
+    rig = run.get("rig")
+    return isinstance(rig, dict) and (rig.get("resolved") or {}).get("kind") == "import"
+
+
+def _drift_figure(cal: Calibration, events: list[dict], fmt: str, *,
+                  imported: bool = False) -> FigureItem:
+    """The tare drift figure, or why there is none (with the protocol setting that gives one
+    to a sweep; an imported run records no tares, so nothing is suggested)."""
     base = ("tare-drift", "fig-tare-drift", "Tare drift")
+    if cal.drift is None and imported:
+        return FigureItem(*base, "No tare drift figure: an imported run records no tares.")
     if cal.drift is None:
         n = sum(1 for e in events if e["kind"] == "tare")
         return FigureItem(*base, f"{n} tare(s) recorded: a drift figure needs at least two "

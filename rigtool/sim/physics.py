@@ -18,6 +18,7 @@ from rigtool.sim.profiles import ThrusterProfile
 
 _TIME_SLACK_S = 1e-9  # tolerated round-off when a caller's time lies just before the last one
 _SETTLED_FRAC = 1e-5  # speed within this fraction of max of its target counts as settled
+_RK4_PER_TAU = 40  # integration steps per time constant for the nonlinear speed/inflow laws
 _BLOCK_SAMPLES = 4096  # normals are drawn in blocks of this many samples
 # Rows of the work block. Each sample() fills a column range and turns it into outputs with
 # two small matrix products: ft = rows[0:9].T @ ft_mix, feedback = fb_mix @ rows[8:14].
@@ -196,7 +197,9 @@ class ThrusterTwin:
             n, m = self._states_at(t)
         absn = abs(n)
         nn = n * absn
-        if inflow:
+        if inflow and p.inflow_law == "healey":
+            nn = nn + p.inflow_gain * absn * (n - m)
+        elif inflow:
             nn = nn + p.inflow_gain * (nn - m * abs(m))
         if n0 >= 0 and nt >= 0:
             thrust = p.cp_forward * nn
@@ -274,6 +277,8 @@ class ThrusterTwin:
         """(speed, inflow) at times t >= self._t: n first order towards the target, the
         inflow m first order towards n (exact solution of the linear pair)."""
         p = self.profile
+        if p.speed_law != "linear" or p.inflow_law != "linear":
+            return self._integrate(t)
         c, e = self._n_target, self._n - self._n_target
         s = np.asarray(t, dtype=float) - self._t
         tn, ta = p.tau_s, p.inflow_tau_s
@@ -283,6 +288,46 @@ class ThrusterTwin:
         a = e * tn / (tn - ta)
         m = c + a * fast + (self._m - c - a) * np.exp(-s / ta)
         return c + e * fast, m
+
+    def _integrate(self, t: np.ndarray | float) -> tuple:
+        """(speed, inflow) at increasing times t >= self._t by fixed-step RK4 (the nonlinear
+        laws have no closed form here; the analysis' closed forms are checked against this)."""
+        p = self.profile
+        times = np.atleast_1d(np.asarray(t, dtype=float))
+        h_max = min(p.tau_s, p.inflow_tau_s) / _RK4_PER_TAU
+        n_out, m_out = np.empty(times.size), np.empty(times.size)
+        now, n, m = self._t, self._n, self._m
+        for i, target in enumerate(times):
+            span = max(float(target) - now, 0.0)
+            steps = max(1, math.ceil(span / h_max)) if span > 0 else 0
+            for _ in range(steps):
+                n, m = self._rk4(n, m, span / steps)
+            now = max(now, float(target))
+            n_out[i], m_out[i] = n, m
+        if np.ndim(t) == 0:
+            return n_out[0], m_out[0]
+        return n_out, m_out
+
+    def _rk4(self, n: float, m: float, h: float) -> tuple[float, float]:
+        """One classical Runge-Kutta step of the speed and inflow laws."""
+        k1 = self._rates(n, m)
+        k2 = self._rates(n + 0.5 * h * k1[0], m + 0.5 * h * k1[1])
+        k3 = self._rates(n + 0.5 * h * k2[0], m + 0.5 * h * k2[1])
+        k4 = self._rates(n + h * k3[0], m + h * k3[1])
+        return (n + h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]),
+                m + h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
+
+    def _rates(self, n: float, m: float) -> tuple[float, float]:
+        """(n', m') under the profile's speed and inflow laws at the target in force."""
+        p = self.profile
+        nt, top = self._n_target, p.max_speed_rpm
+        if p.speed_law == "quadratic":
+            dn = (nt * abs(nt) - n * abs(n)) / (2 * p.tau_s * top)
+        else:
+            dn = (nt - n) / p.tau_s
+        if p.inflow_law == "healey":
+            return dn, (n * abs(n) - m * abs(m)) / (2 * p.inflow_tau_s * top)
+        return dn, (n - m) / p.inflow_tau_s
 
     def _depth_rates(self, depth_m: float) -> tuple[float, float]:
         """(onset rate at the reference speed, mean duration) at a depth; rate 0 if off or deep."""

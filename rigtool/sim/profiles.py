@@ -17,6 +17,8 @@ from rigtool.errors import UsageError
 
 FEEDBACK_CHANNELS = ("speed_rpm", "current_a", "voltage_v")
 COMMAND_MAPS = ("speed", "pwm_table")
+SPEED_LAWS = ("linear", "quadratic")
+INFLOW_LAWS = ("linear", "healey")
 PROFILE_COMMAND_UNITS = ("percent", "pwm_counts", "pulse_us")
 
 
@@ -97,6 +99,14 @@ class ThrusterProfile:
     inflow_gain: float = 0.0
     inflow_tau_s: float = 0.5
     command_delay_s: float = 0.0  # dead time between a command reaching the driver and acting
+    # Thrusters that follow other models (docs/dynamics.md), integrated numerically:
+    # "quadratic" speed is Yoerger's one-state law J n' = b u - a n|n|, written
+    # n' = (N|N| - n|n|) / (2 tau_s max_speed_rpm) towards the target speed N, so tau_s is the
+    # time constant at full speed and a step to a fraction k of it takes 1/k as long;
+    # "healey" inflow is Healey's: m' = (n|n| - m|m|) / (2 inflow_tau_s max_speed_rpm) and
+    # thrust C_p (n|n| + inflow_gain |n| (n - m)) (C_1 n|n| - C_2 |n| u_a).
+    speed_law: str = "linear"
+    inflow_law: str = "linear"
 
     def __post_init__(self) -> None:
         problems = _problems(self)
@@ -128,6 +138,8 @@ def _problems(p: ThrusterProfile) -> list[str]:
     checks = [
         (p.command_unit in PROFILE_COMMAND_UNITS, f"command_unit not in {PROFILE_COMMAND_UNITS}"),
         (p.command_map in COMMAND_MAPS, f"command_map must be one of {COMMAND_MAPS}"),
+        (p.speed_law in SPEED_LAWS, f"speed_law must be one of {SPEED_LAWS}"),
+        (p.inflow_law in INFLOW_LAWS, f"inflow_law must be one of {INFLOW_LAWS}"),
         (p.command_min <= p.neutral <= p.command_max, "need command_min <= neutral <= command_max"),
         (set(p.feedback) <= set(FEEDBACK_CHANNELS), f"feedback must be within {FEEDBACK_CHANNELS}"),
         (p.thrust_channel in range(6), "thrust_channel must be 0..5"),

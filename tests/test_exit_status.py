@@ -1,0 +1,115 @@
+"""Exit statuses of `rigtool sweep` come from how the run ended (README, "Exit status"):
+0 completed, 1 failed or tripped, 2 usage, 3 the actuator may not be at neutral, 130 Ctrl-C."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from rigtool.cli import main
+from rigtool.engine import Engine
+from rigtool.errors import DeviceError
+from rigtool.progress import SilentReporter
+from rigtool.sim.devices import SimActuator
+from rigtool.store import Store
+from rigtool.sweep import open_checked, resolve
+
+from .conftest import SMALL_PROTOCOL
+
+TRIPPING = SMALL_PROTOCOL.replace("max_thrust_n: 90", "max_thrust_n: 20")
+
+
+class CtrlCAfterFirstPoint(SilentReporter):
+    """Presses Ctrl-C (SIGINT to this process) once the first point is stored."""
+
+    def step_done(self, step, thrust_n) -> None:
+        if step.idx == 0:
+            os.kill(os.getpid(), signal.SIGINT)
+
+
+@pytest.fixture
+def deaf_neutral(monkeypatch):
+    """The twin's driver acknowledges the first neutral (start of run) and no later one."""
+    calls = []
+
+    def neutral(self):
+        calls.append(1)
+        if len(calls) > 1:
+            raise DeviceError("driver did not acknowledge neutral")
+        self.set_command(self.info.neutral)
+
+    monkeypatch.setattr(SimActuator, "neutral", neutral)
+
+
+def _sweep(write_yaml, db_path, text: str) -> int:
+    return main(["sweep", str(write_yaml(text)), "--sim", "--db", str(db_path)])
+
+
+def test_completed_run_exits_0(write_yaml, db_path):
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 0
+
+
+def test_limit_trip_exits_1(write_yaml, db_path, capsys):
+    assert _sweep(write_yaml, db_path, TRIPPING) == 1
+    assert "actuator at neutral" in capsys.readouterr().err
+
+
+def test_bad_protocol_exits_2(write_yaml, db_path):
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL.replace("values: [1.0]", "values: []")) == 2
+
+
+def test_ctrl_c_exits_130_from_the_outcome(write_yaml, db_path, monkeypatch, capsys):
+    monkeypatch.setattr("rigtool.cli.default_reporter", CtrlCAfterFirstPoint)
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 130
+    assert "--resume" in capsys.readouterr().err
+    store = Store(db_path)
+    assert store.run(store.resolve_run_id("last"))["status"] == "aborted"
+
+
+def test_outcome_says_whether_ctrl_c_stopped_the_run(write_yaml, db_path):
+    outcomes = []
+    for reporter, text in ((CtrlCAfterFirstPoint(), SMALL_PROTOCOL), (None, TRIPPING)):
+        setup = resolve(write_yaml(text), sim=True)
+        rigset = open_checked(setup)
+        store = Store(db_path)
+        run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                                  metadata={}, seed=1, command_unit="percent",
+                                  tool_version="test")
+        try:
+            outcomes.append(Engine(setup.protocol, setup.plan, rigset, store, run_id,
+                                   reporter).run())
+        finally:
+            rigset.close()
+            store.close()
+    (stopped, tripped) = outcomes
+    assert stopped.status == "aborted" and stopped.interrupted
+    assert tripped.status == "aborted" and not tripped.interrupted
+
+
+@pytest.mark.usefixtures("deaf_neutral")
+def test_unconfirmed_neutral_at_the_end_exits_3(write_yaml, db_path, capsys):
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 3
+    err = capsys.readouterr().err
+    assert "THE NEUTRAL COMMAND FAILED" in err and "actuator at neutral" not in err
+
+
+@pytest.mark.usefixtures("deaf_neutral")
+def test_unconfirmed_neutral_after_a_trip_or_ctrl_c_exits_3(write_yaml, db_path, monkeypatch):
+    assert _sweep(write_yaml, db_path, TRIPPING) == 3
+    monkeypatch.setattr("rigtool.cli.default_reporter", CtrlCAfterFirstPoint)
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 3
+
+
+@pytest.mark.usefixtures("deaf_neutral")
+def test_unconfirmed_neutral_after_an_error_exits_3(write_yaml, db_path, monkeypatch, capsys):
+    def broken_read(self, n, rate_hz):
+        raise OSError("sensor cable pulled")
+
+    monkeypatch.setattr("rigtool.sim.devices.SimForceSensor.read", broken_read)
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 3
+    err = capsys.readouterr().err
+    last = err.splitlines()[-1]
+    assert "sensor cable pulled" in last and "THE NEUTRAL COMMAND FAILED" in last
+    assert "Traceback" not in err
