@@ -1,8 +1,10 @@
 """QCTM-GP: weighted Matern-5/2 GP on standardised (n, z, h), exact and sparse (SoR) forms.
 
 Inputs are `rigtool.models.gp_features`: z is the current-implied thrust loss. `fit_hetero`
-adds a heteroscedastic noise model (a second GP on log squared cross-fitted residuals, see
-`fit_noise`); the exact GP then uses alpha_i = var(x_i) / w_i and its intervals add var(x).
+adds a heteroscedastic noise model (a second GP on the log of local 95 % quantiles of the
+squared residuals, quiet and ventilating rows apart, see `fit_noise`); the exact GP then uses
+alpha_i = var(x_i) / w_i and its intervals add var(x). `calibrate_gate` scales that noise
+model on held-out residuals (the folds are the caller's: rigtool.analysis.cavitation).
 
 Hyperparameters (ARD length scales, signal variance, noise variance sigma^2) are fitted by
 maximum likelihood with a WhiteKernel on a subset of at most `hyper_n` points (cubic cost);
@@ -16,6 +18,7 @@ subset-of-regressors GP with m inducing points and the same hyperparameters (cos
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -32,6 +35,12 @@ MIN_GATE_GAIN = 0.01  # the gate must cut the weighted squared residual by this 
 # Shorter ones let the GP give each command level or event its own offset, which does not
 # carry over to another run (docs/cavitation.md, 'Measured figures').
 MIN_LENGTH_SCALE = 1.0
+# The noise GP's smoothness prior: the jump between quiet and ventilating blocks is the
+# gate's (`calibrate_gate`), the GP only needs slow trends; short length scales (0.2 sd in z)
+# made models fitted on part of the points extrapolate to the others by a factor of 10 in sd.
+MIN_NOISE_LENGTH_SCALE = 1.0
+NOISE_SMOOTHING = 1.0  # length scale (standardised inputs) of `local_square_quantile`
+MIN_SIDE_ROWS = 20  # rows a side (quiet, ventilating) needs for a noise level of its own
 CV_TOLERANCE = 0.02  # a GP signal must cut the held-out error by more than 2 % to be kept
 # candidate factors on the ML signal variance for cross-validation; 0 is the mean term alone
 SIGNAL_SCALES = (1.0, 0.3, 0.1, 0.03, 0.01, 0.0)
@@ -113,6 +122,7 @@ class ExactGp:
     noise: LogNoise | None = None  # heteroscedastic noise model (None: constant noise_var)
     mean_term: GatedMean = GatedMean()  # explicit mean g(x[:, 1]) (z, the shortfall thrust)
     signal_scale: float = 1.0  # factor cross-validation put on the ML signal variance
+    check: dict | None = None  # held-out interval check and floor (rigtool.analysis.cavitation)
 
     @property
     def noise_var_n2(self) -> float:
@@ -161,82 +171,185 @@ def fit_hyper_fixed_noise(xs: np.ndarray, yn: np.ndarray, alpha: np.ndarray,
     return Hyper(np.atleast_1d(k.k2.length_scale).astype(float), float(k.k1.constant_value), 0.0)
 
 
-def fit_noise(x: np.ndarray, resid: np.ndarray, p: GpParams) -> LogNoise:
-    """Noise model: GP (Matern 5/2 + white) on log(resid^2) of <= hyper_n rows; its posterior
-    mean plus log_mean + log_bias is log var(x). For Gaussian errors log_bias would be
-    -E[log chi^2_1] = 1.27; the errors are heavier-tailed (a mixture of ventilated and not),
-    so log_bias is set such that 95 % of all rows have |resid| <= 1.96 sqrt(var(x))."""
+def fit_noise(x: np.ndarray, resid: np.ndarray, p: GpParams, kernel: LogNoise | None = None,
+              mean_term: GatedMean | None = None) -> LogNoise:
+    """Noise model: log var(x) = log_mean + bias(z) + GP(x), fitted at <= hyper_n rows on the
+    log of the local 95 % quantile of resid^2 (`local_square_quantile`). With `mean_term`, its gate
+    splits the rows into quiet (gate < 1/2) and ventilating ones: each side is smoothed on its
+    own, and a level for each (bias(z) = log_bias + (log_bias_event - log_bias) gate(z)) is
+    fitted before the GP (Matern 5/2 + white, every length scale at least
+    MIN_NOISE_LENGTH_SCALE) models what the levels leave. Each level is then set so that 95 %
+    of its side's rows have |resid| <= 1.96 sqrt(var(x)); the held-out check
+    (`calibrate_gate`) scales them. `kernel`: a fitted model whose kernel hyperparameters are
+    reused (no ML search)."""
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
-    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
     st = Standardiser(x)
     rng = np.random.default_rng(p.seed + 1)
     sub = (np.arange(resid.size) if resid.size <= p.hyper_n
            else np.sort(rng.choice(resid.size, p.hyper_n, replace=False)))
+    g = _mean_gate(x, mean_term)
     floor = max(1e-6, 1e-4 * float(np.median(resid**2)))
-    ly = np.log(resid[sub] ** 2 + floor)
-    log_mean = float(ly.mean())
-    kernel = (ConstantKernel(1.0, (1e-3, 1e3))
-              * Matern(length_scale=np.ones(x.shape[1]), length_scale_bounds=(1e-2, 1e3), nu=NU)
-              + WhiteKernel(1.0, (1e-3, 10.0)))
-    gpr = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=p.n_restarts,
-                                   random_state=p.seed)
+    ly = np.log(local_square_quantile(st(x), resid, g >= 0.5, sub) + floor)
+    levels = _gate_levels(ly, g[sub])
+    fixed = kernel is not None and kernel.white_var is not None
+    gpr = GaussianProcessRegressor(_noise_kernel(x.shape[1], kernel if fixed else None),
+                                   normalize_y=False, n_restarts_optimizer=p.n_restarts,
+                                   random_state=p.seed,
+                                   optimizer=None if fixed else "fmin_l_bfgs_b")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        gpr.fit(st(x[sub]), ly - log_mean)
+        gpr.fit(st(x[sub]), ly - levels[0] - (levels[1] - levels[0]) * g[sub])
     k = gpr.kernel_
     noise = LogNoise(st.mean, st.scale, np.atleast_1d(k.k1.k2.length_scale).astype(float),
-                     float(k.k1.k1.constant_value), log_mean, np.asarray(x[sub], float),
-                     np.ravel(gpr.alpha_), 0.0)
-    ratio = resid**2 / noise.var_n2(x)  # var_n2 with log_bias 0
-    noise.log_bias = float(np.log(np.quantile(ratio, 0.95) / Z95**2))
-    return noise
+                     float(k.k1.k1.constant_value), levels[0], np.asarray(x[sub], float),
+                     np.ravel(gpr.alpha_), 0.0, white_var=float(k.k2.noise_level))
+    if mean_term is not None and mean_term.s > 0:
+        noise.gate_z0, noise.gate_s = mean_term.z0, mean_term.s
+        noise.log_bias_event = levels[1] - levels[0]
+    return _side_biases(noise, x, resid, g >= 0.5)
+
+
+def local_square_quantile(xs: np.ndarray, resid: np.ndarray, side: np.ndarray,
+                          at: np.ndarray, q: float = 0.95) -> np.ndarray:
+    """Kernel-weighted q-quantile of resid^2 over the rows on the same side (quiet or
+    ventilating) as each row of `at` (standardised inputs, Matern 5/2 of length
+    NOISE_SMOOTHING), divided by Z95^2: the variance whose 1.96-sd interval covers q of the
+    neighbourhood. Where quiet blocks mix with ventilating ones the shortfall cannot tell
+    from them, that quantile is set by the latter, as a 95 % interval must be; a mean of
+    log resid^2 (a geometric mean) puts it far too low. The sides are kept apart: a
+    ventilating block's error is 10-100 times a quiet one's."""
+    r2 = np.asarray(resid, float) ** 2
+    order = np.argsort(r2)
+    k = matern52(xs[at], xs[order], np.full(xs.shape[1], NOISE_SMOOTHING))
+    k = np.where(side[at][:, None] == side[order][None, :], k, 0.0)
+    cum = np.cumsum(k, axis=1)
+    idx = np.sum(cum < q * cum[:, -1:], axis=1)
+    return r2[order][np.minimum(idx, r2.size - 1)] / Z95**2
+
+
+def _mean_gate(x: np.ndarray, mean_term: GatedMean | None) -> np.ndarray:
+    """The mean term's gate at every row (0 without a mean term or gate)."""
+    if mean_term is None:
+        return np.zeros(len(x))
+    return gate(np.asarray(x, float)[:, 1], mean_term.z0, mean_term.s)
+
+
+def _gate_levels(ly: np.ndarray, g: np.ndarray) -> tuple[float, float]:
+    """Least-squares levels (quiet, ventilating) of ly = a (1 - g) + b g; both the mean of ly
+    when one side has too few rows to tell."""
+    if min(float(np.sum(g)), float(np.sum(1.0 - g))) < MIN_SIDE_ROWS:
+        return float(np.mean(ly)), float(np.mean(ly))
+    a, b = np.linalg.lstsq(np.column_stack([1.0 - g, g]), ly, rcond=None)[0]
+    return float(a), float(b)
+
+
+def _side_biases(noise: LogNoise, x: np.ndarray, resid: np.ndarray,
+                 hi: np.ndarray) -> LogNoise:
+    """`noise` with biases raised so that 95 % of each side's rows (`hi`: ventilating) are
+    covered; one bias when a side has too few rows or the model has no gate."""
+    ratio = resid**2 / noise.var_n2(x)
+    out = LogNoise(**{**noise.__dict__})
+
+    def level(rows: np.ndarray) -> float:
+        rows = rows if rows.sum() >= MIN_SIDE_ROWS else np.ones(rows.size, bool)
+        return float(np.log(np.quantile(ratio[rows], 0.95) / Z95**2))
+
+    if noise.log_bias_event is None:
+        out.log_bias = noise.log_bias + level(np.ones(hi.size, bool))
+        return out
+    out.log_bias = noise.log_bias + level(~hi)
+    out.log_bias_event = noise.log_bias_event + level(hi)
+    return out
+
+
+def _noise_kernel(dim: int, fitted: LogNoise | None):  # noqa: ANN202 (a scikit-learn kernel)
+    """Matern 5/2 + white kernel of the noise GP: to be fitted, or `fitted`'s, held fixed."""
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
+    if fitted is None or fitted.white_var is None:
+        return (ConstantKernel(1.0, (1e-3, 1e3))
+                * Matern(length_scale=np.ones(dim),
+                         length_scale_bounds=(MIN_NOISE_LENGTH_SCALE, 1e3), nu=NU)
+                + WhiteKernel(1.0, (1e-3, 10.0)))
+    return (ConstantKernel(fitted.signal_var, "fixed")
+            * Matern(length_scale=fitted.length_scales, length_scale_bounds="fixed", nu=NU)
+            + WhiteKernel(fitted.white_var, "fixed"))
 
 
 def fit_hetero(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
-               params: GpParams | None = None, groups: np.ndarray | None = None) -> ExactGp:
-    """Exact GP with heteroscedastic noise: (1) homoscedastic hyperparameters, (2) residuals
-    of a 2-fold cross-fit (`fold`: 0/1 per row; hold out whole points, since blocks of one
-    point, or of one ventilation event, are autocorrelated and leak), (3) noise model on
-    their logs, (4) length scales and signal variance again with the noise fixed (skipped when
-    every candidate of (5) is 0: a zero signal has no length scales to fit), (5) the
-    signal variance scaled down by cross-validation over the same folds (`cv_signal_scale`:
-    maximum likelihood reads the autocorrelated rows of one event as signal; `groups`, a
-    label per point, sets the error's standard error), (6) the noise bias calibrated on the
-    cross-fitted predictive intervals, separately for quiet and ventilating rows
-    (`calibrate_bias`), (7) final exact GP with alpha_i = var(x_i) / w_i. Before all this
-    the gated mean term g(z) (`fit_gated_mean`; z = x[:, 1], the current-implied thrust
-    loss) is taken out of y: the GP then only corrects it."""
+               params: GpParams | None = None, groups: np.ndarray | None = None,
+               reuse: ExactGp | None = None) -> ExactGp:
+    """Exact GP with heteroscedastic noise on top of the gated mean term g(z)
+    (`fit_gated_mean`; z = x[:, 1], the current-implied thrust loss), which is taken out of y
+    first: the GP only corrects it.
+
+    By default (every candidate of `params.signal_scales` is 0) the GP has no signal: the
+    model is g(z) + a constant, and its noise model (`fit_noise`) is fitted on that
+    predictor's own residuals (`_fit_without_signal`). Otherwise `_fit_with_signal`: a GP
+    signal chosen by cross-validation over `fold` (0/1 per row; hold out whole points or
+    runs: blocks of one point, or of one ventilation event, are autocorrelated and leak).
+    `reuse`: a fit whose kernel hyperparameters and gate (z0, s) are reused instead of
+    searched for (the refits of `crossfit`: `refit_beta`); then no posterior-variance matrix
+    is kept."""
     p = params or GpParams()
     fold = np.asarray(fold)
     if fold.shape != (len(y),) or not set(np.unique(fold).tolist()) <= {0, 1}:
         raise ValueError("fit_hetero: fold must give 0 or 1 for every row")
-    mean_term = fit_gated_mean(x[:, 1], y, w)
+    mean_term = (fit_gated_mean(x[:, 1], y, w) if reuse is None
+                 else refit_beta(x[:, 1], y, w, reuse.mean_term))
     y = y - mean_term(x[:, 1])  # the GP models what the mean term leaves
-    h0 = fit_exact(x, y, w, p, keep_inverse=False).hyper
+    if max(p.signal_scales) > 0:
+        gp = _fit_with_signal(x, y, w, fold, p, groups, mean_term, reuse)
+    else:
+        gp = _fit_without_signal(x, y, w, p, mean_term, reuse)
+    gp.mean_term = mean_term
+    return gp
+
+
+def _fit_without_signal(x: np.ndarray, y: np.ndarray, w: np.ndarray, p: GpParams,
+                        mean_term: GatedMean, reuse: ExactGp | None) -> ExactGp:
+    """y (mean term already out) as a constant plus noise var(x) fitted on y - mean(y)."""
+    noise = fit_noise(x, y - np.mean(y), p, None if reuse is None else reuse.noise,
+                      mean_term)
+    hyper = Hyper(np.full(x.shape[1], MIN_LENGTH_SCALE), 0.0, 0.0)
+    gp = fit_exact(x, y, w, p, hyper=hyper, noise=noise, keep_inverse=reuse is None)
+    gp.signal_scale = 0.0
+    return gp
+
+
+def _fit_with_signal(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
+                     p: GpParams, groups: np.ndarray | None, mean_term: GatedMean,
+                     reuse: ExactGp | None) -> ExactGp:
+    """(1) homoscedastic hyperparameters, (2) residuals of a 2-fold cross-fit, (3) noise
+    model on their logs, (4) length scales and signal variance again with the noise fixed,
+    (5) the signal variance scaled down by cross-validation over the same folds
+    (`cv_signal_scale`: maximum likelihood reads the autocorrelated rows of one event as
+    signal; `groups`, a label per point, sets the error's standard error), (6) final exact
+    GP with alpha_i = var(x_i) / w_i. With `reuse`, its hyperparameters (signal already
+    scaled) replace steps 1, 4 and 5."""
+    h0 = reuse.hyper if reuse is not None else fit_exact(x, y, w, p, keep_inverse=False).hyper
+    n0 = None if reuse is None else reuse.noise  # its hyper has no white noise of its own
     resid = np.empty_like(np.asarray(y, float))
     if np.unique(fold).size < 2:
-        resid = y - fit_exact(x, y, w, p, hyper=h0, keep_inverse=False).predict(x)[0]
+        resid = y - fit_exact(x, y, w, p, hyper=h0, keep_inverse=False, noise=n0).predict(x)[0]
     else:
         for k in (0, 1):
             a = fold != k
-            g = fit_exact(x[a], y[a], w[a], p, hyper=h0, keep_inverse=False)
+            g = fit_exact(x[a], y[a], w[a], p, hyper=h0, keep_inverse=False, noise=n0)
             resid[~a] = y[~a] - g.predict(x[~a])[0]
-    noise = fit_noise(x, resid, p)
-    noise.gate_z0, noise.gate_s = mean_term.z0, mean_term.s
-    st = Standardiser(x)
-    y_std = float(np.std(y)) or 1.0
-    alpha = noise.var_n2(x) / w / y_std**2
-    if max(p.signal_scales) > 0:
+    noise = fit_noise(x, resid, p, None if reuse is None else reuse.noise, mean_term)
+    if reuse is not None:
+        h1, scale = reuse.hyper, reuse.signal_scale
+    else:
+        st = Standardiser(x)
+        y_std = float(np.std(y)) or 1.0
+        alpha = noise.var_n2(x) / w / y_std**2
         h1 = fit_hyper_fixed_noise(st(x), (y - np.mean(y)) / y_std, alpha, p)
-    else:  # every candidate scales the signal to 0: its length scales cannot matter
-        h1 = Hyper(h0.length_scales, h0.signal_var, 0.0)
-    scale = cv_signal_scale(x, y, w, fold, h1, noise, p, groups)
-    h1 = Hyper(h1.length_scales, scale * h1.signal_var, h1.noise_var)
-    noise = calibrate_bias(x, y, w, fold, h1, noise, p)
-    gp = fit_exact(x, y, w, p, hyper=h1, noise=noise)
-    gp.mean_term = mean_term
+        scale = cv_signal_scale(x, y, w, fold, h1, noise, p, groups)
+        h1 = Hyper(h1.length_scales, scale * h1.signal_var, h1.noise_var)
+    gp = fit_exact(x, y, w, p, hyper=h1, noise=noise, keep_inverse=reuse is None)
     gp.signal_scale = scale
     return gp
 
@@ -277,30 +390,114 @@ def cv_signal_scale(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarra
     return scales[best]
 
 
-def calibrate_bias(x: np.ndarray, y: np.ndarray, w: np.ndarray, fold: np.ndarray,
-                   hyper: Hyper, noise: LogNoise, p: GpParams, level: float = 0.95) -> LogNoise:
-    """The noise model with log_bias (quiet rows, gate(z) < 1/2) and log_bias_event (the
-    others) set so that `level` of each group's cross-fitted residuals (GP of the final
-    hyperparameters, trained on the other fold) lie within 1.96 noise standard deviations.
-    The folds' posterior variance is not credited: it is that of a GP trained on half the
-    points, far larger than the final GP's, and crediting it shrank the noise to nothing on
-    one training (coverage outside events 11 %). One bias for all rows let the quiet
-    majority set it: events were under-covered, quiet rows over-covered."""
-    if np.unique(fold).size < 2:
-        return noise
-    resid = np.empty(len(y))
-    for k in (0, 1):
-        a = fold != k
-        g = fit_exact(x[a], y[a], w[a], p, hyper=hyper, noise=noise, keep_inverse=False)
-        resid[~a] = y[~a] - g.predict(x[~a])[0]
-    ratio = resid**2 / (noise.var_n2(x) / np.exp(noise.bias(x)))  # over the bias-0 variance
-    event = gate(x[:, 1], noise.gate_z0, noise.gate_s) >= 0.5
-    biases = [None if sel.sum() < 20 else float(np.log(np.quantile(ratio[sel], level) / Z95**2))
-              for sel in (~event, event)]
+def variance_parts(gp: ExactGp, x: np.ndarray) -> np.ndarray:
+    """Rows mean (N), posterior variance and noise variance (N^2) of a new measurement at x."""
+    mean, std = gp.predict(x)
+    noise = gp.noise_n2(x)
+    return np.vstack([mean, np.maximum(std**2 - noise, 0.0), noise])
+
+
+SHIFT_RANGE = 6.0  # log-variance shifts are searched in +-this (a factor exp(+-3) on the sd)
+MIN_CHECK_ROWS = 30  # held-out rows of a class below which it gets no shift of its own
+EVENT_EXTRA = 1.0  # log-variance the detected events may add to cover ventilation the gate misses
+
+
+@dataclass(frozen=True)
+class GateShift:
+    """A held-out scale of the noise: row noise var times exp((1 - g) d_quiet + g d_event),
+    g = gate(z, z0, s) (the noise model's gate)."""
+
+    z0: float
+    s: float
+    d_quiet: float
+    d_event: float
+
+    def factor(self, z: np.ndarray) -> np.ndarray:
+        """The factor on the noise variance at shortfall thrust z."""
+        g = gate(z, self.z0, self.s)
+        return np.exp((1.0 - g) * self.d_quiet + g * self.d_event)
+
+
+def calibrate_gate(resid: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray,
+                   z: np.ndarray, event: np.ndarray, outside: np.ndarray,
+                   z0: float, s: float, level: float = 0.95) -> GateShift:
+    """The scale under which held-out residuals are covered at `level` in both classes:
+    `class_shifts` on the `outside` and the `event` rows, the latter through the rows the
+    gate (z0, s) calls ventilating. Without enough rows of a class, one shift for all;
+    without enough held-out rows at all, none."""
+    r2 = np.asarray(resid, float) ** 2 / Z95**2
+    if event.sum() < MIN_CHECK_ROWS or outside.sum() < MIN_CHECK_ROWS:
+        use = event | outside
+        rows = use if use.sum() >= MIN_CHECK_ROWS else np.isfinite(r2)
+        if rows.sum() < MIN_CHECK_ROWS:
+            return GateShift(z0, s, 0.0, 0.0)  # nothing to check on: the fit's own scale
+        d = _bisect_shift(lambda c: _coverage(r2, post_var, noise_var, rows, c), level)
+        return GateShift(z0, s, d, d)
+    dq, de = class_shifts(r2, post_var, noise_var, gate(z, z0, s), outside, event, level)
+    return GateShift(z0, s, dq, de)
+
+
+def class_shifts(r2: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray, g: np.ndarray,
+                 outside: np.ndarray, event: np.ndarray, level: float,
+                 rounds: int = 4) -> tuple[float, float]:
+    """(d_quiet, d_event), in turn: d_quiet covers `level` of the `outside` rows; d_event
+    covers `level` of the `event` rows the gate calls ventilating (g >= 1/2), then more, up
+    to EVENT_EXTRA, until the `event` rows as a whole are covered at `level`: ventilation the
+    shortfall misses gets the quiet intervals, and the detected events make up for it
+    (d_event = d_quiet when too few rows are gated)."""
+    dq = de = 0.0
+    hi = event & (g >= 0.5)
+
+    def cover(rows: np.ndarray, a: float, b: float) -> float:
+        var = post_var + noise_var * np.exp((1 - g) * a + g * b)
+        return float(np.mean(r2[rows] <= var[rows]))
+
+    for _ in range(rounds):
+        dq = _bisect_shift(lambda c, b=de: cover(outside, c, b), level)
+        if hi.sum() < MIN_CHECK_ROWS:
+            de = dq
+            continue
+        de = _bisect_shift(lambda c, a=dq: cover(hi, a, c), level)
+        more = _bisect_shift(lambda c, a=dq: cover(event, a, c), level)
+        de = min(de + EVENT_EXTRA, max(de, more))
+    return dq, de
+
+
+def _coverage(r2: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray, rows: np.ndarray,
+              shift: float) -> float:
+    """Fraction of `rows` covered with the noise variance times exp(shift)."""
+    return float(np.mean(r2[rows] <= post_var[rows] + noise_var[rows] * np.exp(shift)))
+
+
+def _bisect_shift(coverage: Callable[[float], float], level: float) -> float:
+    """Smallest shift in +-SHIFT_RANGE whose coverage reaches `level` (coverage rises with it)."""
+    lo, hi = -SHIFT_RANGE, SHIFT_RANGE
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if coverage(mid) < level else (lo, mid)
+    return hi
+
+
+def shift_noise(noise: LogNoise, shift: GateShift) -> LogNoise:
+    """`noise` with its log variance raised by shift.d_quiet where its gate is 0 and by
+    shift.d_event where it is 1 (a model without a gate takes the shift's)."""
     out = LogNoise(**{**noise.__dict__})
-    out.log_bias = noise.log_bias if biases[0] is None else biases[0]
-    out.log_bias_event = biases[1]
+    if noise.log_bias_event is None:
+        out.gate_z0, out.gate_s = shift.z0, shift.s
+        out.log_bias_event = noise.log_bias + shift.d_event
+    else:
+        out.log_bias_event = noise.log_bias_event + shift.d_event
+    out.log_bias = noise.log_bias + shift.d_quiet
     return out
+
+
+def refit_beta(z: np.ndarray, y: np.ndarray, w: np.ndarray, like: GatedMean) -> GatedMean:
+    """`like` with beta refitted by weighted least squares, its gate (z0, s) kept: a model
+    refitted on part of the rows gates the same blocks as the full one, so its quiet and
+    ventilating sides (and the noise levels on them) are the same."""
+    u = np.asarray(z, float) if like.s <= 0 else np.asarray(z, float) * gate(z, like.z0, like.s)
+    beta = float(np.sum(w * u * y) / max(float(np.sum(w * u * u)), 1e-12))
+    return GatedMean(beta, like.z0, like.s)
 
 
 def fit_gated_mean(z: np.ndarray, y: np.ndarray, w: np.ndarray) -> GatedMean:
@@ -437,5 +634,5 @@ def interval(mean: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 __all__ = ["ExactGp", "GpParams", "Hyper", "SorGp", "fit_exact", "fit_hetero", "fit_noise",
-           "fit_sor", "interval",
-           "matern52", "sklearn_predict"]
+           "fit_sor", "interval", "calibrate_gate", "matern52", "shift_noise",
+           "sklearn_predict", "variance_parts"]

@@ -36,14 +36,25 @@ class TrainingSet:
     betm_n: np.ndarray
     run_id: np.ndarray
     provenance: dict = field(default_factory=dict)
+    # "event", "outside", "edge" or "step" per row, by the detected events (as the evaluation
+    # classifies by true ones); None in sets stored before it existed
+    block_class: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.y)
 
     def take(self, index: np.ndarray) -> TrainingSet:
-        keys = [k for k in self.__dataclass_fields__ if k != "provenance"]
-        return TrainingSet(**{k: getattr(self, k)[index] for k in keys},
+        """The rows `index` (provenance copied)."""
+        return TrainingSet(**{k: _rows(getattr(self, k), index) for k in _ARRAYS},
                            provenance=dict(self.provenance))
+
+
+_ARRAYS = [k for k in TrainingSet.__dataclass_fields__ if k != "provenance"]
+
+
+def _rows(a: np.ndarray | None, index: np.ndarray) -> np.ndarray | None:
+    """a[index], None for a column the set does not have."""
+    return None if a is None else a[index]
 
 
 def huber_weights(y: np.ndarray, segment: np.ndarray, window: int = 5) -> tuple[np.ndarray, float]:
@@ -104,8 +115,8 @@ def strata_keys(depth_m: np.ndarray, command: np.ndarray, ventilated: np.ndarray
 
 def concat(sets: list[TrainingSet]) -> TrainingSet:
     """Rows of several training sets (e.g. several runs) as one."""
-    keys = [k for k in TrainingSet.__dataclass_fields__ if k != "provenance"]
     runs = [s.provenance.get("run_ids", []) for s in sets]
     prov = {**sets[0].provenance, "run_ids": [r for rs in runs for r in rs]}
-    return TrainingSet(**{k: np.concatenate([getattr(s, k) for s in sets]) for k in keys},
-                       provenance=prov)
+    cols = {k: [getattr(s, k) for s in sets] for k in _ARRAYS}
+    return TrainingSet(**{k: None if any(a is None for a in v) else np.concatenate(v)
+                          for k, v in cols.items()}, provenance=prov)

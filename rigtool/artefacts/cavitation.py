@@ -39,9 +39,6 @@ TRAIN_COLUMNS = (
 )
 
 
-
-
-
 def summary_document(res: CavitationResult, created: str) -> dict:
     """cavitation.json: parameters, BETM, deep errors, events, training provenance, evaluation."""
     ev = res.evaluation
@@ -66,6 +63,7 @@ def summary_document(res: CavitationResult, created: str) -> dict:
                        "matching": None if ev.matching is None else {
                            **dataclasses.asdict(ev.matching), "recall": ev.matching.recall,
                            "false_rate": ev.matching.false_rate}},
+        "interval_check": res.interval_check, "floor": res.floor,
         "warnings": res.warnings,
     })
 
@@ -109,7 +107,8 @@ def write_cavitation_artefacts(res: CavitationResult, out_dir: str | Path,
     target.mkdir(parents=True, exist_ok=True)
     model = model_document(res.betm, res.gp, {
         "run_ids": res.training.provenance.get("run_ids", []), "base_run_id": res.base_run_id,
-        "created_utc": created, "tool_version": rigtool.__version__},
+        "created_utc": created, "tool_version": rigtool.__version__,
+        **json_clean({"interval_check": res.interval_check, "floor": res.floor})},
         window=res.params.window_blocks, block_s=res.params.train_block_s,
         lead=res.params.lead_blocks, bounds=res.bounds, domain=res.domain)
     paths = [atomic_write(target / SUMMARY_FILE, json_text(summary_document(res, created))),

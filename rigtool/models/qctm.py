@@ -171,6 +171,7 @@ class LogNoise:
     log_bias_event: float | None = None  # None: log_bias everywhere
     gate_z0: float = 0.0
     gate_s: float = 0.0
+    white_var: float | None = None  # the fit's white-noise level (refits reuse it; not exported)
 
     def bias(self, x: np.ndarray) -> np.ndarray:
         """log_bias + (log_bias_event - log_bias) gate(z), z = x[:, 1]."""
@@ -180,14 +181,19 @@ class LogNoise:
         return self.log_bias + (self.log_bias_event - self.log_bias) * gate(
             x[:, 1], self.gate_z0, self.gate_s)
 
-    def var_n2(self, x: np.ndarray) -> np.ndarray:
+    def deviation(self, x: np.ndarray) -> np.ndarray:
+        """The GP part of log var(x): signal_var k(x)^T alpha."""
         xs = (np.asarray(x, dtype=float) - self.x_mean) / self.x_scale
         xt = (self.x_train - self.x_mean) / self.x_scale
         out = np.empty(len(xs))
         for s in range(0, len(xs), 2048):
             k = self.signal_var * matern52(xs[s:s + 2048], xt, self.length_scales)
             out[s:s + 2048] = k @ self.alpha
-        return np.exp(self.log_mean + self.bias(x) + out)
+        return out
+
+    def var_n2(self, x: np.ndarray) -> np.ndarray:
+        """Noise variance of a new measurement at inputs x (N^2)."""
+        return np.exp(self.log_mean + self.bias(x) + self.deviation(x))
 
     def to_dict(self) -> dict:
         return {"kernel": "matern", "nu": 2.5, "x_mean": self.x_mean.tolist(),

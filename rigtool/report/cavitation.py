@@ -81,4 +81,23 @@ def cavitation_view(res: CavitationResult, image_format: str = "svg") -> dict:
         "matching": ev.matching,
         "min_duration_s": f"{res.params.events.min_duration_s:g}",
         "rate_uri": rate_uri, "series_uri": series_uri,
+        **check_view(res.interval_check, res.floor),
     }
+
+
+def check_view(check: dict | None, floor: dict | None) -> dict:
+    """The held-out interval check and the floor as text cells (empty for older results)."""
+    if not check or not floor:
+        return {"check": None}
+    rows = []
+    for name, c in check["classes"].items():
+        f = floor["classes"][name]
+        rows.append([name, str(c["n_blocks"]), _pct(c["coverage_before"]), _pct(c["coverage"]),
+                     _f(check["sd_factor"][name]), _f(c["p95_abs_n"]), _f(f["floor_p95_n"]),
+                     _f(f["target_p95_n"]), f["verdict"]])
+    return {"check": {"method": check["method"], "kind": check["kind"],
+                      "n_events": check["n_events"], "rows": rows, "basis": floor["basis"]}}
+
+
+def _pct(v: float | None) -> str:
+    return "" if v is None or not math.isfinite(v) else f"{100 * v:.1f} %"

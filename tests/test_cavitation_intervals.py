@@ -1,0 +1,179 @@
+"""Held-out check of the QCTM-GP's 95 % intervals (run-fold, block-fold), the stated floor,
+and where they are written; synthetic data and small twin runs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rigtool.analysis.cavitation import (
+    ONE_RUN_WARNING,
+    CavitationParams,
+    block_folds,
+    calibrate_cavitation,
+    check_folds,
+    evaluate_on_run,
+    mixture_p95,
+    thrust_model,
+)
+from rigtool.analysis.gp import GateShift, GpParams, calibrate_gate, shift_noise
+from rigtool.analysis.trainset import TrainingSet
+from rigtool.cli import main
+from rigtool.models import Z95
+from rigtool.models.qctm import LogNoise
+from rigtool.store import Store
+
+BASE = """rigtool_protocol: 1
+name: mini-baseline
+simulator: {profile: can-bldc, seed: 7}
+metadata: {thruster_id: bldc-350w}
+command: {unit: percent, range: {start: -100, stop: 100, step: 10}, order: up}
+depth: {unit: m, values: [1.0], mode: preset}
+timing: {settle: {seconds: 1.0}, acquire: {samples: 600, rate_hz: 500}, rest_s: 0.2,
+         tare: per_depth, tare_s: 0.5}
+limits: {max_thrust_n: 90, max_current_a: 12, max_speed_rpm: 2000, slew_per_s: 200}
+"""
+CAV = (Path(__file__).resolve().parents[1] / "protocols" / "luo2020-cavitation.yaml").read_text()
+PARAMS = CavitationParams(budget=1000, gp=GpParams(hyper_n=250, n_restarts=0))
+TRAIN_SEEDS, HELD_OUT_SEEDS = (61, 62), (71, 72, 73, 74, 75, 76)
+
+
+def _sweep(tmp: Path, text: str, name: str, seed: int) -> str:
+    path = tmp / name
+    path.write_text(text)
+    assert main(["sweep", str(path), "--sim", "--seed", str(seed), "--db",
+                 str(tmp / "db.sqlite")]) == 0
+    return Store(tmp / "db.sqlite").runs(limit=1)[0]["id"]
+
+
+@pytest.fixture(scope="module")
+def twin(tmp_path_factory):
+    """A base run, two training runs and six held-out runs of the shipped cavitation protocol
+    (12 points of 25 s); models from one run and from two."""
+    tmp = tmp_path_factory.mktemp("intervals")
+    _sweep(tmp, BASE, "base.yaml", 7)
+    train = [_sweep(tmp, CAV, "cav.yaml", s) for s in TRAIN_SEEDS]
+    held = [_sweep(tmp, CAV, "cav.yaml", s) for s in HELD_OUT_SEEDS]
+    store = Store(tmp / "db.sqlite")
+    one = calibrate_cavitation(store, train[0], None, PARAMS)
+    two = calibrate_cavitation(store, train[0], None, PARAMS, train_with=[train[1]])
+    return tmp, store, train, held, one, two
+
+
+def _held_out_coverage(store: Store, res, runs: list[str]) -> dict[str, float]:
+    """Coverage of the exported model's intervals per class, pooled over held-out runs."""
+    model = thrust_model(res.betm, res.gp, res.training, PARAMS)
+    inside = {"event": [0.0, 0], "outside": [0.0, 0]}
+    for run in runs:
+        ev = evaluate_on_run(store, run, model.predict, res.betm, PARAMS)
+        for c in ev.classes:
+            if c.name in inside:
+                inside[c.name][0] += c.coverage95 * c.n
+                inside[c.name][1] += c.n
+    return {k: v[0] / v[1] for k, v in inside.items()}
+
+
+@pytest.mark.parametrize("which", ["one", "two"])
+def test_intervals_hold_on_held_out_runs(twin, which):
+    """Single-run (block-fold) and two-run (run-fold) models: 90-98 % of held-out blocks
+    during events and outside them lie inside the 95 % intervals."""
+    _, store, _, held, one, two = twin
+    res = one if which == "one" else two
+    assert res.interval_check["kind"] == ("block" if which == "one" else "run")
+    cover = _held_out_coverage(store, res, held)
+    assert 0.90 <= cover["event"] <= 0.98, cover
+    assert 0.90 <= cover["outside"] <= 0.98, cover
+
+
+def test_single_run_warns_and_two_runs_do_not(twin):
+    _, _, _, _, one, two = twin
+    assert ONE_RUN_WARNING in one.warnings and "block-fold" in ONE_RUN_WARNING
+    assert ONE_RUN_WARNING not in two.warnings
+    assert two.interval_check["folds"] == 2 and one.interval_check["folds"] == 4
+
+
+def test_floor_in_cavitation_json_and_report(twin):
+    """`calibrate --report` writes the floor and the interval check to cavitation.json (and
+    the model file) and shows them in the report; `report` shows them from the store."""
+    tmp, _, train, _, _, _ = twin
+    db, out = str(tmp / "db.sqlite"), tmp / "out"
+    assert main(["calibrate", train[0], "--db", db, "--out", str(out), "--report"]) == 0
+    summary = json.loads((out / train[0] / "cavitation.json").read_text())
+    for name in ("event", "outside"):
+        floor = summary["floor"]["classes"][name]
+        assert floor["floor_p95_n"] > 0 and floor["heldout_p95_n"] >= floor["floor_p95_n"]
+        assert floor["target_p95_n"] in (3.5, 1.0) and floor["verdict"]
+        assert 0 < summary["interval_check"]["classes"][name]["coverage"] <= 1
+    model = json.loads((out / train[0] / "qctm_gp.json").read_text())
+    assert model["floor"] == summary["floor"]
+    for html in ((out / train[0] / "report.html").read_text(),):
+        section = html[html.index('<section id="cavitation"'):]
+        assert 'id="cavitation-floor"' in section and "floor p95 N" in section
+        assert "one training run, so never checked on another run" in section
+    assert main(["report", train[0], "--db", db, "--out", str(tmp / "rep")]) == 0
+    assert 'id="cavitation-floor"' in (tmp / "rep" / train[0] / "report.html").read_text()
+
+
+def _training_set(run_id: np.ndarray, depth: np.ndarray, command: np.ndarray,
+                  t_s: np.ndarray) -> TrainingSet:
+    k = len(run_id)
+    return TrainingSet(x=np.column_stack([np.full(k, 900.0), np.ones(k), depth]),
+                       xf=np.zeros((k, 3)), y=np.zeros(k), w=np.ones(k), t_s=t_s,
+                       command=command, ventilated=np.zeros(k, bool), thrust_n=np.zeros(k),
+                       betm_n=np.zeros(k), run_id=run_id)
+
+
+def test_folds_hold_out_whole_runs_or_slices_of_every_point():
+    t = np.tile(np.arange(20) * 0.2, 3)
+    depth, command = np.repeat([0.2, 0.2, 0.4], 20), np.repeat([69.0, 90.0, 69.0], 20)
+    runs = _training_set(np.repeat(["a", "b", "c"], 20), depth, command, t)
+    fold, kind = check_folds(runs)
+    assert kind == "run" and fold.tolist() == np.repeat([0, 1, 2], 20).tolist()
+    one = _training_set(np.full(60, "a"), depth, command, t + np.repeat([0, 10, 20], 20))
+    fold, kind = check_folds(one)
+    assert kind == "block" and np.array_equal(fold, block_folds(one))
+    for p in range(3):  # every point is cut into 4 contiguous slices, one per fold
+        f = fold[20 * p:20 * (p + 1)]
+        assert sorted(set(f.tolist())) == [0, 1, 2, 3] and np.count_nonzero(np.diff(f)) == 3
+
+
+def test_calibrate_gate_covers_both_classes_on_fresh_data():
+    """Quiet rows whose model variance is too wide and ventilating rows whose variance is too
+    narrow: after the shifts both are covered at 95 %, also on new rows of the same kind."""
+    rng = np.random.default_rng(5)
+
+    def rows(n: int) -> tuple[np.ndarray, ...]:
+        event = rng.random(n) < 0.3
+        z = np.where(event, rng.uniform(1.0, 3.0, n), rng.normal(0.0, 0.05, n))
+        resid = rng.normal(0.0, np.where(event, 3.0, 0.3))
+        noise = np.where(event, 1.5, 0.6) ** 2  # the model's variance, wrong in both classes
+        return resid, noise, z, event
+
+    resid, noise, z, event = rows(4000)
+    shift = calibrate_gate(resid, np.zeros(resid.size), noise, z, event, ~event, 0.5, 0.1)
+    assert shift.d_event > 0 > shift.d_quiet
+    resid, noise, z, event = rows(4000)
+    inside = resid**2 <= Z95**2 * noise * shift.factor(z)
+    assert 0.93 <= inside[event].mean() <= 0.97 and 0.93 <= inside[~event].mean() <= 0.97
+
+
+def test_shifted_noise_model_is_the_calibrated_one():
+    """The exported noise model (biases shifted, same format) gives exactly the variance the
+    check calibrated: var times GateShift.factor; a model without a gate takes the shift's."""
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(40, 3))
+    q = rng.normal(size=(25, 3))
+    for event_bias in (1.1, None):
+        noise = LogNoise(np.zeros(3), np.ones(3), np.ones(3), 0.7, -1.0, x,
+                         rng.normal(size=40), 0.3, event_bias, 0.4, 0.1)
+        shift = GateShift(0.4, 0.1, -0.5, 0.8)
+        expected = noise.var_n2(q) * shift.factor(q[:, 1])
+        np.testing.assert_allclose(shift_noise(noise, shift).var_n2(q), expected, rtol=1e-12)
+
+
+def test_mixture_p95():
+    assert mixture_p95(np.full(10, 2.0)) == pytest.approx(Z95 * 2.0, rel=1e-6)
+    assert np.isnan(mixture_p95(np.zeros(0)))
