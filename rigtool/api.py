@@ -25,6 +25,7 @@ import numpy as np
 
 from rigtool.errors import UsageError
 from rigtool.files import decode_utf8, read_regular_bytes
+from rigtool.models.thrust_map import STATUS_KEYS, ThrustMap, thrust_map
 from rigtool.readback import MAX_JSON_BYTES, Invalid, calibration_document, parse_json, show
 from rigtool.store import DB_ENV, DEFAULT_DB, RunRecord, Store
 
@@ -206,9 +207,24 @@ class Value:
     r2: float = math.nan
 
 
+@dataclass(frozen=True)
+class ConsumerModel:
+    """A simpler model exported for consumers that take only it (first-order, rise-fall,
+    yoerger; calibration.json `dynamics.consumers`): its parameters, its RMS deviation from
+    the selected model over the step run, and whether that is within the limit."""
+
+    name: str
+    equation: str
+    parameters: dict[str, Value]
+    error_n: float
+    error_frac: float
+    adequate: bool
+
+
 class StepDynamics:
     """The identified dynamics (calibration.json `dynamics`): the selected model's
-    parameters as Values, and a simulation from a command time series."""
+    parameters as Values, the simpler models for consumers, and a simulation from a command
+    time series."""
 
     def __init__(self, document: dict) -> None:
         self.document = document
@@ -219,6 +235,15 @@ class StepDynamics:
         self.parameters: dict[str, Value] = {
             k: _coefficient_value(k, v) for k, v in model.items() if isinstance(v, dict)}
         self.levels = {float(x["command"]): _float(x["thrust_n"]) for x in document["levels"]}
+        self.time_constant_s: float = _number(document.get("time_constant_s"))
+        self.first_order_time_constant_s: float = _number(
+            document.get("first_order_time_constant_s"))
+        self.rise_time_constant_s: float = _number(document.get("rise_time_constant_s"))
+        self.fall_time_constant_s: float = _number(document.get("fall_time_constant_s"))
+        found = document.get("consumers")
+        self.consumers: dict[str, ConsumerModel] = {
+            name: _consumer(name, c) for name, c in (found or {}).items()
+            if isinstance(found, dict) and isinstance(c, dict)}
 
     def __repr__(self) -> str:
         if not self.identified:
@@ -342,17 +367,27 @@ class Calibration:
         return _like(command, np.where(inside, f, np.nan))
 
     def command(self, thrust: Any, depth: float | None = None,
-                voltage: float | None = None) -> Any:
-        """The command giving `thrust` (N), by the inverse lookup table; the neutral command
-        for 0, NaN outside the achievable range. Vectorised."""
-        d = self._at(depth, voltage)
-        f = np.asarray(thrust, dtype=float)
-        out = np.full(f.shape, np.nan)
-        out[f == 0] = self.neutral
-        for _, lut_f, lut_c in d.lut:
-            take = np.isnan(out) & (f >= lut_f[0]) & (f <= lut_f[-1])
-            out[take] = np.interp(f[take], lut_f, lut_c)
+                voltage: float | None = None, *, strict: bool = False) -> Any:
+        """The command giving `thrust` (N), as a vehicle needs it: the inverse lookup table;
+        the neutral command for 0 and below the smallest thrust the thruster makes; beyond the
+        largest, that direction's extreme command; NaN only for NaN. `strict=True`: NaN
+        outside the table instead (`command_status` says which case). Vectorised."""
+        out, _ = self.thrust_map(depth, voltage).command(thrust, strict=strict)
         return _like(thrust, out)
+
+    def command_status(self, thrust: Any, depth: float | None = None,
+                       voltage: float | None = None) -> Any:
+        """Why `command` gives what it gives, per thrust: "ok", "clamped" (beyond the largest
+        thrust), "below_min" (neutral), "gap" (between branches: nearer end) or "nan"."""
+        _, status = self.thrust_map(depth, voltage).command(thrust)
+        names = np.array([STATUS_KEYS[int(s)] for s in status.ravel()]).reshape(status.shape)
+        return str(names) if np.ndim(thrust) == 0 else names
+
+    def thrust_map(self, depth: float | None = None, voltage: float | None = None
+                   ) -> ThrustMap:
+        """The thrust -> command map of a section (rigtool.models.thrust_map)."""
+        d = self._at(depth, voltage)
+        return thrust_map(d.lut, self.neutral, d.curve_command, d.curve_thrust)
 
     def thrust_from_speed(self, speed_rpm: Any, depth: float | None = None,
                           voltage: float | None = None) -> Any:
@@ -458,6 +493,19 @@ def _coefficient_value(name: str, c: dict) -> Value:
 def _value(coef: dict[str, Value], name: str) -> float:
     c = coef.get(name)
     return math.nan if c is None else c.value
+
+
+def _number(v: object) -> float:
+    """A JSON number as a float, NaN for anything else (null, text)."""
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else math.nan
+
+
+def _consumer(name: str, c: dict) -> ConsumerModel:
+    """calibration.json's account of one simpler model, read defensively."""
+    params = {k: _coefficient_value(k, v) for k, v in c.items()
+              if isinstance(v, dict) and isinstance(v.get("value"), (int, float))}
+    return ConsumerModel(name, str(c.get("equation", "")), params, _number(c.get("error_n")),
+                         _number(c.get("error_frac")), c.get("adequate") is True)
 
 
 def _float(v: object) -> float:

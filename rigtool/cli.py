@@ -23,6 +23,7 @@ from rigtool.units import unit_label
 
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration
+    from rigtool.artefacts.vehicle import ExportOptions
     from rigtool.engine import Outcome
 
 # Pipes and logs get wide tables instead of rich's 80-column default.
@@ -33,7 +34,8 @@ err = Console(stderr=True, highlight=False, markup=False, soft_wrap=True,
               width=None if sys.stderr.isatty() else 160)
 
 
-VEHICLE_FORMATS = ("c-header", "ros2", "gazebo", "csv-lut")  # rigtool.artefacts.vehicle.FORMATS
+VEHICLE_FORMATS = ("c-header", "ros2", "gazebo", "csv-lut", "ardupilot", "px4", "uuv",
+                   "stonefish", "thruster-manager", "auv-controllers")  # artefacts.formats
 MAX_PRINTED_ERRORS = 200  # unreadable cells of one imported file listed on stderr
 EXIT_INTERRUPTED = 130  # 128 + SIGINT: the operator's Ctrl-C stopped the command
 
@@ -369,8 +371,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from rigtool import workflows
 
     with Store(resolve_db_path(args.db), create=False) as store:
+        check = None
+        if args.export:
+            check = workflows.export_check(store, args.run, args.export,
+                                           dynamics_run=args.dynamics, options=_options(args))
         res = workflows.calibrate(store, args.run, args.out, base=args.base, causal=args.causal,
-                                  train_with=args.train_with)
+                                  train_with=args.train_with, check=check)
         cal = res.calibration
         table = Table("quantity", "value", "95 % interval", "unit", "note",
                       title=f"calibration of run {res.run_id} ({cal.run_name})")
@@ -384,7 +390,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         _print_warnings(store, res.run_id, cal, res.notes)
         if args.export:
             paths = workflows.export_calibration(store, res.run_id, args.out, args.export,
-                                                 results=res, dynamics_run=args.dynamics)
+                                                 results=res, dynamics_run=args.dynamics,
+                                                 options=_options(args))
             out.print(f"vehicle artefacts: {', '.join(str(p) for p in paths)}")
         if args.report:
             out.print(f"report: {workflows.report(store, res.run_id, args.out, results=res)}")
@@ -444,9 +451,40 @@ def cmd_export_cal(args: argparse.Namespace) -> int:
 
     with Store(resolve_db_path(args.db), read_only=True) as store:
         for path in workflows.export_calibration(store, args.run, args.out, args.format,
-                                                 dynamics_run=args.dynamics):
+                                                 dynamics_run=args.dynamics,
+                                                 options=_options(args)):
             out.print(str(path))
     return 0
+
+
+def _options(args: argparse.Namespace) -> ExportOptions:
+    from rigtool.artefacts.vehicle import ExportOptions
+
+    return ExportOptions(joint=args.joint, link=args.link, namespace=args.namespace,
+                         index=args.index, mesh=args.mesh, material=args.material)
+
+
+def _export_options(p: argparse.ArgumentParser) -> None:
+    """The options of the vehicle artefacts: names in the vehicle's model."""
+    p.add_argument("--joint", help="propeller joint in the vehicle model (gazebo, uuv, "
+                   "auv-controllers)")
+    p.add_argument("--link", help="thruster or propeller link in the vehicle model (uuv, "
+                   "stonefish)")
+    p.add_argument("--namespace", help="robot or topic namespace (gazebo)")
+    p.add_argument("--mesh", help="the propeller's mesh file in the vehicle model (stonefish)")
+    p.add_argument("--material", help="the propeller's material in the scenario (stonefish)")
+    p.add_argument("--index", type=_positive_int, help="the thruster's number on the vehicle, "
+                   "from 1 (px4 CA_ROTOR{n}, uuv thruster id, auv-controllers names)")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number from 1")
+    return value
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -517,11 +555,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dynamics", metavar="RUN", help="calibrated step-response run of the same "
                    "thruster whose time constants the vehicle artefacts carry (default: the "
                    "run's own, when it is one)")
+    _export_options(p)
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_calibrate)
 
-    p = sub.add_parser("export-cal", help="write vehicle artefacts (C header, ROS 2, Gazebo, "
-                       "CSV lookup table) of a calibrated run")
+    p = sub.add_parser("export-cal", help="write vehicle and simulator artefacts of a "
+                       "calibrated run (docs/artefacts.md)")
     p.add_argument("run", help="run id, unique prefix, or `last`")
     p.add_argument("--format", action="append", required=True, choices=VEHICLE_FORMATS,
                    help="artefact to write (repeatable)")
@@ -529,6 +568,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dynamics", metavar="RUN", help="calibrated step-response run of the same "
                    "thruster whose time constants the vehicle artefacts carry (default: the "
                    "run's own, when it is one)")
+    _export_options(p)
     p.add_argument("--db", help=db_help)
     p.set_defaults(func=cmd_export_cal)
 
@@ -588,14 +628,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_merge)
 
     p = sub.add_parser("import", help="store existing thrust-stand logs (Tyto/RCbenchmark, "
-                       "manufacturer tables, any CSV) as runs")
-    p.add_argument("files", nargs="+", metavar="FILE", help="CSV log(s); one run per file")
+                       "manufacturer tables and .xlsx workbooks, any CSV) as runs")
+    p.add_argument("files", nargs="+", metavar="FILE",
+                   help="CSV log(s) or .xlsx workbook(s) (one sheet per supply voltage, e.g. "
+                        "'16 V'; needs pip install 'rigtool[xlsx]'); one run per file")
     p.add_argument("--mapping", help="YAML column mapping (docs/import.md)")
     p.add_argument("--col", action="append", metavar="FIELD=COLUMN",
                    help="map a column: time, command, thrust, speed, current, voltage (bus, "
                         "measured), supply (the supply voltage set: one calibration per "
                         "voltage; a `Supply Voltage (V)` column is recognised), depth, "
-                        "thrust_std, n_samples (repeatable)")
+                        "thrust_std, n_samples, torque (about the thrust axis: C_q), "
+                        "temperature (kept per point) (repeatable)")
     p.add_argument("--unit", action="append", metavar="FIELD=UNIT",
                    help="unit of a mapped column, e.g. thrust=kgf (overrides the header suffix)")
     p.add_argument("--command-unit", help="pulse_us | percent | pwm_counts | rpm | amps")

@@ -34,7 +34,12 @@ FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
 
 
 class StopNow(BaseException):
-    """Raised from a signal handler to stop immediately (second Ctrl-C, SIGTERM, SIGHUP)."""
+    """Raised from a signal handler to stop immediately (second Ctrl-C, SIGTERM, SIGHUP);
+    `by_operator` for the Ctrl-C, so the exit status says which stopped the run."""
+
+    def __init__(self, message: str, by_operator: bool = False) -> None:
+        super().__init__(message)
+        self.by_operator = by_operator
 
 
 class NeutralNotConfirmed(DeviceError):
@@ -68,7 +73,7 @@ class _Signals:
         if self.closing:
             return
         if self.stop_requested:
-            raise StopNow("second Ctrl-C: stopped at once")
+            raise StopNow("second Ctrl-C: stopped at once", by_operator=True)
         self.stop_requested = True
         self.reporter.note("Ctrl-C: finishing the current point, then stopping "
                            "(Ctrl-C again to stop at once)")
@@ -151,7 +156,7 @@ class Engine:
                 interrupted = status == "aborted"  # the loop stopped at the operator's Ctrl-C
             except (KeyboardInterrupt, StopNow) as exc:
                 status, reason = "aborted", str(exc) or "interrupted (Ctrl-C)"
-                interrupted = signals.stop_requested or isinstance(exc, KeyboardInterrupt)
+                interrupted = isinstance(exc, KeyboardInterrupt) or exc.by_operator
             except SafetyTrip as exc:
                 status, reason = "aborted", str(exc)
                 signals.closing = True
@@ -208,7 +213,8 @@ class Engine:
                               "supply to set it")
         self._ramp_to(self.rig.actuator.info.neutral)
         if self._signals is not None and self._signals.stop_requested:
-            raise StopNow("stopped by the operator (Ctrl-C) before the supply was set")
+            raise StopNow("stopped by the operator (Ctrl-C) before the supply was set",
+                          by_operator=True)
         self._supply_used = True
         reached = supply.set_voltage(step.voltage_v)
         self._event("voltage", {"target_v": step.voltage_v, "measured_v": reached,

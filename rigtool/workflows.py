@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -23,7 +23,7 @@ from rigtool.store import Store, is_run_id, run_label, utc_now
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration
     from rigtool.analysis.cavitation import CavitationResult
-    from rigtool.artefacts.vehicle import DynamicsSource
+    from rigtool.artefacts.vehicle import DynamicsSource, ExportOptions
     from rigtool.compare import CompareResult
 
 # Analysis, artefact and comparison modules are imported by the workflow that needs them:
@@ -51,11 +51,13 @@ class Results:
 
 def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", *,
               base: str | None = None, causal: bool = False,
-              train_with: Sequence[str] = ()) -> Results:
+              train_with: Sequence[str] = (),
+              check: Callable[[Calibration], None] | None = None) -> Results:
     """Calibrate a stored run: write calibrations/<run-id>/ and store the results.
 
     Every reference (the run, `base`, `train_with`) is checked before any file is written;
-    UsageError names the bad one.
+    UsageError names the bad one. `check` sees the analysis before anything is written or
+    stored (calibrate --export checks the formats' prerequisites there).
     """
     from rigtool.analysis.calibrate import calibrate as analyse
     from rigtool.analysis.cavitation import (
@@ -68,6 +70,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     from rigtool.analysis.dataset import load_run
     from rigtool.artefacts.calibration import calibration_document, write_artefacts
     from rigtool.artefacts.cavitation import write_cavitation_artefacts
+    from rigtool.artefacts.formats import remove_exports
 
     run_id = store.resolve_run_id(run_ref)
     cav_stage = cavitation_stage(store, run_id, base)
@@ -78,9 +81,12 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     with stage(f"calibrating run {run_id}"):
         run = load_run(store, run_id)
         cal = analyse(run)
+    if check is not None:
+        check(cal)
     created = utc_now()
     folder = run_folder(out_dir, run_id)
     paths = write_artefacts(cal, out_dir, created_utc=created)
+    remove_exports(folder)
     cav, notes = None, list(cav_stage.warnings)
     if cav_stage.base_run_id is not None:
         with stage(f"quasi-cavitation model of run {run_id} (base run {cav_stage.base_run_id})"):
@@ -275,26 +281,57 @@ def compare(store: Store, run_refs: Sequence[str], reference: str | None = None,
 
 
 def export_calibration(store: Store, run_ref: str, out_dir: str | Path, formats: Sequence[str],
-                       *, results: Results | None = None,
-                       dynamics_run: str | None = None) -> list[Path]:
-    """Write vehicle artefacts (c-header, ros2, gazebo, csv-lut) of a calibrated run from
-    its stored results (or `results`, just computed); return their paths. The time constants
-    come from the run itself when it is a step-response run, else from `dynamics_run`."""
-    from rigtool.artefacts.vehicle import DynamicsSource, write_vehicle_artefacts
+                       *, results: Results | None = None, dynamics_run: str | None = None,
+                       options: ExportOptions | None = None) -> list[Path]:
+    """Write vehicle artefacts (rigtool.artefacts.formats) of a calibrated run from its stored
+    results (or `results`, just computed); return their paths. The time constants come from
+    the run itself when it is a step-response run, else from `dynamics_run`. Every format's
+    prerequisites are checked first: all files or none."""
+    from rigtool.artefacts.formats import write_vehicle_artefacts
 
+    run_id = _exportable(store, run_ref)
+    res = results or stored_results(store, run_id)
+    cal = res.calibration
+    if cal is None:
+        raise UsageError(f"run {run_id} has no points: nothing to export")
+    source = _own_dynamics(run_id, cal)
+    if dynamics_run is not None:
+        source = _dynamics_source(store, dynamics_run, cal)
+    return write_vehicle_artefacts(cal, out_dir, formats, res.created_utc, source, options)
+
+
+def export_check(store: Store, run_ref: str, formats: Sequence[str], *,
+                 dynamics_run: str | None = None, options: ExportOptions | None = None
+                 ) -> Callable[[Calibration], None]:
+    """What calibrate --export runs on the analysis before it writes anything: the dynamics
+    run's checks and every format's prerequisites (UsageError naming each missing one)."""
+    from rigtool.artefacts.formats import check_formats, export_input
+
+    run_id = _exportable(store, run_ref)
+
+    def check(cal: Calibration) -> None:
+        source = _own_dynamics(run_id, cal)
+        if dynamics_run is not None:
+            source = _dynamics_source(store, dynamics_run, cal)
+        check_formats(formats, export_input(cal, "", source, options))
+
+    return check
+
+
+def _exportable(store: Store, run_ref: str) -> str:
+    """The run id of `run_ref`, refused unless rigtool could have made it (it names files)."""
     run_id = store.resolve_run_id(run_ref)
     if not is_run_id(run_id):
         raise DataError(f"run database {store.path}: run {run_label(run_id)}, runs.id: not a "
                         "run id rigtool makes, and vehicle artefacts take their folder and names "
                         "from it: not exported")
-    res = results or stored_results(store, run_id)
-    cal = res.calibration
-    if cal is None:
-        raise UsageError(f"run {run_id} has no points: nothing to export")
-    source = None if cal.dynamics is None else DynamicsSource(run_id, cal.dynamics)
-    if dynamics_run is not None:
-        source = _dynamics_source(store, dynamics_run, cal)
-    return write_vehicle_artefacts(cal, out_dir, formats, res.created_utc, source)
+    return run_id
+
+
+def _own_dynamics(run_id: str, cal: Calibration) -> DynamicsSource | None:
+    from rigtool.artefacts.vehicle import DynamicsSource
+
+    return None if cal.dynamics is None else DynamicsSource(run_id, cal.dynamics)
 
 
 def _dynamics_source(store: Store, run_ref: str, cal: Calibration) -> DynamicsSource:

@@ -95,7 +95,9 @@ def test_thrust_and_command_are_inverse_and_match_the_points(lab_run):
     f = cal.thrust(np.array([-80.0, -40.0, 40.0, 80.0]))
     np.testing.assert_allclose(cal.command(f), [-80, -40, 40, 80], atol=1e-6)
     assert cal.command(0.0) == 0.0
-    assert np.isnan(cal.command(10 * np.nanmax(p["thrust_mean_n"])))
+    beyond = 10 * np.nanmax(p["thrust_mean_n"])
+    assert cal.command(beyond) == 100.0 and cal.command_status(beyond) == "clamped"
+    assert np.isnan(cal.command(beyond, strict=True))
     assert np.isnan(cal.thrust(150.0))
 
 

@@ -80,11 +80,15 @@ def _named(warnings: list[str]) -> set[float]:
 
 
 def _commands_into(cal, zones: list[tuple[int, int]]) -> list[float]:
-    """PWM counts `cal.command()` gives for nonzero thrusts that lie in `zones`."""
+    """PWM counts `cal.command()` gives for nonzero thrusts that lie in `zones`, except the
+    neutral command itself, which a vehicle gets for a thrust below the smallest the thruster
+    makes (status below_min: asking for no thrust, not commanding into a zone by mistake)."""
     api = ApiCalibration.from_results(cal, "2000-01-01T00:00:00Z")
     thrust = np.concatenate([np.linspace(-4.0, -1e-4, 2000), np.linspace(1e-4, 6.0, 3000)])
     command = np.asarray(api.command(thrust))
-    counts = np.floor(command[np.isfinite(command)] + 0.5)
+    neutral = np.asarray(api.command_status(thrust)) == "below_min"
+    assert (command[neutral] == api.neutral).all()
+    counts = np.floor(command[np.isfinite(command) & ~neutral] + 0.5)
     return sorted({c for c in counts.tolist() for lo, hi in zones if lo <= c <= hi})
 
 

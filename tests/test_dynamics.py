@@ -68,7 +68,9 @@ def test_models_are_recovered_and_selected(tmp_path, case):
     delay = model["delay"]
     assert delay["value"] == pytest.approx(truth.get("command_delay_s", 0.0), abs=1e-3)
     assert delay["lo"] <= truth.get("command_delay_s", 0.0) <= delay["hi"]
-    assert doc["steps"] and all(s["rise_s"] > 0 for s in doc["steps"])
+    settled = [s for s in doc["steps"] if s["settled"]]
+    assert settled and all(s["rise_s"] > 0 for s in settled)
+    assert all(s["rise_s"] is None for s in doc["steps"] if not s["settled"])
     html = (folder / "report.html").read_text()
     assert 'id="fig-dynamics"' in html and 'id="dynamics-steps"' in html
 

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from rigtool.analysis.dynamics_response import quadratic_hop
-from rigtool.artefacts import vehicle
+from rigtool.artefacts.formats import FORMATS
 from rigtool.cli import main
 from rigtool.sim.physics import ThrusterTwin
 from rigtool.sim.profiles import profile_with_overrides
@@ -65,12 +65,12 @@ def test_yoerger_thruster_is_identified_and_exported(tmp_path):
     assert main(["export-cal", "last", "--db", db, "--format", "ros2", "--format", "c-header",
                  "--out", str(out)]) == 0
     run_dir = next(out.iterdir())
-    p = yaml.safe_load((run_dir / vehicle.FORMATS["ros2"]).read_text())["/**"][
+    p = yaml.safe_load((run_dir / FORMATS["ros2"]).read_text())["/**"][
         "ros__parameters"]["rigtool"]
     assert p["dynamics_model"] == "yoerger" and p["yoerger_state_unit"] == "r/min"
     assert p["yoerger_alpha"] == pytest.approx(1 / (2 * 0.22 * 1800.0), rel=0.05)
     assert p["yoerger_beta_forward"] == pytest.approx(p["yoerger_alpha"] / CAN_CP, rel=0.05)
-    assert "#define RIGTOOL_YOERGER_ALPHA" in (run_dir / vehicle.FORMATS["c-header"]).read_text()
+    assert "#define RIGTOOL_YOERGER_ALPHA" in (run_dir / FORMATS["c-header"]).read_text()
 
 
 def test_healey_inflow_thruster_is_identified_or_refused(tmp_path):
@@ -85,7 +85,7 @@ def test_healey_inflow_thruster_is_identified_or_refused(tmp_path):
     out = tmp_path / "export"
     assert main(["export-cal", "last", "--db", db, "--format", "c-header", "--out",
                  str(out)]) == 0
-    header = (next(out.iterdir()) / vehicle.FORMATS["c-header"]).read_text()
+    header = (next(out.iterdir()) / FORMATS["c-header"]).read_text()
     assert f"RIGTOOL_HAS_DYNAMICS {int(doc['identified'])}" in header
 
 

@@ -9,7 +9,7 @@ import random
 
 import pytest
 
-from rigtool.artefacts import vehicle
+from rigtool.artefacts.formats import FORMATS
 from rigtool.cli import main
 
 from .dynamics_helpers import (
@@ -31,7 +31,7 @@ def _headers(tmp_path, db: str, dynamics_run: str) -> list[str]:
     out = tmp_path / "export"
     assert main(["export-cal", "last", "--db", db, "--format", "c-header", "--dynamics",
                  dynamics_run, "--out", str(out)]) in (0, 2)
-    return [p.read_text() for p in out.rglob(vehicle.FORMATS["c-header"])]
+    return [p.read_text() for p in out.rglob(FORMATS["c-header"])]
 
 
 def test_pure_noise_gives_no_dynamics_and_no_export_carries_it(tmp_path, capsys):

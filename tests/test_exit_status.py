@@ -68,6 +68,28 @@ def test_ctrl_c_exits_130_from_the_outcome(write_yaml, db_path, monkeypatch, cap
     assert store.run(store.resolve_run_id("last"))["status"] == "aborted"
 
 
+class CtrlCThenTerm(SilentReporter):
+    """Ctrl-C once the first point is stored, then SIGTERM during the next point."""
+
+    def step_done(self, step, thrust_n) -> None:
+        if step.idx == 0:
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+
+@pytest.mark.parametrize("reporter, code, reason", [
+    (CtrlCAfterFirstPoint, 130, "Ctrl-C"), (CtrlCThenTerm, 1, "SIGTERM")])
+def test_the_signal_that_stopped_the_run_sets_the_exit_status(write_yaml, db_path, monkeypatch,
+                                                               reporter, code, reason):
+    """A SIGTERM after a Ctrl-C stops the run at once: the run says SIGTERM, and so does the
+    exit status (1, as for SIGTERM alone), not the Ctrl-C's 130."""
+    monkeypatch.setattr("rigtool.cli.default_reporter", reporter)
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == code
+    store = Store(db_path)
+    run = store.run(store.resolve_run_id("last"))
+    assert run["status"] == "aborted" and reason in (run["stop_reason"] or "")
+
+
 def test_outcome_says_whether_ctrl_c_stopped_the_run(write_yaml, db_path):
     outcomes = []
     for reporter, text in ((CtrlCAfterFirstPoint(), SMALL_PROTOCOL), (None, TRIPPING)):

@@ -30,12 +30,15 @@ from hypothesis import strategies as st
 from rigtool.analysis.dynamics import Dynamics, DynamicsModel
 from rigtool.analysis.fits import Coefficient
 from rigtool.artefacts import encode
-from rigtool.artefacts.vehicle import FORMATS, DynamicsSource, write_vehicle_artefacts
+from rigtool.artefacts.formats import write_vehicle_artefacts
+from rigtool.artefacts.vehicle import DynamicsSource, ExportOptions
 from rigtool.cli import main
 from rigtool.store import Store
 from rigtool.workflows import stored_results
 
 CC = shutil.which("gcc") or shutil.which("cc")
+FORMATS = ("c-header", "ros2", "gazebo", "csv-lut")
+OPTIONS = ExportOptions(joint="prop_joint", namespace="thruster_1")
 EXAMPLES = 360  # x 7 texts each = 2,520 generated names, plus the hostile ones below
 BATCHES = 4
 PROTOCOL = """\
@@ -118,7 +121,7 @@ def render(cal, out: Path, values: dict[str, str], dynamics: bool) -> dict[str, 
     model = replace(DYNAMICS.two_state, name=values["dynamics_model"])
     source = DynamicsSource(values["dynamics_run"], replace(DYNAMICS, two_state=model))
     paths = write_vehicle_artefacts(hostile, out, FORMATS, values["created"],
-                                    source if dynamics else None)
+                                    source if dynamics else None, OPTIONS)
     files = {fmt: path.read_bytes().decode("utf-8")
              for fmt, path in zip(FORMATS, paths, strict=True)}
     shutil.rmtree(paths[0].parent)

@@ -280,11 +280,12 @@ def test_sequence_wrapping_past_2_32_with_gaps_is_counted_not_rejected():
             time.sleep(0.0005 if i % 30 else 0.05)
 
     with scripted_box(send) as (config, _), NetFTSensor(config) as sensor:
-        sensor.read(5, 1000.0)
-        block = sensor.read(100, 1000.0)
+        sensor.read(5, 1000.0)  # the first read drops what came before it (up to a burst)
+        block = sensor.read(60, 1000.0)
         stats = sensor.stats
     first = seqs.index(int(block.seq[0]))
-    assert block.seq.tolist() == seqs[first:first + 100]
+    assert block.seq.tolist() == seqs[first:first + 60]
+    assert block.seq[0] < (1 << 32) - 10 and block.seq[-1] > 3
     assert stats["lost_packets"] == 2 and stats["bad_sequence"] == 0
 
 
@@ -302,7 +303,7 @@ def test_lost_reordered_and_malformed_datagrams_are_counted_and_kept_out(box):
     gaps = int(np.sum(np.diff(block.seq) - 1))
     assert 0.08 < gaps / (block.seq[-1] - block.seq[0]) < 0.25  # drops + reorders + corrupt
     assert s["lost_packets"] >= gaps
-    assert s["out_of_order"] > 10  # late: overtaken by the next record
+    assert s["out_of_order"] + s["reordered"] > 10  # overtaken: late, or kept in place
     assert s["duplicates"] > 10
     assert s["bad_size"] > 50  # short, oversized and most garbage
     assert s["bad_sequence"] > 5  # bad_header records (and 36-byte garbage) rejected

@@ -3,8 +3,8 @@
 ATI numbers records, not datagrams: rdt_sequence is "the position of the RDT record within
 a single output stream" (1 for the first record after a start request), so a buffered
 datagram holds consecutive numbers and only skipped numbers are lost. A record that jumps
-far is held until the next record judges it: stored if the stream really moved there, else
-dropped as corrupt with no loss counted.
+(ahead by more than one, near or far) is held until the records after it judge it: stored
+once two go on from it, dropped as corrupt once two go on from the stream instead.
 
 The scripted tests send exact datagrams over loopback UDP to the real driver, through each
 of its receive paths, and compare the records it returns and every counter it keeps with
@@ -101,20 +101,27 @@ def far_jumps(s: Script) -> dict[str, int]:
 
 
 def duplicates_and_reorders(s: Script) -> dict[str, int]:
-    """Repeated records, and records overtaken by the next one."""
+    """Repeated records, records overtaken while the jump after them is held (stored in their
+    place), and a record overtaken by more than the hold (late: counted lost, dropped)."""
     s.run(5)
     s.send([s.seq - 1])  # the last record again
     late = s.skip()
-    s.run(2)
-    s.send(late)  # overtaken: arrives after the next two, already counted lost
+    s.run(2)  # a jump of 2: held until two records go on from it, or the missing one comes
+    s.send(late)  # overtaken by the next two: stored in its place
+    s.stored.insert(len(s.stored) - 2, late[0] % WRAP)
     s.send(late)  # and once more: now a duplicate
     s.send([s.seq - 4])  # an older record again
     s.run(5)
     a, b = s.skip(2)
     s.send([b], store=True)
     s.send([a])  # a swapped pair
+    s.stored.insert(len(s.stored) - 1, a % WRAP)
     s.run(5)
-    return {"duplicates": 3, "out_of_order": 2, "lost_packets": 2}
+    late = s.skip()
+    s.run(3)  # the jump is confirmed: the record skipped is lost...
+    s.send(late)  # ...and when it comes, late
+    s.run(2)
+    return {"duplicates": 3, "out_of_order": 1, "lost_packets": 1, "reordered": 2}
 
 
 def restarts_and_long_gaps(s: Script) -> dict[str, int]:
@@ -138,14 +145,15 @@ def wrap_past_2_32(s: Script) -> dict[str, int]:
     assert s.skip() == [WRAP - 11]
     s.run(9)  # up to 2^32 - 2
     last = s.skip()  # 2^32 - 1 ...
-    s.run(1)  # ... overtaken by 0
-    s.send(last)
+    s.run(1)  # ... overtaken by 0, which is held ...
+    s.send(last)  # ... until it comes: both stored, in order
+    s.stored.insert(len(s.stored) - 1, last[0] % WRAP)
     s.run(3)
     assert s.skip() == [WRAP + 4]
     s.run(10)
     s.corrupt(s.seq + (1 << 31))
     s.run(10)
-    return {"lost_packets": 3, "out_of_order": 1, "bad_sequence": 1}
+    return {"lost_packets": 2, "bad_sequence": 1, "reordered": 1}
 
 
 def buffered_113(s: Script) -> dict[str, int]:
@@ -283,20 +291,34 @@ def offer_all(seqs: list[int], tracker: RdtSequence | None = None) -> tuple[list
     return stored, {k: v for k, v in vars(tracker.stats).items() if v}
 
 
+R = list(range(1, 101))  # a stream's first hundred records
+
+
 @pytest.mark.parametrize("seqs, stored, counts", [
     ([1, 2, 3], [1, 2, 3], {}),
-    ([4, 5], [4, 5], {"lost_packets": 3}),  # the box numbers a stream from 1
+    ([4, 5], [], {}),  # a jump is held until two records go on from it...
+    ([4, 5, 6], [4, 5, 6], {"lost_packets": 3}),  # ...then stored (the box numbers from 1)
     ([1, 2, 500_002, 3, 4], [1, 2, 3, 4], {"bad_sequence": 1}),
-    ([1, 2, WRAP - 499_998, 3], [1, 2, 3], {"bad_sequence": 1}),  # 500 000 behind
-    ([1, 2, 500_002, 500_002, 3], [1, 2, 3], {"bad_sequence": 1, "duplicates": 1}),
-    ([1, 2, 5_002, 5_003], [1, 2, 5_002, 5_003], {"lost_packets": 4_999, "resyncs": 1}),
-    ([1, 2, 3_000_000, 3_000_001], [1, 2, 3_000_000, 3_000_001], {"resyncs": 1}),  # a restart
-    ([1, 2, 3_000_000, 4], [1, 2, 4], {"bad_sequence": 1, "lost_packets": 1}),
-    ([1, 3, 2, 2, 3, 1], [1, 3], {"lost_packets": 1, "out_of_order": 1, "duplicates": 3}),
-    ([WRAP - 2, WRAP - 1, 1, 0, 2], [WRAP - 2, WRAP - 1, 1, 2],
-     {"lost_packets": 1, "out_of_order": 1}),
-    ([7_000_000, 7_000_001], [7_000_000, 7_000_001], {}),  # joined a running stream
+    ([1, 2, WRAP - 499_998, 3, 4], [1, 2, 3, 4], {"bad_sequence": 1}),  # 500 000 behind
+    ([1, 2, 500_002, 500_002, 3, 4], [1, 2, 3, 4], {"bad_sequence": 1, "duplicates": 1}),
+    ([1, 2, 5_002, 5_003, 5_004], [1, 2, 5_002, 5_003, 5_004],
+     {"lost_packets": 4_999, "resyncs": 1}),
+    ([1, 2, 3_000_000, 3_000_001, 3_000_002], [1, 2, 3_000_000, 3_000_001, 3_000_002],
+     {"resyncs": 1}),  # a restart
+    ([1, 2, 3_000_000, 4, 5, 6], [1, 2, 4, 5, 6], {"bad_sequence": 1, "lost_packets": 1}),
+    ([1, 3, 2, 2, 3, 1], [1, 2, 3], {"duplicates": 3, "reordered": 1}),  # 3 was held
+    ([WRAP - 4, WRAP - 3, WRAP - 2, WRAP - 1, 1, 0, 2],
+     [WRAP - 4, WRAP - 3, WRAP - 2, WRAP - 1, 0, 1, 2], {"reordered": 1}),
+    ([7_000_000, 7_000_001, 7_000_002], [7_000_000, 7_000_001, 7_000_002], {}),  # joined
     ([7_000_000, 1, 2], [1, 2], {"bad_sequence": 1}),  # a stray record before the stream
+    # a near jump is judged like a far one: inserted, in a record's place, first of all,
+    # and two corrupt records numbered one after the other
+    (R + [600] + list(range(101, 1001)), list(range(1, 1001)), {"bad_sequence": 1}),
+    (R + [600] + list(range(102, 200)), R + list(range(102, 200)),
+     {"bad_sequence": 1, "lost_packets": 1}),
+    ([900, 2, 3, 4], [2, 3, 4], {"bad_sequence": 1, "lost_packets": 1}),
+    (R + [1_024, 1_025] + list(range(101, 111)), list(range(1, 111)), {"bad_sequence": 2}),
+    (R + [500_000, 500_001] + list(range(101, 111)), list(range(1, 111)), {"bad_sequence": 2}),
 ])
 def test_records_are_judged_one_by_one(seqs, stored, counts):
     assert offer_all(seqs) == ([q % WRAP for q in stored], counts)
@@ -311,12 +333,12 @@ def test_a_record_held_at_a_restart_is_counted_corrupt_and_the_new_stream_starts
 
 def test_numbers_remembered_for_late_records_stay_bounded():
     tracker = RdtSequence(NetFTStats())
-    offer_all(list(range(1, 200_000, 2)), tracker)
+    offer_all(list(range(1, 200_000, 2)) + [200_000, 200_001], tracker)
     assert tracker.stats.lost_packets == 99_999
     assert len(tracker._missing) <= 2 * SEQUENCE_WINDOW + 1
-    stored, counts = offer_all([199_996, 199_996, 150_000, 200_001], tracker)
-    assert stored == [200_001] and counts == {"lost_packets": 100_000, "out_of_order": 1,
-                                              "duplicates": 1, "bad_sequence": 1}
+    stored, counts = offer_all([199_996, 199_996, 150_000, 200_002, 200_003], tracker)
+    assert stored == [200_002, 200_003] and counts == {
+        "lost_packets": 99_999, "out_of_order": 1, "duplicates": 1, "bad_sequence": 1}
 
 
 @st.composite
@@ -339,6 +361,8 @@ def streams(draw) -> tuple[list[int], list[int], dict[str, int]]:
         sent.append(seq)
         stored.append(seq)
         seq += 1
+    sent += [seq, seq + 1]  # two more: whatever is held is judged
+    stored += [seq, seq + 1]
     return [q % WRAP for q in sent], [q % WRAP for q in stored], counts
 
 
@@ -364,7 +388,8 @@ def test_gaps_and_lone_corrupt_records_in_any_batching(stream, chunks):
 
 def state(tracker: RdtSequence) -> tuple:
     """Everything a tracker knows, copied."""
-    return tracker.last, tracker._held, set(tracker._missing), dataclasses.replace(tracker.stats)
+    return (tracker.last, [list(run) for run in tracker._held], list(tracker._passed),
+            set(tracker._missing), dataclasses.replace(tracker.stats))
 
 
 @settings(max_examples=300, deadline=None, derandomize=True)

@@ -1,6 +1,7 @@
-"""Vehicle artefacts: the C header compiles and agrees with cal.command(), ROS 2 parameters
-load as YAML, and the Gazebo thrust coefficient reproduces C_p (issue: artefacts a vehicle
-team drops in)."""
+"""Vehicle artefacts: the C header compiles and agrees with cal.command() (values and status),
+ROS 2 parameters load as YAML, the Gazebo thrust coefficient reproduces C_p, and an export
+writes every file or none (issues: artefacts a vehicle team drops in; calibrations that load
+where vehicles run them)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import yaml
 
 import rigtool
 from rigtool import cli
-from rigtool.artefacts import vehicle
+from rigtool.artefacts.formats import FORMATS
 from rigtool.cli import main
 
 CC = shutil.which("cc") or shutil.which("gcc")
@@ -30,6 +31,8 @@ timing:
   acquire: {{samples: 300, rate_hz: 1000}}
   tare: at_start
 """
+BASIC = ("c-header", "ros2", "gazebo", "csv-lut")
+NAMES = ("--joint", "prop_joint", "--namespace", "thruster_1")
 RIGS = {"esc": dict(profile="esc-1100-1900", unit="pulse_us", lo=1100, hi=1900, step=20),
         "can": dict(profile="can-bldc", unit="percent", lo=-100, hi=100, step=5)}
 
@@ -40,36 +43,41 @@ def exported(request, tmp_path_factory):
     (tmp / "p.yaml").write_text(PROTOCOL.format(**RIGS[request.param]))
     db, out = str(tmp / "db.sqlite"), tmp / "cal"
     assert main(["sweep", str(tmp / "p.yaml"), "--sim", "--db", db]) == 0
-    formats = [a for f in vehicle.FORMATS for a in ("--export", f)]
-    assert main(["calibrate", "last", "--db", db, "--out", str(out), *formats]) == 0
+    formats = [a for f in BASIC for a in ("--export", f)]
+    assert main(["calibrate", "last", "--db", db, "--out", str(out), *formats, *NAMES]) == 0
     folder = next(out.iterdir())
     return tmp, db, folder, rigtool.load_calibration(folder)
 
 
 def test_cli_and_module_agree_on_the_formats():
-    assert tuple(cli.VEHICLE_FORMATS) == tuple(vehicle.FORMATS)
+    assert tuple(cli.VEHICLE_FORMATS) == tuple(FORMATS)
 
 
 @pytest.mark.skipif(CC is None, reason="no C compiler on this machine")
 def test_c_header_compiles_and_matches_cal_command(exported):
     tmp, _, folder, cal = exported
-    header = folder / vehicle.FORMATS["c-header"]
+    header = folder / FORMATS["c-header"]
     assert "units: thrust N" in header.read_text() and cal.run_id in header.read_text()
-    probe = np.linspace(-60.0, 60.0, 2401)
+    probe = np.concatenate([np.linspace(-60.0, 60.0, 2401),
+                            [np.inf, -np.inf, 1e308, -1e308, 1e19, -0.0, 5e-324, -5e-324]])
     (tmp / "probe.txt").write_text("\n".join(repr(float(f)) for f in probe) + "\n")
     (tmp / "main.c").write_text(f'''#include <stdio.h>
 #include "{header}"
 int main(void) {{
+    int s;
     for (int i = 0; i < RIGTOOL_N_TEST; ++i) {{
-        double c = rigtool_command_for_thrust(rigtool_test_thrust[i]);
+        double c = rigtool_command_for_thrust_status(rigtool_test_thrust[i], &s);
         double want = rigtool_test_command[i];
-        if (!(fabs(c - want) <= 1e-9 * (1.0 + fabs(want)) || (isnan(c) && isnan(want)))) {{
+        if (!(fabs(c - want) <= 1e-9 * (1.0 + fabs(want))) || s != rigtool_test_status[i]) {{
             printf("test %d\\n", i);
             return 1;
         }}
     }}
     double f;
-    while (scanf("%lf", &f) == 1) printf("%.17g\\n", rigtool_command_for_thrust(f));
+    while (scanf("%lf", &f) == 1) {{
+        double c = rigtool_command_for_thrust_status(f, &s);
+        printf("%.17g %d %.17g\\n", c, s, rigtool_command_for_thrust_strict(f));
+    }}
     return 0;
 }}
 ''')
@@ -78,17 +86,23 @@ int main(void) {{
                     str(exe), "-lm"], check=True)
     run = subprocess.run([str(exe)], input=(tmp / "probe.txt").read_text(), text=True,
                          capture_output=True, check=True)
-    got = np.array([float(x) for x in run.stdout.split()])
+    got, status, strict = np.array([[float(x) for x in line.split()]
+                                    for line in run.stdout.splitlines()]).T
     want = cal.command(probe)
-    assert np.array_equal(np.isnan(got), np.isnan(want))
-    span = np.nanmax(want) - np.nanmin(want)
-    ok = np.isfinite(want)
-    assert ok.sum() > 1000 and np.max(np.abs(got[ok] - want[ok])) <= 1e-6 * span
+    assert np.isfinite(want).all() and np.isfinite(got).all()
+    span = want.max() - want.min()
+    assert np.max(np.abs(got - want)) <= 1e-6 * span
+    names = {0: "ok", 1: "clamped", 2: "below_min", 3: "nan", 4: "gap"}
+    assert [names[int(v)] for v in status] == list(cal.command_status(probe))
+    want_strict = cal.command(probe, strict=True)
+    assert np.array_equal(np.isnan(strict), np.isnan(want_strict))
+    ok = np.isfinite(want_strict)
+    assert ok.sum() > 1000 and np.max(np.abs(strict[ok] - want_strict[ok])) <= 1e-6 * span
 
 
 def test_ros2_parameters_load_and_hold_the_map(exported):
     _, _, folder, cal = exported
-    doc = yaml.safe_load((folder / vehicle.FORMATS["ros2"]).read_text())
+    doc = yaml.safe_load((folder / FORMATS["ros2"]).read_text())
     p = doc["/**"]["ros__parameters"]["rigtool"]
     assert p["source_run"] == cal.run_id and p["command_unit"] == cal.command_unit
     assert p["neutral_command"] == cal.neutral and p["thruster_id"] == "stern-1"
@@ -96,12 +110,12 @@ def test_ros2_parameters_load_and_hold_the_map(exported):
     assert f.size > 3 and np.all(np.diff(f) > 0)
     np.testing.assert_allclose(cal.command(f), c, rtol=1e-7)
     assert p["thrust_coefficient_forward"] == pytest.approx(cal.coefficients["C_p_fwd"].value)
-    assert len(p["dead_band"]) % 2 == 0
+    assert len(p.get("dead_band", [])) == 2 * p["n_dead_zones"]
 
 
 def test_gazebo_coefficient_reproduces_c_p(exported):
     _, _, folder, cal = exported
-    text = (folder / vehicle.FORMATS["gazebo"]).read_text()
+    text = (folder / FORMATS["gazebo"]).read_text()
     c_t = float(text.split("<thrust_coefficient>")[1].split("<")[0])
     n_rpm = 1500.0
     omega = n_rpm * 2 * math.pi / 60
@@ -114,8 +128,8 @@ def test_export_cal_from_the_stored_calibration_and_clear_errors(exported, capsy
     tmp, db, folder, cal = exported
     assert main(["export-cal", "last", "--format", "ros2", "--db", db,
                  "--out", str(tmp / "again")]) == 0
-    assert (tmp / "again" / cal.run_id / vehicle.FORMATS["ros2"]).read_text().split("\n", 3)[3] \
-        == (folder / vehicle.FORMATS["ros2"]).read_text().split("\n", 3)[3]
+    assert (tmp / "again" / cal.run_id / FORMATS["ros2"]).read_text().split("\n", 3)[3] \
+        == (folder / FORMATS["ros2"]).read_text().split("\n", 3)[3]
     (tmp / "bare.yaml").write_text((tmp / "p.yaml").read_text().replace(
         "metadata: {thruster_id: stern-1, propeller_diameter_m: 0.1, water_density_kg_m3: 1000}",
         "metadata: {thruster_id: stern-2}"))
@@ -125,9 +139,12 @@ def test_export_cal_from_the_stored_calibration_and_clear_errors(exported, capsy
     assert "has not been calibrated" in capsys.readouterr().err
     assert main(["calibrate", "last", "--db", db, "--out", str(tmp / "bare")]) == 0
     capsys.readouterr()
-    assert main(["export-cal", "last", "--format", "gazebo", "--db", db,
-                 "--out", str(tmp / "bare")]) == 2
-    assert "propeller diameter and water density" in capsys.readouterr().err
+    before = sorted(p.name for p in (tmp / "bare").rglob("*"))
+    assert main(["export-cal", "last", "--format", "c-header", "--format", "csv-lut",
+                 "--format", "gazebo", "--db", db, "--out", str(tmp / "bare")]) == 2
+    err = capsys.readouterr().err
+    assert "nothing exported" in err and "propeller_diameter_m" in err and "--joint" in err
+    assert sorted(p.name for p in (tmp / "bare").rglob("*")) == before
 
 
 STEPS = {"esc": "[1500, 1700, 1500, 1300, 1500]", "can": "[0, 60, 0, -60, 0]"}
@@ -153,9 +170,9 @@ def test_time_constants_come_from_a_step_run_of_the_same_thruster(exported, caps
     out = tmp / "with-dynamics"
     args = ["export-cal", cal.run_id, "--dynamics", step_cal.run_id, "--db", db, "--out",
             str(out)]
-    assert main([*args, *(a for f in vehicle.FORMATS for a in ("--format", f))]) == 0
+    assert main([*args, *(a for f in BASIC for a in ("--format", f)), *NAMES]) == 0
     folder = out / cal.run_id
-    p = yaml.safe_load((folder / vehicle.FORMATS["ros2"]).read_text())["/**"][
+    p = yaml.safe_load((folder / FORMATS["ros2"]).read_text())["/**"][
         "ros__parameters"]["rigtool"]
     assert p["dynamics_source_run"] == step_cal.run_id
     assert p["dynamics_model"] == step_cal.dynamics.selected == "two-state"
@@ -164,12 +181,12 @@ def test_time_constants_come_from_a_step_run_of_the_same_thruster(exported, caps
     assert p["inflow_gain"] == pytest.approx(dyn["g"].value, rel=1e-9)
     assert p["command_delay_s"] == pytest.approx(dyn["delay"].value, rel=1e-9)
     assert p["time_constant_s"] == pytest.approx(0.2, rel=0.05)
-    sdf = (folder / vehicle.FORMATS["gazebo"]).read_text()
+    sdf = (folder / FORMATS["gazebo"]).read_text()
     tau = float(sdf.split("<rigtool_time_constant_s>")[1].split("<")[0])
     assert tau == pytest.approx(dyn["tau_n"].value, rel=1e-8)
     assert float(sdf.split("<max_thrust_cmd>")[1].split("<")[0]) > 0
     assert float(sdf.split("<min_thrust_cmd>")[1].split("<")[0]) < 0
-    header = folder / vehicle.FORMATS["c-header"]
+    header = folder / FORMATS["c-header"]
     assert "_RIGTOOL_" not in header.read_text()
     assert "m follows s with RIGTOOL_TAU_A_S" in header.read_text()
     if CC is not None:
@@ -189,7 +206,7 @@ int main(void) {{
         np.testing.assert_allclose([float(x) for x in got[1:]],
                                    [dyn[k].value for k in ("tau_n", "tau_a", "g", "delay")],
                                    rtol=1e-9)
-    no_dyn = yaml.safe_load((steady / vehicle.FORMATS["ros2"]).read_text())["/**"][
+    no_dyn = yaml.safe_load((steady / FORMATS["ros2"]).read_text())["/**"][
         "ros__parameters"]["rigtool"]
     assert no_dyn["dynamics_model"] == "none" and "time_constant_s" not in no_dyn
     capsys.readouterr()

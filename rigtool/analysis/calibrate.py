@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -11,7 +12,15 @@ import rigtool
 from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
 from rigtool.analysis.dynamics import Dynamics, StepSeries, identify, no_dynamics_reason
-from rigtool.analysis.fits import SECONDS_PER_HOUR, Z95, Coefficient, ZeroLine
+from rigtool.analysis.fits import (
+    SECONDS_PER_HOUR,
+    Z95,
+    Coefficient,
+    ZeroLine,
+    occupied_starts,
+    session_index,
+    session_line,
+)
 from rigtool.analysis.models import (
     FitParams,
     ModelFits,
@@ -160,7 +169,7 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
     p = params or CalibrationParams()
     windows = steady_windows(run.samples, p.settling)
     table = windows.point_table(run.steps, run.samples)
-    drift = tare_drift(run.tares.t_s, run.tares.thrust_bias_n)
+    drift = run_tare_drift(run.tares, run.session_starts_s)
     warnings = _run_warnings(run, table, drift, p)
     sections = []
     for rows in _groups(run.steps):
@@ -273,20 +282,21 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
             neutral_command=run.neutral_command, zero=zero,
             zero_scatter_n=drift.zero_scatter_n if drift else None,
             speed_se=points.speed.se[ok], params=p.curve, tare_t_s=run.tares.t_s,
-            tare_drift=_drift_per_s(drift))
+            tare_drift=_drift_per_s(drift, _tare_sessions(run)),
+            sessions=run.session_starts_s)
 
     if shallow:
         # Points near the surface may be ventilating: the zero comes from dead points or tares.
         curve = make_curve(None)
         fixed_zero = (curve.zero if curve is not None and curve.zero is not None
-                      else tare_zero(run.tares, drift, points.t_mid_s))
+                      else tare_zero(run.tares, drift, points.t_mid_s, run.session_starts_s))
         if curve is not None and curve.zero is None:
             curve = make_curve(fixed_zero)
 
     def fit() -> ModelFits:
         return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
                           density_kg_m3=run.water_density_kg_m3, params=p.fit, zero=fixed_zero,
-                          direction=direction)
+                          direction=direction, sessions=run.session_starts_s)
 
     models = fit()
     if not shallow:
@@ -327,20 +337,24 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
                         models.speed_sign)
 
 
-def _drift_per_s(drift: TareDrift | None) -> tuple[float, float] | None:
-    """The tares' drift and its standard error in N/s (None without an interval: < 3 tares)."""
+def _drift_per_s(drift: TareDrift | None, sessions: int = 1) -> tuple[float, float] | None:
+    """The tares' drift and its standard error in N/s (None without an interval: < 3 tares);
+    `sessions`: how many sessions the tares fall in (one offset each)."""
     if drift is None or not math.isfinite(drift.slope.lo):
         return None
     from scipy import special
 
-    t = special.stdtrit(max(drift.slope.n - 2, 1), 0.975)
+    t = special.stdtrit(max(drift.slope.n - sessions - 1, 1), 0.975)
     se = (drift.slope.hi - drift.slope.lo) / (2 * t)
     return drift.slope.value / SECONDS_PER_HOUR, se / SECONDS_PER_HOUR
 
 
-def tare_zero(tares: Tares, drift: TareDrift | None, t_s: np.ndarray) -> ZeroLine:
+def tare_zero(tares: Tares, drift: TareDrift | None, t_s: np.ndarray,
+              sessions: tuple[float, ...] = ()) -> ZeroLine:
     """The zero the tares give: 0 at the last tare before the points, drifting at the rate
-    the tare biases show (0 with fewer than two tares). Used where points may ventilate."""
+    the tare biases show (0 with fewer than two tares). Used where points may ventilate.
+    In a resumed run (`sessions`) each session's zero is 0 at its own tare (a session
+    without one continues the line of the session before)."""
     first = float(np.nanmin(t_s)) if np.isfinite(t_s).any() else 0.0
     before = tares.t_s[tares.t_s <= first]
     if not tares.t_s.size:
@@ -348,7 +362,78 @@ def tare_zero(tares: Tares, drift: TareDrift | None, t_s: np.ndarray) -> ZeroLin
     t0 = float(before.max()) if before.size else float(tares.t_s.min())
     slope = drift.slope.value / SECONDS_PER_HOUR if drift is not None else 0.0
     var = drift.zero_scatter_n**2 if drift is not None else 0.0
-    return ZeroLine(0.0, slope, t0, "tares", ((var, 0.0), (0.0, 0.0)))
+    starts = occupied_starts(t_s[np.isfinite(t_s)], sessions)
+    if not starts:
+        return ZeroLine(0.0, slope, t0, "tares", ((var, 0.0), (0.0, 0.0)))
+    offsets = [0.0]
+    for start in starts:
+        mine = t_s[session_index(t_s, starts) == starts.index(start) + 1]
+        own = tares.t_s[(tares.t_s > start) & (tares.t_s <= np.nanmin(mine))]
+        offsets.append(-slope * (float(own.max()) - t0) if own.size else offsets[-1])
+    cov = np.diag([var] * len(offsets) + [0.0])
+    return session_line(np.array(offsets), slope, t0, "tares", cov, starts)
+
+
+def _tare_sessions(run: RunData) -> int:
+    """How many sessions of a resumed run hold tares (1 for a run never resumed)."""
+    t = run.tares.t_s[np.isfinite(run.tares.t_s)]
+    return max(int(np.unique(session_index(t, run.session_starts_s)).size), 1)
+
+
+def run_tare_drift(tares: Tares, sessions: tuple[float, ...] = ()) -> TareDrift | None:
+    """The tares' drift; in a resumed run, from the tares within each session (the sensor is
+    opened and tared again at a resume: the bias may start over), one rate for all. Without
+    a session of two tares, the trend across the sessions is kept to show, with no interval
+    (so it neither warns nor bounds the zero's drift)."""
+    ok = np.isfinite(tares.t_s)
+    k = session_index(tares.t_s[ok], sessions)
+    plain = tare_drift(tares.t_s, tares.thrust_bias_n)
+    if tares.thrust_bias_n is None or np.unique(k).size < 2:
+        return plain
+    within = _session_tare_drift(tares.t_s[ok], tares.thrust_bias_n[ok], k)
+    if within is not None or plain is None:
+        return within
+    return dataclasses.replace(plain, slope=dataclasses.replace(
+        plain.slope, lo=NAN, hi=NAN, r2=NAN,
+        note=plain.slope.note + "; across the sessions of a resumed run (no interval)"))
+
+
+def _session_tare_drift(t_s: np.ndarray, bias: np.ndarray, session: np.ndarray
+                        ) -> TareDrift | None:
+    """Linear trend (N/h, 95 % interval) of the tare bias with an offset per session (None
+    without a session of two tares at different times)."""
+    from scipy import special
+
+    ok = np.isfinite(bias)
+    order = np.argsort(t_s[ok], kind="stable")
+    t, b, k = t_s[ok][order], bias[ok][order], session[ok][order]
+    hours = (t - t[0]) / SECONDS_PER_HOUR if t.size else t
+    groups, inv = np.unique(k, return_inverse=True)
+    count = np.bincount(inv)
+    mean_h, mean_b = (np.bincount(inv, weights=v) / count for v in (hours, b))
+    dx, dy = hours - mean_h[inv], b - mean_b[inv]
+    sxx = float(dx @ dx)
+    if not sxx > 0:
+        return None
+    rate = float(dx @ dy) / sxx
+    resid = dy - rate * dx
+    dof = t.size - groups.size - 1
+    lo = hi = r2 = NAN
+    if dof > 0:
+        hw = special.stdtrit(dof, 0.975) * math.sqrt(float(resid @ resid) / dof / sxx)
+        lo, hi = rate - hw, rate + hw
+        syy = float(dy @ dy)
+        r2 = 1.0 - float(resid @ resid) / syy if syy > 0 else NAN
+    slope = Coefficient("tare_drift", rate, float(lo), float(hi), "N/h", int(t.size), float(r2),
+                        float(np.sqrt(np.mean(resid**2))), "N",
+                        f"thrust-channel tare bias vs time, linear trend; an offset for each "
+                        f"of {groups.size} sessions (run resumed)")
+    offset = mean_b - rate * mean_h
+    aligned = b - offset[inv] + offset[0]
+    same = k[1:] == k[:-1]
+    steps = np.diff(aligned)[same]
+    scatter = float(np.sqrt(np.mean(steps**2))) if steps.size else 0.0
+    return TareDrift(t, aligned - aligned[0], slope, scatter)
 
 
 def _run_warnings(run: RunData, table: PointTable, drift: TareDrift | None,

@@ -186,13 +186,15 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
                   neutral_command: float, zero: ZeroLine | None = None,
                   zero_scatter_n: float | None = None, speed_se: np.ndarray | None = None,
                   params: CurveParams | None = None, tare_t_s: np.ndarray | None = None,
-                  tare_drift: tuple[float, float] | None = None) -> CommandCurve:
+                  tare_drift: tuple[float, float] | None = None,
+                  sessions: tuple[float, ...] = ()) -> CommandCurve:
     """Analyse thrust vs command of one depth's points (one entry per point, any order).
 
     Thrust is taken relative to `zero` (offset + drift of the sensor zero at each point's
     time t_s); without one, the zero and the dead points are found together (zero_search.py),
     anchored at the tares (`tare_t_s`, where the zero is 0; `tare_drift` (N/s, SE) when the
-    tares show it) or at the neutral command. Where the propeller speed is measured (signed,
+    tares show it) or at the neutral command; a resumed run's sessions (`sessions`: the times
+    the later ones begin) each get their own zero offset, with one drift. Where the propeller speed is measured (signed,
     `speed_se` its standard errors), a command is dead when the propeller does not turn, and
     branches follow the direction it turns: near a deadband the thrust is too small to tell
     either. Live commands beside a dead zone that a drift could equally make dead are counted
@@ -202,7 +204,7 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
     floor = max(p.floor_n, p.k_tare * zero_scatter_n if zero_scatter_n else 0.0)
     ok = np.isfinite(thrust_mean) & np.isfinite(t_s)
     pts = ZeroPoints(command[ok], t_s[ok], thrust_mean[ok], np.nan_to_num(thrust_se[ok]))
-    anchors = section_anchors(tare_t_s, t_s, tare_drift)
+    anchors = section_anchors(tare_t_s, t_s, tare_drift, sessions)
     hint = _not_turning(speed_mean[ok], None if speed_se is None else speed_se[ok], p)
     line = zero or _find_zero(pts, anchors, hint, neutral_command, floor, p)
     z = line.at(t_s) if line else np.zeros(command.size)
@@ -262,7 +264,7 @@ def _find_zero(pts: ZeroPoints, anchors: Anchors, hint: np.ndarray | None, neutr
     """The zero from the joint search, or, with nothing to anchor it (no tare, no neutral
     command, no feedback), iterated from a zero of 0 over the dead points."""
     if hint is None and anchors.empty and not (pts.command == neutral).any():
-        return _zero_from_dead_points(pts, floor, p)
+        return _zero_from_dead_points(pts, floor, p, anchors)
     return search_zero(pts, anchors, neutral, floor, p.k_se, hint)
 
 
@@ -291,13 +293,15 @@ def _imitation_text(f: Imitation, cmd: np.ndarray, unit: str) -> str:
             "tell)")
 
 
-def _zero_from_dead_points(pts: ZeroPoints, floor: float, p: CurveParams) -> ZeroLine | None:
+def _zero_from_dead_points(pts: ZeroPoints, floor: float, p: CurveParams,
+                           anchors: Anchors = NO_ANCHORS) -> ZeroLine | None:
     """Sensor zero (offset + linear drift in time) read from every dead zone, iterated from 0.
 
     Each pass finds the dead commands relative to the current zero line, allowing for the
     line's own uncertainty at each point's time, then fits the line through all their points
     (weighted, serially correlated errors, gross outliers such as a zone's live edge dropped).
-    Used only when nothing anchors the zero: no tare, no feedback, neutral command not swept.
+    Used only when nothing anchors the zero: no tare, no feedback, neutral command not swept
+    (`anchors` then holds no tare, only a resumed run's sessions).
     """
     line = None
     previous = None
@@ -315,7 +319,7 @@ def _zero_from_dead_points(pts: ZeroPoints, floor: float, p: CurveParams) -> Zer
         if not keep.any() or (previous is not None and np.array_equal(keep, previous)):
             break
         previous = keep
-        line = fit_zero_line(pts.take(keep), NO_ANCHORS)
+        line = fit_zero_line(pts.take(keep), anchors)
     return line
 
 

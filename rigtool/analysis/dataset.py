@@ -100,6 +100,9 @@ class RunData:
     tares: Tares
     events: list[dict] = field(default_factory=list)
     step_response: bool = False  # a `command.steps` run: levels follow each other
+    # Times (s) at which the run was resumed (`rigtool sweep --resume`): each begins a new
+    # session, in which the sensor is opened and tared again (its zero offset starts over).
+    session_starts_s: tuple[float, ...] = ()
 
 
 def load_run(store: Store, run_id: str) -> RunData:
@@ -136,7 +139,16 @@ def _load_run(store: Store, run_id: str) -> RunData:
         tares=tares,
         events=[e for e in events if e["kind"] != "tare"],
         step_response=bool((record.protocol.get("command") or {}).get("steps")),
+        session_starts_s=session_starts(events),
     )
+
+
+def session_starts(events: list[dict]) -> tuple[float, ...]:
+    """The times of a run's resumes (the `resumed` events `rigtool sweep --resume` stores,
+    not the engine's retry after a limit trip), in order, each once."""
+    times = {float(e["t_s"]) for e in events if e["kind"] == "resumed"
+             and "from_idx" in (e.get("detail") or {}) and e.get("t_s") is not None}
+    return tuple(sorted(t for t in times if np.isfinite(t)))
 
 
 def _steps(rows: list[dict]) -> Steps:

@@ -3,7 +3,9 @@
 Speed is a state x in forward thrust units (x|x| is the forward thrust; thrust = rho x|x|
 below zero, rho = C_p_rev / C_p_fwd, fitted when a step passes through zero). The candidates
 (rigtool/analysis/dynamics_response.py): one-state (linear lag, tau_n), two-state (Healey-type
-axial inflow: tau_n, tau_a, gain g) and yoerger (Yoerger 1990: x' = alpha (X|X| - x|x|)).
+axial inflow: tau_n, tau_a, gain g), yoerger (Yoerger 1990: x' = alpha (X|X| - x|x|)), the
+Healey models when none of those fits, and rise-fall (the lag with tau_rise while |x| grows,
+tau_fall while it shrinks).
 The command acts `delay` seconds after it is sent. Each is fitted by least squares over every
 sample (rigtool/analysis/dynamics_fit.py) with each command's steady thrust and the sensor
 zero as nuisance parameters.
@@ -21,6 +23,12 @@ adequacy fails, when the time constant's 95 % interval includes zero, or when th
 better than a constant thrust (BIC). A run that cannot be fitted at all (fewer than two levels,
 no step, time running backwards) gives None from `identify` and its reason from
 `no_dynamics_reason`.
+
+Consumers that take only a simpler model (a first-order lag, with or without separate rise and
+fall constants; Yoerger's law: uuv_simulator, Stonefish) get the one-state time constant, the
+rise-fall and the Yoerger fits whatever is selected; `consumer_models` gives each as it is
+exported, and each one's RMS deviation from the selected model over the run
+(`Dynamics.consumer_error_n`) is its adequacy: within CONSUMER_LIMIT of full scale.
 
 Intervals: the heteroscedasticity-consistent sandwich (thrust noise grows with thrust), inflated
 for serially correlated residuals (AR(1)).
@@ -47,6 +55,9 @@ from rigtool.analysis.fits import Coefficient
 Z95 = 1.959963984540054
 BIC_MARGIN = 10.0
 MIN_GAIN = 0.01
+MIN_RISE_FALL = 0.05  # rise and fall constants closer than this fraction: one time constant
+CONSUMER_LIMIT = 0.02  # a consumer's simpler model within this fraction of full scale: adequate
+CONSUMERS = ("first-order", "rise-fall", "yoerger")
 TAIL_FRAC = 0.3  # last part of each hold taken as its steady level (starting values, metrics)
 MIN_STEP_FRAC = 0.05  # steps smaller than this fraction of full scale get no timing metrics
 BAND = 0.05  # settling band, fraction of the step
@@ -60,12 +71,14 @@ Z_SHIFT = 3.29  # ... and by this many standard errors (99.9 %)
 SHIFT_ITER = 30  # iterations of those fits (started from the fit to every sample)
 HEALEY_TRIGGER = 0.005  # Healey's inflow is tried when no closed-form model fits this well
 NOTES = {"tau_n": ("s", "time constant of propeller speed"),
+         "tau_fall": ("s", "time constant of propeller speed while |speed| shrinks (spin-down)"),
          "delay": ("s", "command-to-thrust dead time (sensor-to-command delay)"),
          "tau_a": ("s", "time constant of the axial inflow"),
          "g": ("1", "inflow gain: thrust overshoot per unit of x|x| - m|m|"),
          "alpha": ("1/(sqrt(N) s)", "Yoerger damping: x' = alpha (X|X| - x|x|)"),
          "rho": ("1", "C_p_rev / C_p_fwd seen in the transients"),
          "beta": ("1/(sqrt(N) s)", "Healey inflow: m' = beta (x|x| - m|m|)")}
+ANTICAUSAL_TAU_FRAC = 0.25  # thrust leading its command by more (x tau_n, or 2 samples): no dynamics
 
 
 @dataclass(frozen=True)
@@ -105,6 +118,8 @@ class DynamicsModel:
     levels: dict[float, float] | None = None  # this model's own level fit (command -> N)
     zero_n: float = math.nan
     inflow_beta: Coefficient | None = None  # healey, healey-lag
+    tau_fall_s: Coefficient | None = None  # rise-fall (its tau_n_s is the rise constant)
+    fall_minus_rise: Coefficient | None = None  # rise-fall: tau_fall - tau_rise
 
     def model_params(self) -> ModelParams:
         """The parameters `thrust_response` takes."""
@@ -116,7 +131,13 @@ class DynamicsModel:
             tau_a=self.tau_a_s.value if self.tau_a_s else 1.0,
             gain=self.gain.value if self.gain else 0.0,
             rho=self.reverse_ratio.value if self.reverse_ratio else 1.0,
-            beta=self.inflow_beta.value if self.inflow_beta else 1.0)
+            beta=self.inflow_beta.value if self.inflow_beta else 1.0,
+            tau_fall=self.tau_fall_s.value if self.tau_fall_s else 1.0)
+
+    def rise_fall_differ(self) -> bool:
+        """Whether the rise and fall constants differ with 95 % confidence."""
+        d = self.fall_minus_rise
+        return d is not None and (d.lo > 0 or d.hi < 0)
 
     def params(self) -> tuple[float, float, float, float]:
         """(tau_n, tau_a, g, delay) of the linear models."""
@@ -152,6 +173,18 @@ class StepMetrics:
             return f"> {self.window_s:.1f} s (not settled in the window)"
         return "not settled in the window"
 
+    def measured_text(self, value: float, scale: float = 1.0, digits: int = 3) -> str:
+        """A timing measured against the end of the hold (rise, overshoot): as a number when
+        the step settled, else "not measured (not settled)": its end level is not the step's."""
+        if not self.settled:
+            return "not measured (not settled)"
+        return "" if not math.isfinite(value) else f"{scale * value:.{digits}g}"
+
+    def end_text(self) -> str:
+        """The thrust at the end of the hold, marked when it is not a settled level."""
+        text = f"{self.thrust_to_n:.3g}"
+        return text if self.settled else f"{text} (still moving)"
+
 
 @dataclass
 class Dynamics:
@@ -170,6 +203,8 @@ class Dynamics:
     full_scale_n: float = math.nan  # the adequacy's reference
     healey_lag: DynamicsModel | None = None
     healey: DynamicsModel | None = None
+    rise_fall: DynamicsModel | None = None
+    consumer_error_n: dict[str, float] = field(default_factory=dict)  # see consumer_models
 
     @property
     def model(self) -> DynamicsModel:
@@ -179,7 +214,7 @@ class Dynamics:
     def slots(self) -> list[tuple[str, DynamicsModel | None]]:
         """(candidate name, its model or None) for every candidate."""
         return list(zip(KINDS, (self.one_state, self.two_state, self.yoerger, self.healey_lag,
-                                self.healey), strict=True))
+                                self.healey, self.rise_fall), strict=True))
 
     @property
     def candidates(self) -> list[DynamicsModel]:
@@ -235,7 +270,8 @@ def simulate_document(doc: dict, t_s: np.ndarray, command: np.ndarray,
     kind = doc["selected"] if doc["selected"] in KINDS else "two-state"
     p = ModelParams(kind, tau_n=value("tau_n", 1.0), alpha=value("alpha", 1.0),
                     tau_a=value("tau_a", 1.0), gain=value("g", 0.0), delay=value("delay", 0.0),
-                    rho=value("rho", 1.0), beta=value("beta", 1.0))
+                    rho=value("rho", 1.0), beta=value("beta", 1.0),
+                    tau_fall=value("tau_fall", 1.0))
     if steady_thrust is None:
         steady_thrust = _level_map(doc["levels"], float(p.rho))
     t = np.asarray(t_s, dtype=float)
@@ -330,6 +366,7 @@ class _Run:
     both_signs: bool  # levels of both thrust directions
     transient: np.ndarray  # sample in the first 1 - TAIL_FRAC of its hold
     fold: np.ndarray  # held-out fold of each sample (0 or 1)
+    direction_fold: np.ndarray  # the same, alternating within steps up, down, through zero
 
 
 def identify(series: StepSeries, full_scale_n: float | None = None) -> Dynamics | None:
@@ -349,12 +386,78 @@ def identify(series: StepSeries, full_scale_n: float | None = None) -> Dynamics 
     _set_criteria(models, run)
     selected = _select(models)
     best = models[selected]
-    steps = _step_metrics(clean, run.level, run.tails - run.zero, run.zero, run.scale)
+    steps = _step_metrics(clean, run.level, run.tails - run.zero, run.zero, run.scale,
+                          dict(zip(run.commands.tolist(), run.start_levels.tolist(), strict=True)))
     dyn = Dynamics(models["one-state"], models.get("two-state"), selected, steps,
                    dict(best.levels or {}), best.zero_n, list(notes), models.get("yoerger"),
                    full_scale_n=run.scale, healey_lag=models.get("healey-lag"),
-                   healey=models.get("healey"))
+                   healey=models.get("healey"), rise_fall=models.get("rise-fall"))
+    dyn.consumer_error_n = _consumer_errors(dyn, clean)
     return _judge(dyn, run, *fits[selected][1:])
+
+
+# ----- what consumers with a simpler model get ------------------------------------------------
+
+
+def selected_tau(dyn: Dynamics) -> Coefficient:
+    """The selected model's speed time constant (time_constant_s): its tau_n (a Yoerger
+    model's local one at the largest level), the one-state fit's when rise-fall is selected."""
+    return (dyn.one_state if dyn.selected == "rise-fall" else dyn.model).tau_n_s
+
+
+def first_order_tau(dyn: Dynamics) -> Coefficient:
+    """The single time constant a first-order consumer gets: the one-state fit's, the best
+    single lag for the thrust whatever is selected (the selected model's tau_n leaves out its
+    inflow or quadratic law)."""
+    return dyn.one_state.tau_n_s
+
+
+def exported_yoerger(dyn: Dynamics) -> DynamicsModel | None:
+    """The model whose alpha is exported as Yoerger's: the selected one when its speed follows
+    Yoerger's law (yoerger, healey), else the yoerger candidate (None: not fitted)."""
+    return dyn.model if dyn.selected in QUADRATIC_SPEED else dyn.yoerger
+
+
+def consumer_models(dyn: Dynamics) -> dict[str, ModelParams | None]:
+    """Each simpler model as it is exported (None: not fitted), with the selected model's
+    command delay: first-order (the single time constant), rise-fall, yoerger."""
+    m = dyn.model
+    delay = m.delay_s.value
+    rho = m.reverse_ratio.value if m.reverse_ratio else 1.0
+    rf, yo = dyn.rise_fall, exported_yoerger(dyn)
+    return {
+        "first-order": ModelParams("one-state", tau_n=first_order_tau(dyn).value, delay=delay,
+                                   rho=rho),
+        "rise-fall": None if rf is None or rf.tau_fall_s is None else ModelParams(
+            "rise-fall", tau_n=rf.tau_n_s.value, tau_fall=rf.tau_fall_s.value, delay=delay,
+            rho=rho),
+        "yoerger": None if yo is None or yo.alpha is None else ModelParams(
+            "yoerger", alpha=yo.alpha.value, delay=delay,
+            rho=yo.reverse_ratio.value if yo.reverse_ratio else 1.0)}
+
+
+def _consumer_errors(dyn: Dynamics, series: StepSeries) -> dict[str, float]:
+    """RMS difference (N) over the run between each simpler model and the selected one, both
+    driven by the selected model's levels (NaN: not fitted)."""
+    levels = dyn.model.levels if dyn.model.levels is not None else dyn.levels
+    f = np.array([levels.get(float(c), 0.0) for c in series.command])
+    selected = thrust_response(series.t_s, series.switch_s, f, dyn.model.model_params())
+    out = {}
+    for name, p in consumer_models(dyn).items():
+        if p is None:
+            out[name] = math.nan
+            continue
+        d = thrust_response(series.t_s, series.switch_s, f, p) - selected
+        out[name] = math.sqrt(float(np.mean(d**2))) if d.size else math.nan
+    return out
+
+
+def consumer_adequate(dyn: Dynamics, name: str) -> bool:
+    """Whether a simpler model stands for the selected one within CONSUMER_LIMIT of full
+    scale (only when dynamics were identified)."""
+    err = dyn.consumer_error_n.get(name, math.nan)
+    return bool(dyn.identified and dyn.full_scale_n > 0
+                and err <= CONSUMER_LIMIT * dyn.full_scale_n)
 
 
 def _setup(series: StepSeries, full_scale_n: float | None) -> _Run | None:
@@ -377,7 +480,8 @@ def _setup(series: StepSeries, full_scale_n: float | None) -> _Run | None:
     transient, fold = _folds(series, level)
     return _Run(series, level, tails, commands, level_idx, start, zero, scale,
                 _first_time_constant(series, level, tails), _crosses_zero(thrust, scale),
-                _both_signs(start, scale), transient, fold)
+                _both_signs(start, scale), transient, fold,
+                _direction_folds(thrust, scale)[level])
 
 
 def _crosses_zero(thrust: np.ndarray, scale: float) -> bool:
@@ -392,6 +496,22 @@ def _both_signs(start: np.ndarray, scale: float) -> bool:
     return bool(np.any(big & (start > 0)) and np.any(big & (start < 0)))
 
 
+def _direction_folds(thrust: np.ndarray, scale: float) -> np.ndarray:
+    """Per level, a fold that alternates within each kind of step (|thrust| up, down, through
+    zero): alternate levels of a run that steps out and back are all up or all down, and
+    rise-fall fitted on one kind alone cannot predict the other."""
+    before = np.concatenate(([0.0], thrust[:-1]))
+    big = MIN_STEP_FRAC * scale
+    through = (np.abs(thrust) > big) & (np.abs(before) > big) & (np.sign(thrust)
+                                                                 != np.sign(before))
+    kind = np.where(through, 2, np.where(np.abs(thrust) > np.abs(before), 0, 1))
+    fold = np.zeros(thrust.size, dtype=int)
+    for k in range(3):
+        pick = np.flatnonzero(kind == k)
+        fold[pick] = np.arange(pick.size) % 2
+    return fold
+
+
 def _folds(series: StepSeries, level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Whether each sample lies in its hold's transient part, and its hold's fold."""
     ends = np.append(series.switch_s[1:], max(float(series.t_s[-1]), float(series.switch_s[-1])))
@@ -403,6 +523,7 @@ def _folds(series: StepSeries, level: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 Fitted = tuple["DynamicsModel", lsq.Problem, lsq.FitResult]
 PRIORS = {"one-state": (), "two-state": ("one-state",), "yoerger": ("one-state",),
+          "rise-fall": ("one-state",),
           "healey-lag": ("one-state", "two-state"),
           "healey": ("one-state", "two-state", "yoerger")}
 
@@ -411,7 +532,7 @@ def _candidates(run: _Run) -> dict[str, Fitted]:
     """The closed-form candidates; Healey's inflow too when none of them fits within
     HEALEY_TRIGGER of full scale (it has no closed form, so it costs more)."""
     fits: dict[str, Fitted] = {}
-    for kind in KINDS[:3]:
+    for kind in (*KINDS[:3], "rise-fall"):
         if kind != "one-state" and "one-state" not in fits:
             break
         fit = _candidate(run, kind, [fits[k][1:] for k in PRIORS[kind] if k in fits])
@@ -457,7 +578,8 @@ def _candidate(run: _Run, kind: str, prior: list[tuple[lsq.Problem, lsq.FitResul
     if not np.isfinite(res.natural).all() or not np.isfinite(res.residual).all():
         return None
     model = _model(run, problem, res)
-    model.heldout_rms_n, model.heldout_noise_n = _held_out(run, problem, res)
+    fold = run.direction_fold if kind == "rise-fall" else run.fold
+    model.heldout_rms_n, model.heldout_noise_n = _held_out(run, problem, res, fold)
     return model, problem, res
 
 
@@ -498,6 +620,7 @@ def _start(run: _Run, problem: lsq.Problem, prior: list[tuple[lsq.Problem, lsq.F
         levels, zero = list(res.natural[d:-1]), float(res.natural[-1])
     tau = value["tau_n"]
     options = {"alpha": [0.745 / (tau * x_big) * k for k in (1.0, 0.5, 2.0)],
+               "tau_fall": [tau * k for k in (1.0, 0.5, 2.0)],
                "tau_a": [tau * k for k in (1.5, 3.0, 6.0)], "g": [0.1, 0.3],
                "beta": [1 / (2 * tau * k * x_big) for k in (1.5, 3.0, 6.0)]}
     if value.get("g", 0.0) > 0 and "tau_a" in value:  # an inflow the two-state fit found
@@ -528,13 +651,23 @@ def _model(run: _Run, problem: lsq.Problem, res: lsq.FitResult) -> DynamicsModel
     levels[float(run.series.neutral)] = 0.0
     x_big = _x_big(run)
     tau = coefs.get("tau_n") or _local_tau(coefs["alpha"], "tau_n", x_big, n, rms)
+    fall = coefs.get("tau_fall")
+    difference = None
+    if fall is not None:
+        tau = replace(tau, name="tau_rise", note="time constant of propeller speed while "
+                      "|speed| grows (spin-up)")
+        jr, jf = names.index("tau_n"), names.index("tau_fall")
+        var = cov[jr, jr] + cov[jf, jf] - 2 * cov[jr, jf]
+        difference = replace(_coef("tau_fall", fall.value - tau.value, var, n, rms),
+                             name="tau_fall - tau_rise", note="fall minus rise time constant")
     tau_a = coefs.get("tau_a") or (_local_tau(coefs["beta"], "tau_a", x_big, n, rms)
                                    if "beta" in coefs else None)
     return DynamicsModel(
         name=problem.kind, tau_n_s=tau, delay_s=coefs["delay"], tau_a_s=tau_a,
         gain=coefs.get("g"), rms_n=rms, n_samples=n, lag1_corr=r1, n_params=problem.n_params,
         alpha=coefs.get("alpha"), reverse_ratio=coefs.get("rho"), levels=levels,
-        zero_n=float(res.natural[-1]), inflow_beta=coefs.get("beta"))
+        zero_n=float(res.natural[-1]), inflow_beta=coefs.get("beta"), tau_fall_s=fall,
+        fall_minus_rise=difference)
 
 
 def _coef(name: str, value: float, var: float, n: int, rms: float) -> Coefficient:
@@ -563,12 +696,14 @@ def _covariance(jac: np.ndarray, r: np.ndarray, hold: np.ndarray) -> tuple[np.nd
     return bread @ (jr.T @ jr) @ bread * (1 + r1) / (1 - r1), r1
 
 
-def _held_out(run: _Run, problem: lsq.Problem, res: lsq.FitResult) -> tuple[float, float]:
-    """(RMS error, noise RMS) on the transients of each fold, predicted by a fit without them."""
+def _held_out(run: _Run, problem: lsq.Problem, res: lsq.FitResult,
+              fold: np.ndarray) -> tuple[float, float]:
+    """(RMS error, noise RMS) on the transients of each fold, predicted by a fit without them
+    (every transient sample is predicted once, whichever the folds)."""
     errors, noise = [], []
     diffs = _noise_terms(res.residual, run.level)
     for f in (0, 1):
-        out = run.transient & (run.fold == f)
+        out = run.transient & (fold == f)
         if not out.any() or out.all():
             continue
         try:
@@ -613,18 +748,29 @@ INFLOW_BASE = {"two-state": "one-state", "healey-lag": "one-state", "healey": "y
 def _select(models: dict[str, DynamicsModel]) -> str:
     """The candidate with the lowest held-out error that the data support: an inflow model
     must beat its speed law alone by BIC, with a gain of at least MIN_GAIN that is positive
-    with 95 % confidence."""
+    with 95 % confidence; rise-fall must beat one-state by BIC, with rise and fall constants
+    that differ with 95 % confidence and by at least MIN_RISE_FALL."""
     allowed = dict(models)
-    for kind, base in INFLOW_BASE.items():
+    for kind, base in (*INFLOW_BASE.items(), ("rise-fall", "one-state")):
         m, b = models.get(kind), models.get(base)
         if m is not None and not (b is not None and m.bic < b.bic - BIC_MARGIN
-                                  and m.gain.lo > 0 and m.gain.value >= MIN_GAIN):
+                                  and _richer_supported(m)):
             allowed.pop(kind)
 
     def error(m: DynamicsModel) -> float:
         return m.heldout_rms_n if math.isfinite(m.heldout_rms_n) else math.inf
 
     return min(allowed, key=lambda k: (error(allowed[k]), KINDS.index(k)))
+
+
+def _richer_supported(m: DynamicsModel) -> bool:
+    """The extra structure of an inflow or rise-fall model is there: a gain of at least
+    MIN_GAIN, positive with 95 % confidence; rise and fall constants that differ."""
+    if m.gain is not None:
+        return m.gain.lo > 0 and m.gain.value >= MIN_GAIN
+    d = m.fall_minus_rise
+    return (m.rise_fall_differ() and d is not None
+            and abs(d.value) >= MIN_RISE_FALL * min(m.tau_n_s.value, d.value + m.tau_n_s.value))
 
 
 def _judge(dyn: Dynamics, run: _Run, problem: lsq.Problem, res: lsq.FitResult) -> Dynamics:
@@ -640,10 +786,16 @@ def _judge(dyn: Dynamics, run: _Run, problem: lsq.Problem, res: lsq.FitResult) -
 
 def _not_identified(m: DynamicsModel, run: _Run) -> str | None:
     """Why the selected model cannot stand for this thruster, if it cannot."""
-    rate = m.alpha if m.alpha is not None else m.tau_n_s
-    if not rate.lo > 0:
-        return (f"the {rate.name} of the {m.name} model has a 95 % interval "
-                f"{rate.lo:.3g} .. {rate.hi:.3g} {rate.unit}, which includes zero")
+    rates = [m.alpha] if m.alpha is not None else [m.tau_n_s, m.tau_fall_s]
+    for rate in (r for r in rates if r is not None):
+        if not rate.lo > 0:
+            return (f"the {rate.name} of the {m.name} model has a 95 % interval "
+                    f"{rate.lo:.3g} .. {rate.hi:.3g} {rate.unit}, which includes zero")
+    dt = float(np.median(np.diff(run.series.t_s))) if run.series.t_s.size > 1 else 0.0
+    if m.delay_s.hi < -max(ANTICAUSAL_TAU_FRAC * m.tau_n_s.value, 2.0 * dt):
+        return (f"the thrust moves {-m.delay_s.value:.3g} s before its command (delay "
+                f"{m.delay_s.lo:.3g} .. {m.delay_s.hi:.3g} s): the command and thrust times "
+                "do not belong together (a clock offset in the log?)")
     if not m.bic < _constant_bic(run, m) - BIC_MARGIN:
         return f"the {m.name} model fits no better than a constant thrust (BIC)"
     err = m.model_error_n()
@@ -748,8 +900,9 @@ def _first_time_constant(series: StepSeries, level: np.ndarray, tails: np.ndarra
 
 
 def _step_metrics(series: StepSeries, level: np.ndarray, tails: np.ndarray, zero: float,
-                  scale: float) -> list[StepMetrics]:
-    """Timings of every step larger than MIN_STEP_FRAC of full scale."""
+                  scale: float, steady: dict[float, float]) -> list[StepMetrics]:
+    """Timings of every step larger than MIN_STEP_FRAC of full scale; `steady` (command ->
+    mean thrust of its holds) gives each step's direction."""
     out = []
     for k in range(1, series.switch_s.size):
         a, b = float(tails[k - 1]), float(tails[k])
@@ -758,19 +911,20 @@ def _step_metrics(series: StepSeries, level: np.ndarray, tails: np.ndarray, zero
         pick = level == k
         t = series.t_s[pick] - series.switch_s[k]
         y = (series.thrust_n[pick] - zero - a) / (b - a)
-        out.append(_one_step(series, k, a, b, t, y))
+        ends = [abs(steady.get(float(series.command[j]), 0.0)) for j in (k - 1, k)]
+        out.append(_one_step(series, k, a, b, t, y, "up" if ends[1] > ends[0] else "down"))
     return out
 
 
 def _one_step(series: StepSeries, k: int, a: float, b: float, t: np.ndarray,
-              y: np.ndarray) -> StepMetrics:
+              y: np.ndarray, direction: str) -> StepMetrics:
     """Timing of step k from its normalised response y (0 before, 1 at the new level)."""
     t10 = _first(t, y >= 0.1)
     t90 = _first(t, y >= 0.9)
     window = float(t[-1]) if t.size else 0.0
     settle, settled = _settling(t, y, window)
     return StepMetrics(float(series.command[k - 1]), float(series.command[k]), a, b,
-                       "up" if abs(b) > abs(a) else "down", t10, t90 - t10, settle,
+                       direction, t10, t90 - t10, settle,
                        max(float(np.max(y)) - 1.0, 0.0), settled, window)
 
 

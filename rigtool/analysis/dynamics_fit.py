@@ -19,8 +19,9 @@ from rigtool.analysis.dynamics_response import ModelParams, thrust_response
 
 DYN_NAMES = {"one-state": ("tau_n", "delay"), "two-state": ("tau_n", "delay", "tau_a", "g"),
              "yoerger": ("alpha", "delay"), "healey-lag": ("tau_n", "delay", "beta", "g"),
-             "healey": ("alpha", "delay", "beta", "g")}
-LOG_PARAMS = frozenset(("tau_n", "tau_a", "alpha", "rho", "beta"))
+             "healey": ("alpha", "delay", "beta", "g"),
+             "rise-fall": ("tau_n", "tau_fall", "delay")}
+LOG_PARAMS = frozenset(("tau_n", "tau_a", "alpha", "rho", "beta", "tau_fall"))
 MAX_ITER = 100
 LOG_MIN, LOG_MAX = math.log(1e-4), math.log(1e3)  # range of time constants, alpha and rho
 BATCH_ELEMENTS = 4_000_000  # samples x parameters evaluated at once in a Jacobian
@@ -92,7 +93,8 @@ def predict(problem: Problem, natural: np.ndarray) -> np.ndarray:
                       lv[:, np.clip(problem.level_idx, 0, None)], 0.0)
     p = ModelParams(problem.kind, tau_n=col.get("tau_n", 1.0), alpha=col.get("alpha", 1.0),
                     tau_a=col.get("tau_a", 1.0), gain=col.get("g", 0.0), delay=col["delay"],
-                    rho=col.get("rho", 1.0), beta=col.get("beta", 1.0), grid_s=problem.grid_s)
+                    rho=col.get("rho", 1.0), beta=col.get("beta", 1.0), grid_s=problem.grid_s,
+                    tau_fall=col.get("tau_fall", 1.0))
     out = thrust_response(problem.t, problem.switch, levels, p) + nat[:, -1][:, None]
     return out if np.ndim(natural) > 1 else out[0]
 

@@ -6,6 +6,9 @@ direction-dependent steady map as the propeller passes zero). A level of steady 
 the speed target X = sign(F) sqrt(|F| / c(F)). Between command switches:
 
 - one-state (linear lag): x' = (X - x) / tau_n;
+- rise-fall: the same lag with tau_n (the rise constant) while |x| grows, x (X - x) >= 0
+  (spin-up, and from zero), and tau_fall while it shrinks (spin-down, and down to zero on
+  the way through it);
 - two-state (Healey-type axial inflow): the same x, and m' = (x - m) / tau_a, thrust
   c(x) (x|x| + g (x|x| - m|m|));
 - yoerger (Yoerger, Cooke & Slotine 1990): x' = alpha (X|X| - x|x|), quadratic damping, so
@@ -28,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-KINDS = ("one-state", "two-state", "yoerger", "healey-lag", "healey")
+KINDS = ("one-state", "two-state", "yoerger", "healey-lag", "healey", "rise-fall")
 QUADRATIC_SPEED = frozenset(("yoerger", "healey"))
 HEALEY = frozenset(("healey-lag", "healey"))
 # Node offsets of Healey's inflow after each switch, in units of grid_s.
@@ -41,7 +44,7 @@ class ModelParams:
     """Dynamics parameters of one model (scalars, or (B,) arrays for a batch)."""
 
     kind: str
-    tau_n: np.ndarray | float = 1.0  # one-state, two-state (s)
+    tau_n: np.ndarray | float = 1.0  # one-state, two-state; rise-fall: its rise constant (s)
     alpha: np.ndarray | float = 1.0  # yoerger (1/(sqrt(N) s))
     tau_a: np.ndarray | float = 1.0  # two-state (s)
     gain: np.ndarray | float = 0.0  # two-state
@@ -49,6 +52,7 @@ class ModelParams:
     rho: np.ndarray | float = 1.0  # C_p_rev / C_p_fwd
     beta: np.ndarray | float = 1.0  # healey inflow (1/(sqrt(N) s))
     grid_s: float = 0.0  # healey node spacing base (s); 0: the speed's time constant
+    tau_fall: np.ndarray | float = 1.0  # rise-fall: spin-down time constant (s)
 
 
 def speed_targets(levels_n: np.ndarray, rho: np.ndarray | float) -> np.ndarray:
@@ -65,7 +69,7 @@ def thrust_response(t_s: np.ndarray, switch_s: np.ndarray, levels_n: np.ndarray,
     batch = np.ndim(p.delay) > 0 or np.ndim(levels_n) > 1
     b = max(np.size(p.delay), np.shape(levels_n)[0] if np.ndim(levels_n) > 1 else 1)
     par = {k: np.broadcast_to(np.asarray(getattr(p, k), dtype=float), (b,))
-           for k in ("tau_n", "alpha", "tau_a", "gain", "delay", "rho", "beta")}
+           for k in ("tau_n", "alpha", "tau_a", "gain", "delay", "rho", "beta", "tau_fall")}
     lv = np.broadcast_to(np.asarray(levels_n, dtype=float), (b, np.shape(levels_n)[-1]))
     target = speed_targets(lv, par["rho"])
     sw = np.asarray(switch_s, dtype=float)[None, :] + par["delay"][:, None]
@@ -85,7 +89,7 @@ def _switch_states(kind: str, sw: np.ndarray, target: np.ndarray,
     for k in range(1, sw.shape[1]):
         dt = sw[:, k] - sw[:, k - 1]
         x_at[:, k], m_at[:, k] = hop(kind, x_at[:, k - 1], m_at[:, k - 1], target[:, k - 1], dt,
-                                     par["tau_n"], par["alpha"], par["tau_a"])
+                                     par["tau_n"], par["alpha"], par["tau_a"], par["tau_fall"])
     return x_at, m_at
 
 
@@ -111,7 +115,7 @@ def _rows_thrust(kind: str, t: np.ndarray, k: np.ndarray, rows: np.ndarray, sw: 
     col = (rows, None)
     x, m = hop(kind, x_at[rows][:, kk], m_at[rows][:, kk], target[rows][:, kk],
                t[after][None, :] - sw[rows][:, kk], par["tau_n"][col], par["alpha"][col],
-               par["tau_a"][col])
+               par["tau_a"][col], par["tau_fall"][col])
     xx = x * np.abs(x)
     if kind == "two-state":
         xx = xx + par["gain"][col] * (xx - m * np.abs(m))
@@ -204,13 +208,32 @@ def _healey_rows(speed: str, t: np.ndarray, i: np.ndarray, rows: np.ndarray,
 
 
 def hop(kind: str, x: np.ndarray, m: np.ndarray, target: np.ndarray, dt: np.ndarray,
-        tau_n: np.ndarray, alpha: np.ndarray, tau_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        tau_n: np.ndarray, alpha: np.ndarray, tau_a: np.ndarray,
+        tau_fall: np.ndarray | float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """States after `dt` (>= 0) under the speed target (exact solution)."""
     if kind == "yoerger":
         return quadratic_hop(x, target * np.abs(target), alpha, dt), m
     if kind == "one-state":
         return target + (x - target) * np.exp(-dt / tau_n), m
+    if kind == "rise-fall":
+        return rise_fall_hop(x, target, dt, tau_n, tau_fall), m
     return linear_hop(x, m, target, dt, tau_n, tau_a)
+
+
+def rise_fall_hop(x: np.ndarray, target: np.ndarray, dt: np.ndarray, tau_rise: np.ndarray,
+                  tau_fall: np.ndarray | float) -> np.ndarray:
+    """x' = (X - x) / tau after dt, tau = tau_rise while |x| grows (x (X - x) >= 0), else
+    tau_fall: a fall to zero first when x and X have opposite signs, then a rise."""
+    x, tgt, dt, tr, tf = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in
+                                                (x, target, dt, tau_rise, tau_fall)))
+    falls = x * (tgt - x) < 0
+    crosses = x * tgt < 0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t_zero = np.where(crosses, tf * np.log(np.where(crosses, 1.0 - x / tgt, 1.0)), np.inf)
+        fall = tgt + (x - tgt) * np.exp(-dt / tf)
+        rise = tgt + (x - tgt) * np.exp(-dt / tr)
+        after_zero = tgt * -np.expm1(-np.maximum(dt - t_zero, 0.0) / tr)
+    return np.where(falls, np.where(dt < t_zero, fall, after_zero), rise)
 
 
 def linear_hop(x: np.ndarray, m: np.ndarray, target: np.ndarray, dt: np.ndarray,

@@ -3,7 +3,8 @@
 All fits are weighted least squares on per-point means with the per-point standard errors,
 using the effective-variance method for the error in the regressor (one re-weighting pass).
 Thrust fits carry a zero offset and a linear zero drift in time as nuisance terms (see
-`fit_directional`): the sensor zero keeps drifting after the rig's last tare.
+`fit_directional`): the sensor zero keeps drifting after the rig's last tare. A resumed run
+gives each session (start or resume, tared again) its own offset and all one drift (`ZeroLine`).
 Intervals stay honest when the errors are larger or less independent than the standard
 errors say: the covariance is scaled by the reduced chi-square when it exceeds 1, and, when
 the acquisition order is given, computed as a sandwich with AR(1)-correlated errors in that
@@ -246,30 +247,99 @@ def _coef(name: str, fit: LinearFit, i: int, unit: str, y: np.ndarray, rms_unit:
     return Coefficient(name, value, value - hw, value + hw, unit, len(y), r2, rms, rms_unit, note)
 
 
+Cov2 = tuple[tuple[float, float], tuple[float, float]]
+
+
+def session_index(t_s: np.ndarray, starts: tuple[float, ...]) -> np.ndarray:
+    """Per time, its session: how many of the session start times `starts` lie before it."""
+    return np.searchsorted(np.asarray(starts, dtype=float), np.asarray(t_s, dtype=float),
+                           side="left")
+
+
+def occupied_starts(t_s: np.ndarray, starts: tuple[float, ...]) -> tuple[float, ...]:
+    """The starts of the sessions after the first that hold some of `t_s`: a session without
+    any of them joins the one before it (the first one with any, for those before it)."""
+    if not starts or not np.size(t_s):
+        return ()
+    held = np.unique(session_index(t_s, starts))
+    return tuple(float(starts[k - 1]) for k in held[1:])
+
+
 @dataclass(frozen=True)
 class ZeroLine:
     """Estimated thrust zero: offset_n at t_ref_s plus a linear drift (N/s), and its source.
 
     `cov` is the 2x2 covariance of (offset_n, drift_n_per_s) when the line was fitted, so a
     test against the zero can allow for how well the zero is known at each time.
+
+    A resumed run has one session per start or resume (a tare, or a re-opened sensor, sets
+    the zero again): the zero is then a_k + drift (t - t_ref) in session k, one drift for all.
+    offset_n and `cov` are the first session's; `session_starts_s` are the times the later
+    sessions begin, `session_offsets_n` their offsets at t_ref_s, and `session_cov` the full
+    covariance of (offset_n, *session_offsets_n, drift_n_per_s). One session: all empty.
     """
 
     offset_n: float
     drift_n_per_s: float
     t_ref_s: float
     source: str
-    cov: tuple[tuple[float, float], tuple[float, float]] | None = None
+    cov: Cov2 | None = None
+    session_starts_s: tuple[float, ...] = ()
+    session_offsets_n: tuple[float, ...] = ()
+    session_cov: tuple[tuple[float, ...], ...] | None = None
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """The offset (N, at t_ref_s) of every session, the first one first."""
+        return np.array([self.offset_n, *self.session_offsets_n], dtype=float)
+
+    def session_of(self, t_s: np.ndarray) -> np.ndarray:
+        """The session (0 = first) each time in `t_s` belongs to."""
+        return session_index(t_s, self.session_starts_s)
 
     def at(self, t_s: np.ndarray) -> np.ndarray:
-        return self.offset_n + self.drift_n_per_s * (np.asarray(t_s, dtype=float) - self.t_ref_s)
+        """The zero (N) at the times `t_s`, each with its session's offset."""
+        t = np.asarray(t_s, dtype=float)
+        if not self.session_starts_s:
+            return self.offset_n + self.drift_n_per_s * (t - self.t_ref_s)
+        return self.offsets[self.session_of(t)] + self.drift_n_per_s * (t - self.t_ref_s)
 
     def var_at(self, t_s: np.ndarray) -> np.ndarray:
         """Variance (N^2) of the zero at `t_s`; 0 where the line carries no covariance."""
         dt = np.asarray(t_s, dtype=float) - self.t_ref_s
+        if self.session_starts_s:
+            if self.session_cov is None:
+                return np.zeros(dt.shape)
+            c = np.array(self.session_cov, dtype=float)
+            k = self.session_of(t_s)
+            return np.maximum(c[k, k] + 2 * c[k, -1] * dt + c[-1, -1] * dt**2, 0.0)
         if self.cov is None:
             return np.zeros(dt.shape)
         (a, b), (_, d) = self.cov
         return np.maximum(a + 2 * b * dt + d * dt**2, 0.0)
+
+
+def session_line(offsets: np.ndarray, drift: float, t_ref: float, source: str,
+                 cov: np.ndarray | None, starts: tuple[float, ...]) -> ZeroLine:
+    """A ZeroLine from per-session `offsets` (N), `drift` (N/s) and the covariance `cov` of
+    (offsets..., drift) (N, N/s; None: not known); one session gives the plain line."""
+    cov2 = None
+    if cov is not None:
+        idx = [0, len(offsets)]
+        c = cov[np.ix_(idx, idx)]
+        cov2 = ((float(c[0, 0]), float(c[0, 1])), (float(c[1, 0]), float(c[1, 1])))
+    if len(offsets) == 1:
+        return ZeroLine(float(offsets[0]), float(drift), t_ref, source, cov2)
+    full = None if cov is None else tuple(tuple(float(v) for v in row) for row in cov)
+    return ZeroLine(float(offsets[0]), float(drift), t_ref, source, cov2, tuple(starts),
+                    tuple(float(v) for v in offsets[1:]), full)
+
+
+def session_columns(t: np.ndarray, starts: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+    """One offset column per session of `starts` (an indicator of its times; a single column
+    of ones for one session)."""
+    k = session_index(t, starts)
+    return tuple((k == j).astype(float) for j in range(len(starts) + 1))
 
 
 @dataclass
@@ -288,6 +358,13 @@ class DirectionalFit:
     y: np.ndarray
     t_ref_s: float
     fixed_zero: ZeroLine | None = None  # zero given to the fit (then no offset/drift columns)
+    session_starts: tuple[float, ...] = ()  # later sessions' start times (one offset each)
+
+    @property
+    def offset_columns(self) -> list[int]:
+        """Column index of each session's offset, the first session first."""
+        return [self.columns.index("offset")] + [
+            self.columns.index(f"offset_{k}") for k in range(1, len(self.session_starts) + 1)]
 
     def coefficient(self, key: str, name: str, unit: str, note: str) -> Coefficient:
         i = self.columns.index(key)
@@ -302,6 +379,8 @@ class DirectionalFit:
     def zero(self) -> ZeroLine:
         if self.fixed_zero is not None:
             return self.fixed_zero
+        if self.session_starts:
+            return self._session_zero()
         beta = dict(zip(self.columns, self.fit.beta, strict=True))
         i = self.columns.index("offset")
         cov = ((float(self.fit.cov[i, i]), 0.0), (0.0, 0.0))
@@ -313,6 +392,21 @@ class DirectionalFit:
         return ZeroLine(float(beta["offset"]), float(beta.get("drift", 0.0)) / SECONDS_PER_HOUR,
                         self.t_ref_s, "model fit", cov)
 
+    def _session_zero(self) -> ZeroLine:
+        """The zero with one offset per session and the common drift, in N and N/s."""
+        idx = self.offset_columns
+        scale = np.ones(len(idx) + 1)
+        if "drift" in self.columns:
+            idx = [*idx, self.columns.index("drift")]
+            scale[-1] = SECONDS_PER_HOUR
+        cov = np.zeros((scale.size, scale.size))
+        cov[:len(idx), :len(idx)] = self.fit.cov[np.ix_(idx, idx)]
+        cov = cov / np.outer(scale, scale)
+        beta = np.append(self.fit.beta[self.offset_columns],
+                         self.fit.beta[idx[-1]] if "drift" in self.columns else 0.0)
+        return session_line(beta[:-1], float(beta[-1] / scale[-1]), self.t_ref_s, "model fit",
+                            cov, self.session_starts)
+
     def zero_coefficients(self) -> list[Coefficient]:
         """f_0 (N, at t_ref) and zero_drift (N/h) as coefficients."""
         r2, rms = _quality(self.y, self.fit.resid)
@@ -323,22 +417,31 @@ class DirectionalFit:
                 i = self.columns.index(key)
                 value = float(self.fit.beta[i])
                 hw = self.fit.half_width(i) if self.fit.dof > 0 else math.nan
-                out.append(Coefficient(
-                    name, value, value - hw, value + hw, unit, n, r2, rms, "N",
-                    f"thrust zero left after taring, fitted with C_p (at t = {self.t_ref_s:.1f} s)"
-                    if key == "offset" else "drift of that zero over the run"))
+                note = (f"thrust zero left after taring, fitted with C_p (at t = "
+                        f"{self.t_ref_s:.1f} s)" if key == "offset" else
+                        "drift of that zero over the run")
+                if self.session_starts:
+                    note += (f"; {len(self.session_starts) + 1} sessions (run resumed): "
+                             "f_0 is the first one's offset, one drift for all"
+                             if key == "offset" else
+                             f", common to its {len(self.session_starts) + 1} sessions")
+                out.append(Coefficient(name, value, value - hw, value + hw, unit, n, r2, rms,
+                                       "N", note))
         return out
 
 
 def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.ndarray | None,
                     t_s: np.ndarray, masks: dict[str, np.ndarray],
-                    min_points: int = 3, zero: ZeroLine | None = None) -> DirectionalFit | None:
+                    min_points: int = 3, zero: ZeroLine | None = None,
+                    sessions: tuple[float, ...] = ()) -> DirectionalFit | None:
     """Fit y = sum_k c_k x [mask_k] + a + b (t - t_ref) by WLS (effective variance for dx_se).
 
     Directions with fewer than `min_points` points are left out; the drift term only enters
     when the points span time and leave enough degrees of freedom. Errors are treated as
     serially correlated in time (see module docstring). With `zero` given, y - zero(t) is
-    fitted without the offset and drift terms.
+    fitted without the offset and drift terms. `sessions` are the start times of a resumed
+    run's later sessions: each session that holds points gets its own offset a_k (columns
+    "offset", "offset_1", ...), the drift b stays one for all.
     """
     keys = [k for k, m in masks.items() if m.sum() >= min_points]
     if not keys:
@@ -349,11 +452,13 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
     cols = [np.where(masks[k][used], x[used], 0.0) for k in keys]
     names = list(keys)
     yy, se = y[used], se_y[used]
+    starts: tuple[float, ...] = ()
     if zero is not None:
         yy = yy - zero.at(t)
     else:
-        names.append("offset")
-        cols.append(np.ones(int(used.sum())))
+        starts = occupied_starts(t, sessions)
+        names += ["offset"] + [f"offset_{k}" for k in range(1, len(starts) + 1)]
+        cols += session_columns(t, starts)
         if np.ptp(t) > 0 and used.sum() >= len(cols) + 4:
             cols.append((t - t_ref) / SECONDS_PER_HOUR)
             names.append("drift")
@@ -363,17 +468,19 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
         slope = sum(np.where(masks[k][used], fit.beta[i], 0.0) for i, k in enumerate(keys))
         fit = wls(design, yy, np.sqrt(se**2 + (slope * np.nan_to_num(dx_se[used])) ** 2), t,
                   scale_down=True)
-    return DirectionalFit(fit, names, masks, used, yy, t_ref, zero)
+    return DirectionalFit(fit, names, masks, used, yy, t_ref, zero, starts)
 
 
 def fit_thrust_speed(n_rpm: np.ndarray, f_n: np.ndarray, se_f: np.ndarray,
                      se_n: np.ndarray | None, t_s: np.ndarray,
                      masks: dict[str, np.ndarray],
-                     zero: ZeroLine | None = None) -> DirectionalFit | None:
-    """f = C_p |n| n with C_p per direction (`masks`: "fwd"/"rev" point masks) + zero terms
-    (or against a given `zero`)."""
+                     zero: ZeroLine | None = None,
+                     sessions: tuple[float, ...] = ()) -> DirectionalFit | None:
+    """f = C_p |n| n with C_p per direction (`masks`: "fwd"/"rev" point masks) + zero terms,
+    an offset per session of `sessions` (or against a given `zero`)."""
     dx = None if se_n is None else 2 * np.abs(n_rpm) * se_n
-    return fit_directional(np.abs(n_rpm) * n_rpm, f_n, se_f, dx, t_s, masks, zero=zero)
+    return fit_directional(np.abs(n_rpm) * n_rpm, f_n, se_f, dx, t_s, masks, zero=zero,
+                           sessions=sessions)
 
 
 def thrust_coefficient(cp: Coefficient, diameter_m: float, density_kg_m3: float,

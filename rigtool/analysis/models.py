@@ -204,12 +204,14 @@ def _stopped_thrust(points: PointTable, ok: np.ndarray, top_rpm: float) -> float
 
 def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float | None,
                density_kg_m3: float | None, params: FitParams | None = None,
-               zero: ZeroLine | None = None, direction: SpeedSign | None = None) -> ModelFits:
+               zero: ZeroLine | None = None, direction: SpeedSign | None = None,
+               sessions: tuple[float, ...] = ()) -> ModelFits:
     """All speed/current model coefficients of one depth.
 
     The thrust zero is fitted jointly with C_p unless `zero` is given (points that may be
     ventilating must not set the zero). `direction` gives unsigned speed feedback its sign
-    (see `speed_sign`; default: the feedback as measured).
+    (see `speed_sign`; default: the feedback as measured). `sessions` are the start times of
+    a resumed run's later sessions: each has its own zero offset (and torque offset).
     """
     p = params or FitParams()
     use = candidate_points(points, p)
@@ -229,13 +231,13 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
             n_s = np.abs(n_s) * direction.sign[samples.point]
     n_min = max(p.min_speed_rpm, p.min_speed_frac * float(np.max(np.abs(n[use]))))
     masks = {"fwd": use & (n > n_min), "rev": use & (n < -n_min)}
-    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero)
+    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions)
     if thrust_fit is None:
         return result
     single = single_readings(points, p)
     if (single & thrust_fit.used).any():
         se_f = _scatter_weights(thrust_fit, se_f, single)
-        thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero) or thrust_fit
+        thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions) or thrust_fit
     out = result.coefficients
     cp = {}
     for key in ("fwd", "rev"):
@@ -263,7 +265,7 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
         "(samples are autocorrelated)", interval=False)
     if points.torque.measured:
         out.update(_torque_models(points, n, se_n, t, masks, result, diameter_m,
-                                  density_kg_m3, p))
+                                  density_kg_m3, p, sessions))
     if points.current.measured:
         weighted = _current_scatter_weights(points, n, single & result.used)
         coefs, warnings = _current_models(weighted, samples, n, masks, thrust_fit, cp, p,
@@ -275,14 +277,15 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
 
 def _torque_models(points: PointTable, n: np.ndarray, se_n: np.ndarray, t: np.ndarray,
                    masks: dict[str, np.ndarray], result: ModelFits, diameter_m: float | None,
-                   density_kg_m3: float | None, p: FitParams) -> dict[str, Coefficient]:
-    """Q = C_q |n| n per direction about the thrust axis, with its own zero and drift, and
-    K_Q = |Q| / (rho n^2 D^5) where diameter and density are known."""
+                   density_kg_m3: float | None, p: FitParams,
+                   sessions: tuple[float, ...] = ()) -> dict[str, Coefficient]:
+    """Q = C_q |n| n per direction about the thrust axis, with its own zero and drift (an
+    offset per session), and K_Q = |Q| / (rho n^2 D^5) where diameter and density are known."""
     q, se_q = points.torque.mean, points.torque.se
     ok = np.isfinite(q) & np.isfinite(se_q)
     fit = fit_directional(np.abs(n) * n, np.where(ok, q, 0.0), np.where(ok, se_q, np.inf),
                           None if se_n is None else 2 * np.abs(n) * se_n, t,
-                          {k: m & ok for k, m in masks.items()})
+                          {k: m & ok for k, m in masks.items()}, sessions=sessions)
     if fit is None:
         return {}
     result.torque_zero = fit.zero
@@ -541,7 +544,7 @@ def _direct_parts(key: str, direct: DirectionalFit, points: PointTable, cur: np.
     if thrust_fit.fixed_zero is None:
         cols, fit = thrust_fit.columns, thrust_fit.fit
         hours = (points.t_mid_s[rows] - thrust_fit.t_ref_s) / SECONDS_PER_HOUR
-        zero = float(np.sum(infl)) * _serial_part(fit, cols.index("offset"))
+        zero = _offset_parts(thrust_fit, infl, points.t_mid_s[rows])
         if "drift" in cols:
             zero = zero + float(np.sum(infl * hours)) * _serial_part(fit, cols.index("drift"))
         parts.append((np.flatnonzero(thrust_fit.used), -zero))
@@ -557,6 +560,17 @@ def _direct_parts(key: str, direct: DirectionalFit, points: PointTable, cur: np.
     return parts
 
 
+def _offset_parts(thrust_fit: DirectionalFit, infl: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """The error the thrust fit's zero offsets pass on through `infl` (per point at times
+    `t_s`): each session's offset weighted by the influence of that session's points."""
+    fit = thrust_fit.fit
+    if not thrust_fit.session_starts:
+        return float(np.sum(infl)) * _serial_part(fit, thrust_fit.columns.index("offset"))
+    k = thrust_fit.zero.session_of(t_s)
+    return sum(float(np.sum(infl[k == j])) * _serial_part(fit, col)
+               for j, col in enumerate(thrust_fit.offset_columns))
+
+
 def _fixed_zero_variance(direct: DirectionalFit, key: str, t_s: np.ndarray,
                          thrust_fit: DirectionalFit) -> float:
     """Variance a direct C_i gets from a zero given to the fits (shallow depths: from dead
@@ -566,6 +580,13 @@ def _fixed_zero_variance(direct: DirectionalFit, key: str, t_s: np.ndarray,
         return 0.0
     rows = np.flatnonzero(direct.used)
     infl = direct.fit.influence[direct.columns.index(key)]
+    if zero.session_starts_s:
+        if zero.session_cov is None:
+            return 0.0
+        k = zero.session_of(t_s[rows])
+        grad = np.array([float(np.sum(infl[k == j])) for j in range(zero.offsets.size)]
+                        + [float(np.sum(infl * (t_s[rows] - zero.t_ref_s)))])
+        return max(float(grad @ np.array(zero.session_cov) @ grad), 0.0)
     a, b = float(np.sum(infl)), float(np.sum(infl * (t_s[rows] - zero.t_ref_s)))
     (c00, c01), (_, c11) = zero.cov
     return max(a * a * c00 + 2 * a * b * c01 + b * b * c11, 0.0)

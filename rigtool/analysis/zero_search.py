@@ -23,7 +23,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rigtool.analysis.fits import LinearFit, ZeroLine, wls
+from rigtool.analysis.fits import (
+    LinearFit,
+    ZeroLine,
+    occupied_starts,
+    session_columns,
+    session_index,
+    session_line,
+    wls,
+)
 
 ZERO_PASSES = 6
 MIN_ZONE = 3  # a dead set without a run this long (or the neutral command) is a chance crossing
@@ -51,10 +59,13 @@ class ZeroPoints:
 
 @dataclass(frozen=True)
 class Anchors:
-    """Where the zero is known: 0 at the tare times `t_s`, and drift (N/s, SE) from the tares."""
+    """Where the zero is known: 0 at the tare times `t_s`, and drift (N/s, SE) from the tares;
+    `sessions` are the start times of a resumed run's later sessions (each re-zeroed: its own
+    offset, one drift for all)."""
 
     t_s: np.ndarray
     drift: tuple[float, float] | None = None
+    sessions: tuple[float, ...] = ()
 
     @property
     def empty(self) -> bool:
@@ -66,31 +77,68 @@ NO_ANCHORS = Anchors(np.zeros(0))
 
 
 def section_anchors(tare_t_s: np.ndarray | None, t_s: np.ndarray,
-                    tare_drift: tuple[float, float] | None = None) -> Anchors:
+                    tare_drift: tuple[float, float] | None = None,
+                    sessions: tuple[float, ...] = ()) -> Anchors:
     """The tare that zeroes these points: the last one before the first point, when no tare
     re-zeroes the sensor during them (then the zero of the points is a sawtooth, not a line,
-    and nearly flat when every point is tared: no anchor). The tares' drift goes with it."""
+    and nearly flat when every point is tared: no anchor). The tares' drift goes with it.
+    A resumed run (`sessions`) is taken session by session: each may have its own tare."""
     if tare_t_s is None or not np.isfinite(t_s).any():
-        return NO_ANCHORS
+        return Anchors(np.zeros(0), None, sessions) if sessions else NO_ANCHORS
     tares = np.sort(np.asarray(tare_t_s, dtype=float)[np.isfinite(tare_t_s)])
+    if sessions:
+        t = np.asarray(t_s, dtype=float)
+        point_session, tare_session = session_index(t, sessions), session_index(tares, sessions)
+        found = [_anchor(tares[tare_session == k], t[point_session == k])
+                 for k in np.unique(point_session[np.isfinite(t)])]
+        found = [a for a in found if a is not None]
+        return Anchors(np.array(found, dtype=float), tare_drift if found else None, sessions)
+    anchor = _anchor(tares, t_s)
+    return NO_ANCHORS if anchor is None else Anchors(np.array([anchor]), tare_drift)
+
+
+def _anchor(tares: np.ndarray, t_s: np.ndarray) -> float | None:
+    """The last of the sorted `tares` before the first of the times `t_s`, when none falls
+    between their first and last (None otherwise)."""
+    if not np.isfinite(t_s).any():
+        return None
     first, last = float(np.nanmin(t_s)), float(np.nanmax(t_s))
     before = tares[tares <= first]
     if not before.size or ((tares > first) & (tares <= last)).any():
-        return NO_ANCHORS
-    return Anchors(before[-1:], tare_drift)
+        return None
+    return float(before[-1])
 
 
 @dataclass(frozen=True)
 class _Search:
     """What every step of the search needs: the points, anchors, neutral command, dead
-    threshold per point, k_se, and the (time, zero) the candidate lines pass through."""
+    threshold per point, k_se, and the (time, zero) the candidate lines pass through: one per
+    session (`bounds`: the start times of the later sessions that hold points)."""
 
     pts: ZeroPoints
     anchors: Anchors
     neutral: float
     thr: np.ndarray
     k_se: float
-    start: tuple[float, float]
+    start: tuple[tuple[float, float], ...]
+    bounds: tuple[float, ...] = ()
+
+    def through(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per point, the (time, zero) its session's candidate lines pass through."""
+        if not self.bounds:
+            t0, z0 = self.start[0]
+            return np.full(self.pts.t_s.size, t0), np.full(self.pts.t_s.size, z0)
+        k = session_index(self.pts.t_s, self.bounds)
+        t0, z0 = np.array(self.start, dtype=float).T
+        return t0[k], z0[k]
+
+    def line(self, drift: float) -> ZeroLine:
+        """The line with `drift` through every session's start."""
+        t0, z0 = self.start[0]
+        if not self.bounds:
+            return ZeroLine(z0, drift, t0, "dead zones")
+        offsets = np.array([z + drift * (t0 - t) for t, z in self.start])
+        return session_line(offsets, drift, t0, "dead zones", None, self.bounds)
 
 
 def search_zero(pts: ZeroPoints, anchors: Anchors, neutral: float, floor: float,
@@ -106,10 +154,12 @@ def search_zero(pts: ZeroPoints, anchors: Anchors, neutral: float, floor: float,
     """
     if dead_hint is not None:
         return fit_zero_line(pts.take(dead_hint), anchors) if dead_hint.any() else None
-    start = _anchor_point(pts, anchors, neutral)
+    bounds = occupied_starts(pts.t_s, anchors.sessions)
+    start = _anchor_points(pts, anchors, neutral, bounds)
     if start is None:
         return None
-    search = _Search(pts, anchors, neutral, np.maximum(k_se * pts.se, floor), k_se, start)
+    search = _Search(pts, anchors, neutral, np.maximum(k_se * pts.se, floor), k_se, start,
+                     bounds)
     limit = _max_drift(pts.t_s, floor)
     line = _settle(search, _consensus_drift(search, (-limit, limit)))
     window = _neutral_window(search, line)
@@ -120,7 +170,7 @@ def _settle(s: _Search, drift: float) -> ZeroLine | None:
     """From the line through the start with `drift`: dead set, then the line fitted through
     its zones' cores and the anchors, again until the dead set stops changing (None when the
     dead set is only a chance crossing of the curve)."""
-    line: ZeroLine | None = ZeroLine(s.start[1], drift, s.start[0], "dead zones")
+    line: ZeroLine | None = s.line(drift)
     previous = None
     for _ in range(ZERO_PASSES):
         cmd, dead = dead_commands(s.pts, line, s.thr)
@@ -155,11 +205,29 @@ def _neutral_window(s: _Search, line: ZeroLine | None) -> tuple[float, float] | 
     return fit.drift_n_per_s - half, fit.drift_n_per_s + half
 
 
-def _anchor_point(pts: ZeroPoints, anchors: Anchors, neutral: float) -> tuple[float, float] | None:
+def _anchor_points(pts: ZeroPoints, anchors: Anchors, neutral: float,
+                   bounds: tuple[float, ...]) -> tuple[tuple[float, float], ...] | None:
+    """Per session (`bounds`: the later ones' start times), the (time, zero) the search's
+    lines pass through: its first tare, else its first visit of the neutral command, else
+    (a later session with neither) the previous session's; None when the first has neither."""
+    out: list[tuple[float, float]] = []
+    tare_session = session_index(anchors.t_s, bounds)
+    point_session = session_index(pts.t_s, bounds)
+    for k in range(len(bounds) + 1):
+        here = _anchor_point(pts.take(point_session == k), anchors.t_s[tare_session == k],
+                             neutral)
+        if here is None and not out:
+            return None
+        out.append(here if here is not None else out[-1])
+    return tuple(out)
+
+
+def _anchor_point(pts: ZeroPoints, tares: np.ndarray,
+                  neutral: float) -> tuple[float, float] | None:
     """(time, zero) the search's lines pass through: the first tare, else the first visit of
     the neutral command."""
-    if anchors.t_s.size:
-        return float(anchors.t_s[0]), 0.0
+    if tares.size:
+        return float(tares[0]), 0.0
     at = np.flatnonzero(pts.command == neutral)
     if not at.size:
         return None
@@ -177,10 +245,10 @@ def _max_drift(t_s: np.ndarray, floor: float) -> float:
 def _consensus_drift(s: _Search, window: tuple[float, float]) -> float:
     """The drift (N/s) in `window` of the line through the start that the most commands read
     as zero (every point of a command counts, each command as one)."""
-    t0, z0 = s.start
+    t0, z0 = s.through()
     dt = s.pts.t_s - t0
     usable = np.flatnonzero(np.abs(dt) > 0)
-    proposed = (s.pts.mean[usable] - z0) / dt[usable]
+    proposed = (s.pts.mean[usable] - z0[usable]) / dt[usable]
     proposed = proposed[(proposed >= window[0]) & (proposed <= window[1])]
     if proposed.size > MAX_CANDIDATES:
         proposed = np.sort(proposed)[np.linspace(0, proposed.size - 1, MAX_CANDIDATES).astype(int)]
@@ -192,7 +260,7 @@ def _consensus_drift(s: _Search, window: tuple[float, float]) -> float:
     cost = np.empty(candidates.size)
     for lo in range(0, candidates.size, 256):
         d = candidates[lo:lo + 256, None]
-        r = (s.pts.mean[None, :] - z0 - d * dt[None, :]) / s.thr[None, :]
+        r = (s.pts.mean[None, :] - z0[None, :] - d * dt[None, :]) / s.thr[None, :]
         cost[lo:lo + 256] = np.minimum(r * r, 1.0) @ weight
     if s.anchors.drift is not None:  # a drift k_se SEs off the tares' costs every command
         value, se = s.anchors.drift
@@ -249,10 +317,14 @@ def zone_cores(cmd: np.ndarray, dead: np.ndarray) -> np.ndarray:
 def fit_zero_line(pts: ZeroPoints, anchors: Anchors, force_drift: bool = False
                   ) -> ZeroLine | None:
     """Offset, plus a drift when it is significant (or `force_drift`), through the points and
-    the anchors (0 at the tare time, the tares' drift as a constraint on the slope)."""
+    the anchors (0 at the tare time, the tares' drift as a constraint on the slope); an offset
+    per session of `anchors.sessions` that holds any of them, one drift for all."""
     t, y, se = _with_anchors(pts, anchors)
     if t.size == 0:
         return None
+    starts = occupied_starts(t, anchors.sessions)
+    if starts:
+        return _session_zero_line(t, y, se, anchors, starts, force_drift)
     t_ref = float(np.mean(t))
     flat = _robust_wls(np.ones((t.size, 1)), y, se, t)
     design, y2, se2, t2 = _sloped_design(t, y, se, t_ref, anchors)
@@ -264,6 +336,32 @@ def fit_zero_line(pts: ZeroPoints, anchors: Anchors, force_drift: bool = False
                             ((float(c[0, 0]), float(c[0, 1])), (float(c[1, 0]), float(c[1, 1]))))
     return ZeroLine(float(flat.beta[0]), 0.0, t_ref, "dead zones",
                     ((float(flat.cov[0, 0]), 0.0), (0.0, 0.0)))
+
+
+def _session_zero_line(t: np.ndarray, y: np.ndarray, se: np.ndarray, anchors: Anchors,
+                       starts: tuple[float, ...], force_drift: bool) -> ZeroLine:
+    """`fit_zero_line` for points (and anchors) in several sessions: one offset each."""
+    t_ref = float(np.mean(t))
+    offsets = np.column_stack(session_columns(t, starts))
+    m = offsets.shape[1]
+    flat = _robust_wls(offsets, y, se, t)
+    design = np.column_stack([offsets, t - t_ref])
+    y2, se2, t2 = y, se, t
+    if anchors.drift is not None:
+        value, sd = anchors.drift
+        row = np.zeros((1, m + 1))
+        row[0, -1] = 1.0
+        design, y2, se2, t2 = (np.vstack([design, row]), np.append(y, value), np.append(se, sd),
+                               np.append(t, t_ref))
+    if (design.shape[0] >= m + 2 and np.ptp(t) > 0) or anchors.drift is not None:
+        sloped = _robust_wls(design, y2, se2, t2)
+        c = sloped.cov
+        if force_drift or abs(sloped.beta[-1]) > DRIFT_K * math.sqrt(max(c[-1, -1], 0.0)):
+            return session_line(sloped.beta[:-1], float(sloped.beta[-1]), t_ref, "dead zones",
+                                np.array(c, dtype=float), starts)
+    cov = np.zeros((m + 1, m + 1))
+    cov[:m, :m] = flat.cov
+    return session_line(flat.beta, 0.0, t_ref, "dead zones", cov, starts)
 
 
 def _with_anchors(pts: ZeroPoints, anchors: Anchors) -> tuple[np.ndarray, ...]:

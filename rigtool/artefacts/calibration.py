@@ -15,8 +15,17 @@ from pathlib import Path
 import numpy as np
 
 from rigtool.analysis.calibrate import Calibration, DepthSection
-from rigtool.analysis.dynamics import MAX_MODEL_ERROR, Dynamics, DynamicsModel
-from rigtool.analysis.fits import Coefficient
+from rigtool.analysis.dynamics import (
+    CONSUMER_LIMIT,
+    MAX_MODEL_ERROR,
+    Dynamics,
+    DynamicsModel,
+    consumer_adequate,
+    exported_yoerger,
+    first_order_tau,
+    selected_tau,
+)
+from rigtool.analysis.fits import Coefficient, ZeroLine
 from rigtool.analysis.voltage import VoltageLaw
 from rigtool.artefacts.write import (
     MISSING,
@@ -53,14 +62,13 @@ def write_artefacts(cal: Calibration, out_dir: str | Path,
     created = created_utc or utc_now()
     target = run_folder(out_dir, cal.run_id)
     target.mkdir(parents=True, exist_ok=True)
-    head = [f"rigtool {cal.tool_version} calibration of run {cal.run_id}, created {created}",
-            f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
+    head = _csv_head(cal, created)
     texts = {
         "calibration": json_text(calibration_document(cal, created)),
         "points": csv_text(head + POINTS_DOC, _units(POINT_COLUMNS, cal), _point_rows(cal)),
         "command_curve": csv_text(head + CURVE_DOC, _units(CURVE_COLUMNS, cal),
                                   curve_rows(cal)),
-        "inverse_lut": csv_text(head + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal)),
+        "inverse_lut": lut_text(cal, created),
         "performance": performance_text(cal),
     }
     stale = target / FILES["voltage"]
@@ -69,6 +77,16 @@ def write_artefacts(cal: Calibration, out_dir: str | Path,
     elif stale.exists():
         stale.unlink()  # from an earlier calibration of a run that no longer has voltages
     return [atomic_write(target / FILES[key], text) for key, text in texts.items()]
+
+
+def _csv_head(cal: Calibration, created: str) -> list[str]:
+    return [f"rigtool {cal.tool_version} calibration of run {cal.run_id}, created {created}",
+            f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
+
+
+def lut_text(cal: Calibration, created: str) -> str:
+    """inverse_lut.csv: the inverse lookup table of every section."""
+    return csv_text(_csv_head(cal, created) + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal))
 
 
 def calibration_document(cal: Calibration, created_utc: str) -> dict:
@@ -190,9 +208,7 @@ def _section_doc(sec: DepthSection) -> dict:
         "depth_m": sec.depth_m,
         "supply_voltage_v": sec.voltage_v,
         "bus_voltage_mean_v": sec.bus_v,
-        "zero": None if z is None else {
-            "source": z.source, "offset_n": z.offset_n,
-            "drift_n_per_h": z.drift_n_per_s * 3600.0, "t_ref_s": z.t_ref_s},
+        "zero": None if z is None else _zero_doc(z),
         "n_points": len(sec.points),
         "n_points_used_in_fits": int(sec.points.used_in_fits.sum()),
         "speed_sign": sec.speed_sign,
@@ -207,6 +223,17 @@ def _section_doc(sec: DepthSection) -> dict:
             "n_groups": int(r.command.size)},
         "warnings": list(sec.warnings),
     }
+
+
+def _zero_doc(z: ZeroLine) -> dict:
+    """The zero entry: offset at t_ref and drift; a resumed run's later sessions (each tared
+    again) add `sessions`, the time each begins and its own offset at t_ref."""
+    doc = {"source": z.source, "offset_n": z.offset_n,
+           "drift_n_per_h": z.drift_n_per_s * 3600.0, "t_ref_s": z.t_ref_s}
+    if z.session_starts_s:
+        doc["sessions"] = [{"start_s": start, "offset_n": offset} for start, offset in
+                           zip((None, *z.session_starts_s), z.offsets.tolist(), strict=True)]
+    return doc
 
 
 def _current_law_doc(fits: dict[str, Coefficient]) -> dict | None:
@@ -225,7 +252,8 @@ def _current_law_doc(fits: dict[str, Coefficient]) -> dict | None:
 
 def _model_doc(m: DynamicsModel) -> dict:
     optional = {"tau_a": m.tau_a_s, "g": m.gain, "alpha": m.alpha, "beta": m.inflow_beta,
-                "rho": m.reverse_ratio}
+                "rho": m.reverse_ratio, "tau_fall": m.tau_fall_s,
+                "fall_minus_rise": m.fall_minus_rise}
     return {"tau_n": _coef_doc(m.tau_n_s), "delay": _coef_doc(m.delay_s),
             **{k: None if c is None else _coef_doc(c) for k, c in optional.items()},
             "rms_n": m.rms_n, "bic": m.bic, "aic": m.aic, "n_samples": m.n_samples,
@@ -236,15 +264,17 @@ def _model_doc(m: DynamicsModel) -> dict:
 def _dynamics_doc(d: Dynamics) -> dict:
     m = d.model
     return {
-        "model": "x' = (X - x) / tau_n (one-state, two-state, healey-lag) or x' = alpha (X|X| - "
-                 "x|x|) (yoerger, healey); two-state: m' = (x - m) / tau_a and thrust c (x|x| + "
+        "model": "x' = (X - x) / tau_n (one-state, two-state, healey-lag; rise-fall: tau_n "
+                 "while |x| grows, x (X - x) >= 0, tau_fall while it shrinks) or x' = alpha "
+                 "(X|X| - x|x|) (yoerger, healey); two-state: m' = (x - m) / tau_a and thrust c (x|x| + "
                  "g (x|x| - m|m|)); healey, healey-lag: m' = beta (x|x| - m|m|) and thrust c "
                  "(x|x| + g |x| (x - m)); else thrust c x|x|; x in sqrt(N), X|X| the steady "
                  "thrust of the command (divided by rho in reverse), c = 1 for x >= 0 and rho = "
                  "C_p_rev / C_p_fwd below; the command acts `delay` s after it is sent "
                  "(docs/dynamics.md)",
         "selected": d.selected,
-        "selected_by": "held-out steps (two-state also by BIC and its gain)",
+        "selected_by": "held-out steps (two-state, healey-lag, healey also by BIC and their "
+                       "gain; rise-fall by BIC and rise and fall constants that differ)",
         "identified": d.identified,
         "reason": d.reason,
         "models": {name: None if mm is None else _model_doc(mm) for name, mm in d.slots()},
@@ -252,17 +282,83 @@ def _dynamics_doc(d: Dynamics) -> dict:
                      "model_error_n": m.model_error_n(), "full_scale_n": d.full_scale_n,
                      "model_error_frac": m.model_error_n() / d.full_scale_n
                      if d.full_scale_n else None, "limit_frac": MAX_MODEL_ERROR},
-        "time_constant_s": m.tau_n_s.value if d.identified else None,
+        "time_constant_s": selected_tau(d).value if d.identified else None,
+        "first_order_time_constant_s": first_order_tau(d).value if d.identified else None,
+        "rise_time_constant_s": d.rise_fall.tau_n_s.value
+        if d.identified and d.rise_fall is not None else None,
+        "fall_time_constant_s": d.rise_fall.tau_fall_s.value
+        if d.identified and d.rise_fall is not None and d.rise_fall.tau_fall_s else None,
+        "consumers": _consumers_doc(d),
         "zero_n": d.zero_n,
         "levels": [{"command": c, "thrust_n": f} for c, f in sorted(d.levels.items())],
         "steps": [{"command_from": s.command_from, "command_to": s.command_to,
                    "thrust_from_n": s.thrust_from_n, "thrust_to_n": s.thrust_to_n,
-                   "direction": s.direction, "t10_s": s.t10_s, "rise_s": s.rise_s,
+                   "direction": s.direction, "t10_s": s.t10_s,
+                   "rise_s": s.rise_s if s.settled else None,
                    "settling_s": s.settling_s, "settled": s.settled, "window_s": s.window_s,
-                   "overshoot_frac": s.overshoot_frac}
+                   "overshoot_frac": s.overshoot_frac if s.settled else None}
                   for s in d.steps],
         "warnings": list(d.warnings),
     }
+
+
+def _consumer_fit(d: Dynamics, name: str, m: DynamicsModel | None) -> dict:
+    """A simpler model's fit quality and its deviation from the selected model."""
+    err = d.consumer_error_n.get(name, math.nan)
+    scale = d.full_scale_n
+    return {"from_model": None if m is None else m.name,
+            "heldout_rms_n": None if m is None else m.heldout_rms_n,
+            "model_error_n": None if m is None else m.model_error_n(),
+            "error_n": err, "error_frac": err / scale if scale else None,
+            "adequate": consumer_adequate(d, name)}
+
+
+def _consumers_doc(d: Dynamics) -> dict:
+    """The simpler models exported for consumers that take only them."""
+    m = d.model
+    rf, yo = d.rise_fall, exported_yoerger(d)
+    out: dict = {
+        "limit_frac": CONSUMER_LIMIT,
+        "note": "each simpler model as exported (with the selected model's delay), its RMS "
+                "deviation from the selected model over the step run (error_n, error_frac of "
+                "full scale) and whether that is within limit_frac (adequate; never when no "
+                "dynamics are identified); heldout_rms_n and model_error_n are its own fit's",
+        "first-order": {"equation": "x' = (X - x) / tau, thrust c x|x|", "tau":
+                        _coef_doc(first_order_tau(d)), "delay_s": m.delay_s.value,
+                        **_consumer_fit(d, "first-order", d.one_state)},
+        "rise-fall": None, "yoerger": None}
+    if rf is not None and rf.tau_fall_s is not None and rf.fall_minus_rise is not None:
+        out["rise-fall"] = {
+            "equation": "x' = (X - x) / tau_rise while |x| grows (x (X - x) >= 0), "
+                        "(X - x) / tau_fall while it shrinks; thrust c x|x|",
+            "tau_rise": _coef_doc(rf.tau_n_s), "tau_fall": _coef_doc(rf.tau_fall_s),
+            "fall_minus_rise": _coef_doc(rf.fall_minus_rise), "differ": rf.rise_fall_differ(),
+            "delay_s": m.delay_s.value, **_consumer_fit(d, "rise-fall", rf)}
+    if yo is not None and yo.alpha is not None:
+        out["yoerger"] = {
+            "equation": "x' = beta f_cmd - alpha x|x|, beta = alpha forward and alpha / rho in "
+                        "reverse, thrust c x|x|; x in sqrt(N), f_cmd the commanded steady "
+                        "thrust (N)",
+            "alpha": _coef_doc(yo.alpha), "rho": None if yo.reverse_ratio is None else
+            _coef_doc(yo.reverse_ratio), "beta_forward": _coef_doc(yo.alpha),
+            "beta_reverse": _coef_doc(_beta_reverse(yo)), "delay_s": m.delay_s.value,
+            **_consumer_fit(d, "yoerger", yo)}
+    return out
+
+
+def _beta_reverse(m: DynamicsModel) -> Coefficient:
+    """alpha / rho with its interval from the two relative half-widths in quadrature."""
+    a, r = m.alpha, m.reverse_ratio
+    if r is None:
+        return a
+    value = a.value / r.value
+
+    def rel(c: Coefficient) -> float:
+        return (c.hi - c.lo) / (2 * c.value) if c.value else math.inf
+
+    hw = value * math.hypot(rel(a), rel(r))
+    return dataclasses.replace(a, name="beta_reverse", value=value, lo=value - hw, hi=value + hw,
+                               note="Yoerger beta in reverse: alpha / rho")
 
 
 def _voltage_law_doc(law: VoltageLaw) -> dict:

@@ -41,6 +41,25 @@ def atomic_write(path: Path, content: str | bytes | Callable[[Path], object]) ->
     return path
 
 
+def write_all(texts: dict[Path, str]) -> list[Path]:
+    """Write every text to its path or none: each goes to a temporary file beside its path
+    first, and only when all are written (and no path is a directory) are they renamed into
+    place; on a failure the temporary files are removed and the error raised."""
+    tmps = {path: path.with_name(path.name + ".tmp") for path in texts}
+    try:
+        for path, tmp in tmps.items():
+            if path.is_dir():
+                raise IsADirectoryError(f"{path} is a directory")
+            tmp.write_text(texts[path], encoding="utf-8", newline="\n")
+    except BaseException:
+        for tmp in tmps.values():
+            tmp.unlink(missing_ok=True)
+        raise
+    for path, tmp in tmps.items():
+        os.replace(tmp, path)
+    return list(texts)
+
+
 def json_clean(obj: Any, digits: int | None = 10) -> Any:
     """JSON-safe, deterministic copy: numpy and dataclasses to plain data, floats to `digits`
     significant digits (None: exact), NaN/inf to None."""

@@ -28,14 +28,14 @@ record fields; ATI's Java demo, com.atiia.automation.sensors.NetFTRDTPacket, who
   records whenever the RDT rate is lower; it says nothing about loss and is not checked.
 
 The receive thread judges every record's rdt_sequence against the last one stored
-(`RdtSequence`): ahead by 1 to SEQUENCE_WINDOW, it is stored and the numbers skipped are
-lost; equal or behind by up to SEQUENCE_WINDOW, it is a late record (its number was
-skipped: `out_of_order`) or a duplicate, and is dropped. A record farther away is held,
-neither stored nor counted, until the next record judges it: if that one goes on from the
-held one, the stream really moved there (a restart, or a gap longer than the window) and
-both are stored (`resyncs`; a forward move of up to MAX_SEQUENCE_JUMP counts the numbers
-skipped as lost); if not, the held record was a lone corrupt one: dropped and counted in
-`bad_sequence`, with no loss, and the next record is judged as if it had never come.
+(`RdtSequence`): exactly 1 ahead, it is stored; equal or behind by up to SEQUENCE_WINDOW, it
+is a late record (its number was skipped: `out_of_order`) or a duplicate, and is dropped.
+Any other jump, near or far, is held, neither stored nor counted, until the records after it
+judge it: once CONFIRM_RECORDS records go on from it, the stream really moved there (a gap,
+counted lost, or a restart: `resyncs`) and the held records are stored; once as many go on
+from the stream instead, it was corrupt: dropped and counted in `bad_sequence`, with no loss
+and no genuine record dropped. A record that completes the stream up to a held run (it had
+been overtaken) is stored in its place (`reordered`). docs/drivers/netft.md has the table.
 
 The driver streams in a background thread into a buffer stamped with the monotonic
 arrival time, converts counts to N and N m, and keeps statistics of lost, late,
@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import selectors
 import socket
 import struct
@@ -78,7 +79,9 @@ CMD_BIAS = 0x0042
 REQUEST = struct.Struct(">HHI")  # header, command, sample count
 RECORD = struct.Struct(">III6i")  # rdt_sequence, ft_sequence, status, Fx..Tz (counts)
 RECORD_DTYPE = np.dtype([("seq", ">u4"), ("ft_seq", ">u4"), ("status", ">u4"), ("counts", ">i4", (6,))])
-SEQUENCE_WINDOW = 1024  # farther rdt_sequence jumps are held until the next record judges them
+SEQUENCE_WINDOW = 1024  # late records are recognised this far behind the stream
+CONFIRM_RECORDS = 2  # a jump is stored once this many records go on from it
+MAX_CANDIDATES = 4  # candidate runs held at once (more: the oldest was corrupt)
 MAX_SEQUENCE_JUMP = 1_000_000  # a confirmed move ahead up to this is a gap (lost); more, a restart
 _SEQ_MOD = 1 << 32
 _BIAS_GUARD_S = 0.02  # after a device bias, records arriving this soon may predate it
@@ -228,6 +231,7 @@ class NetFTStats:
     lost_packets: int = 0  # rdt_sequence numbers (records) missing from the accepted stream
     out_of_order: int = 0  # late records: behind the stream, in a gap counted lost (discarded)
     duplicates: int = 0  # records whose rdt_sequence was already received (discarded)
+    reordered: int = 0  # records overtaken while the jump after them was held (kept in place)
     bad_size: int = 0  # datagrams whose length is not a multiple of 36 bytes
     bad_sequence: int = 0  # far records the next did not confirm (corrupt), or left at a restart
     resyncs: int = 0  # far moves of the stream that the next record confirmed (followed)
@@ -240,6 +244,16 @@ class NetFTStats:
     overflowed: int = 0  # buffered samples dropped because the buffer was full
 
 
+def _monotone(items: list[tuple]) -> list[tuple]:
+    """`items` in sequence order with arrival times made non-decreasing: a late record that
+    completes a held run takes the time of the first record after it."""
+    out, t = [], math.inf
+    for item in reversed(items):
+        t = min(t, item[0])
+        out.append(item if item[0] == t else (t, *item[1:]))
+    return out[::-1]
+
+
 class RdtSequence:
     """The rdt_sequence of one output stream, judged record by record (see the module
     docstring); `offer` and `take_run` say what to store, and counts go into `stats`."""
@@ -247,99 +261,125 @@ class RdtSequence:
     def __init__(self, stats: NetFTStats) -> None:
         self.stats = stats
         self.last: int | None = None  # rdt_sequence of the last record stored
-        self._held: tuple | None = None  # a far record, until the next one judges it
+        self._held: list[list[tuple]] = []  # candidate runs after a jump, until judged
+        self._passed: list[int] = []  # records stored since each candidate came
         self._missing: set[int] = set()  # numbers skipped, within SEQUENCE_WINDOW of `last`
 
     def restart(self) -> None:
         """A start request went out: the box numbers the new stream from 1."""
-        if self._held is not None:
-            self.stats.bad_sequence += 1  # never confirmed
-        self.last = self._held = None
+        self._drop_all()
+        self.last = None
         self._missing.clear()
 
     def offer(self, item: tuple) -> list[tuple]:
         """The records to store now, in order, given the next one (t, seq, status, counts...)."""
-        if self._held is None:
-            return self._judge(item)
-        return self._settle(item)
+        seq, base = item[1], self._base()
+        ahead = (seq - base) % _SEQ_MOD
+        if ahead == 1:
+            return self._store_next(item)
+        if self.last is not None and (not ahead or _SEQ_MOD - ahead <= SEQUENCE_WINDOW):
+            self._behind(seq)
+            return []
+        for k, run in enumerate(self._held):
+            step = (seq - run[-1][1]) % _SEQ_MOD
+            if not step:
+                self.stats.duplicates += 1
+                return []
+            if step <= SEQUENCE_WINDOW:
+                run.append(item)
+                return self._confirm(k) if len(run) > CONFIRM_RECORDS else []
+        self._held.append([item])
+        self._passed.append(0)
+        if len(self._held) > MAX_CANDIDATES:
+            self._drop(0)
+        return []
 
     def take_run(self, seq: np.ndarray) -> bool:
-        """Take uint32 `seq` at once if each is 1..SEQUENCE_WINDOW ahead of the one before."""
-        last = self.last
-        if last is None or self._held is not None:
+        """Take uint32 `seq` at once if each is 1 ahead of the one before and none is held."""
+        if self._held or not len(seq):
             return False
         ahead = np.empty(len(seq), np.uint32)  # steps modulo 2^32, as uint32 arithmetic wraps
-        ahead[0] = (int(seq[0]) - last) % _SEQ_MOD
+        ahead[0] = (int(seq[0]) - self._base()) % _SEQ_MOD
         np.subtract(seq[1:], seq[:-1], out=ahead[1:])
-        top = int((ahead - np.uint32(1)).max())  # a repeat (0) wraps to the largest
-        if top >= SEQUENCE_WINDOW:
+        if (ahead != 1).any():
             return False
-        if top:
-            for i in np.flatnonzero(ahead > 1).tolist():
-                self._skip(int(seq[i - 1]) if i else last, int(ahead[i]))
         self.last = int(seq[-1])
         return True
 
     def take_consecutive(self, seqs: list[int]) -> bool:
         """Take a datagram's records at once if they number on from the stream one by one."""
-        last, first = self.last, seqs[0]
-        if (last is None or self._held is not None or not 0 < first - last <= SEQUENCE_WINDOW
-                or seqs != list(range(first, first + len(seqs)))):
+        first = seqs[0]
+        if self._held or first != (self._base() + 1) % _SEQ_MOD or seqs != list(
+                range(first, first + len(seqs))):
             return False  # the wrap past 2^32 is left to `offer`
-        if first - last > 1:
-            self._skip(last, first - last)
         self.last = seqs[-1]
         return True
 
-    def _judge(self, item: tuple) -> list[tuple]:
-        """Judge a record against the stored stream, nothing being held."""
-        seq, last = item[1], self.last
-        if last is None:
-            return self._first(item)
-        ahead = (seq - last) % _SEQ_MOD
-        if 0 < ahead <= SEQUENCE_WINDOW:
+    def _base(self) -> int:
+        """The number the next record should follow: the last stored, 0 before a stream."""
+        return 0 if self.last is None else self.last
+
+    def _store_next(self, item: tuple) -> list[tuple]:
+        """Store the record that goes on from the stream, then any candidate run it reaches;
+        a candidate passed by CONFIRM_RECORDS stored records was corrupt."""
+        self.last = item[1]
+        out = [item]
+        self._passed = [p + 1 for p in self._passed]
+        released = True
+        while released:
+            released = False
+            for k, run in enumerate(self._held):
+                if run[0][1] == (self.last + 1) % _SEQ_MOD:
+                    self.stats.reordered += 1
+                    out += self._take(run)
+                    self._held.pop(k)
+                    self._passed.pop(k)
+                    released = True
+                    break
+        for k in reversed(range(len(self._held))):
+            if self._passed[k] >= CONFIRM_RECORDS:
+                self._drop(k)
+        return _monotone(out) if len(out) > 1 else out
+
+    def _confirm(self, k: int) -> list[tuple]:
+        """Candidate run k went on for CONFIRM_RECORDS records: the stream really moved there
+        (a gap, or a restart); the other candidates were corrupt."""
+        run = self._held.pop(k)
+        self._passed.pop(k)
+        self._drop_all()
+        self._follow(run[0][1])
+        return [run[0], *self._take(run[1:])]
+
+    def _take(self, run: list[tuple]) -> list[tuple]:
+        """Store a run that goes on from `last`, counting the numbers it skips as lost."""
+        for item in run:
+            ahead = (item[1] - self._base()) % _SEQ_MOD
             if ahead > 1:
-                self._skip(last, ahead)
-            self.last = seq
-            return [item]
-        if not ahead or _SEQ_MOD - ahead <= SEQUENCE_WINDOW:
-            self._behind(seq)
-        else:
-            self._held = item
-        return []
+                self._skip(self._base(), ahead)
+            self.last = item[1]
+        return list(run)
 
-    def _first(self, item: tuple) -> list[tuple]:
-        """The first record of a stream: stored if near where the box starts (1), else held."""
-        seq = item[1]
-        if not 0 < seq <= SEQUENCE_WINDOW:
-            self._held = item
-            return []
-        if seq > 1:
-            self._skip(0, seq)
-        self.last = seq
-        return [item]
+    def _drop(self, k: int) -> None:
+        """Candidate run k was never confirmed: its records were corrupt."""
+        self.stats.bad_sequence += len(self._held.pop(k))
+        self._passed.pop(k)
 
-    def _settle(self, item: tuple) -> list[tuple]:
-        """Judge the held record by the one after it, then judge that one."""
-        held = self._held
-        step = (item[1] - held[1]) % _SEQ_MOD
-        if not step:
-            self.stats.duplicates += 1
-            return []
-        self._held = None
-        if step > SEQUENCE_WINDOW:
-            self.stats.bad_sequence += 1  # a lone far record: corrupt
-            return self._judge(item)
-        self._follow(held[1])
-        return [held, *self._judge(item)]
+    def _drop_all(self) -> None:
+        while self._held:
+            self._drop(0)
 
     def _follow(self, seq: int) -> None:
-        """The stream really moved to `seq`: a long gap (lost) or a restart."""
+        """The stream really moved to `seq`: a gap (lost) or a restart."""
         last, self.last = self.last, seq
-        if last is None:
+        if last is None:  # the box numbers a stream from 1; farther, it joined a running one
+            if seq <= SEQUENCE_WINDOW:
+                self._skip(0, seq)
+            return
+        ahead = (seq - last) % _SEQ_MOD
+        if ahead <= SEQUENCE_WINDOW:
+            self._skip(last, ahead)
             return
         self.stats.resyncs += 1
-        ahead = (seq - last) % _SEQ_MOD
         if ahead <= MAX_SEQUENCE_JUMP:
             self._skip(last, ahead)
         else:

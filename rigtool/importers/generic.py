@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rigtool.bounds import MAX_COMMAND
 from rigtool.errors import UsageError
 from rigtool.importers import rcbenchmark, units
 from rigtool.importers.mapping import Mapping
@@ -20,13 +21,15 @@ MIN_LEVEL_ROWS = 5  # ... each level a sweep of at least this many commands
 
 @dataclass
 class ColumnRef:
-    """One mapped column: its position, header cell and factor to the stored SI unit."""
+    """One mapped column: its position, header cell, and factor (then offset) to the stored
+    unit (SI; temperature in °C)."""
 
     field: str
     index: int
     header: str
     unit: str | None
     factor: float
+    offset: float = 0.0
 
 
 @dataclass
@@ -123,9 +126,9 @@ def resolve_columns(table: RawTable, mapping: Mapping) -> tuple[str, dict[str, C
                                 "(give --pole-pairs to convert it to propeller speed)")
                 continue
             scale /= mapping.pole_pairs
-        if fld == "thrust":
+        if fld in ("thrust", "torque"):  # --flip-thrust turns the thrust axis, torque with it
             scale *= mapping.thrust_sign
-        refs[fld] = ColumnRef(fld, idx, header, unit, scale)
+        refs[fld] = ColumnRef(fld, idx, header, unit, scale, units.offset(fld, unit))
     command_unit = mapping.command_unit or units.command_unit(refs["command"].unit)
     if command_unit is None:
         raise UsageError(f"{path}: unknown command unit for column {refs['command'].header!r}: "
@@ -155,7 +158,7 @@ def _column(cells: list[str], fld: str, ref: ColumnRef, widths: np.ndarray, deci
     text = [c.replace(",", ".") for c in cells] if decimal == "," else cells
     try:
         with np.errstate(over="ignore", invalid="ignore"):
-            values = np.asarray(text, dtype=float) * ref.factor
+            values = np.asarray(text, dtype=float) * ref.factor + ref.offset
         if np.all(np.isfinite(values)):
             return values
     except ValueError:
@@ -172,12 +175,12 @@ def _column(cells: list[str], fld: str, ref: ColumnRef, widths: np.ndarray, deci
                 problems.setdefault(i, []).append(
                     f"{fld}: empty" if ref.index < widths[i]
                     else f"{fld}: missing (row has {widths[i]} cells)")
-        elif not math.isfinite(value * ref.factor):
+        elif not math.isfinite(value * ref.factor + ref.offset):
             problems.setdefault(i, []).append(
                 f"{fld}: {shown(cell)} is too large once converted from "
                 f"{ref.unit or 'its unit'} (x {ref.factor:g})")
         else:
-            values[i] = value * ref.factor
+            values[i] = value * ref.factor + ref.offset
     return values
 
 
@@ -198,6 +201,11 @@ def parse(table: RawTable, mapping: Mapping) -> Parsed:
         for i in np.flatnonzero(np.isinf(spread)).tolist():
             problems.setdefault(i, []).append(
                 "thrust_std: thrust plus its standard deviation is too large")
+    if "command" in columns:
+        for i in np.flatnonzero(np.abs(columns["command"]) > MAX_COMMAND).tolist():
+            problems.setdefault(i, []).append(
+                f"command: {columns['command'][i]:g} is outside the commands rigtool stores "
+                f"(|command| <= {MAX_COMMAND:g})")
     good = np.ones(len(table.rows), dtype=bool)
     good[list(problems)] = False
     row_lines = [line for line, _ in table.rows]

@@ -11,7 +11,7 @@ from rigtool.config import load_model
 from rigtool.errors import UsageError
 
 FIELDS = ("time", "command", "thrust", "speed", "current", "voltage", "depth", "supply",
-          "thrust_std", "n_samples")
+          "thrust_std", "n_samples", "torque", "temperature")
 FORMATS = ("auto", "timeseries", "points", "steps")
 # Characters a delimiter may not be: the quote, line ends, and what numbers are written with.
 NOT_DELIMITERS = frozenset('"\r\n0123456789.+-eE')
@@ -40,6 +40,8 @@ class Columns(_Strict):
     supply: str | int | None = None  # supply voltage set (a voltage sweep); `voltage` is measured
     thrust_std: str | int | None = None
     n_samples: str | int | None = None
+    torque: str | int | None = None  # about the thrust axis: C_q (right-hand about forward thrust)
+    temperature: str | int | None = None  # kept per point (a `temperature` event), not fitted
 
 
 class Units(_Strict):
@@ -53,6 +55,8 @@ class Units(_Strict):
     depth: str | None = None
     supply: str | None = None
     thrust_std: str | None = None
+    torque: str | None = None
+    temperature: str | None = None
 
 
 class Mapping(_Strict):

@@ -2,7 +2,8 @@
 
 Their logs name each column with a unit suffix, e.g. `Time (s)`, `ESC signal (µs)` (older
 software: `ESC (µs)`), `Thrust (kgf)` or `Thrust (N)`, `Torque (N·m)`, `Voltage (V)`,
-`Current (A)`, `Motor Electrical Speed (RPM)`, `Motor Optical Speed (RPM)`. Manufacturer
+`Current (A)`, `Motor Electrical Speed (RPM)`, `Motor Optical Speed (RPM)`, and with
+temperature probes a temperature column (`Temp0 (°C)`, `Temperature (°C)`, ...). Manufacturer
 tables in the same style (Blue Robotics: `PWM (µs)`, `RPM`, `Current (A)`, `Voltage (V)`,
 `Force (Kg f)`, and `Supply Voltage (V)` where one file holds several voltages) are read the
 same way.
@@ -14,7 +15,8 @@ import re
 
 from rigtool.importers.units import split_header
 
-# field -> header base names (lower case, unit suffix removed), most preferred first
+# field -> header base names (lower case, unit suffix removed; whole-name regular
+# expressions), most preferred first
 PATTERNS: dict[str, tuple[str, ...]] = {
     "time": (r"time",),
     "command": (r"esc signal", r"esc", r"pwm", r"throttle"),
@@ -28,6 +30,10 @@ PATTERNS: dict[str, tuple[str, ...]] = {
     "current": (r"current",),
     "speed": (r"motor optical speed", r"optical speed", r"motor speed", r"rpm",
               r"motor electrical speed", r"electrical speed"),
+    "torque": (r"torque", r"motor torque", r"reaction torque"),
+    # a probe's temperature: `Temperature`, `Temp`, `Temp0`, `Temp 1`, `Motor Temperature`...
+    "temperature": (r"(?:motor |winding |esc |water |ambient |coil )?temp(?:erature)?"
+                    r"(?: ?(?:probe )?\d{1,2})?",),
 }
 ELECTRICAL = re.compile(r"electrical", re.IGNORECASE)
 ALWAYS_RECOGNISED = ("supply",)  # recognised by header in any table, with a mapping too
@@ -45,7 +51,8 @@ def guess_columns(header: list[str]) -> dict[str, str]:
     out: dict[str, str] = {}
     for field, names in PATTERNS.items():
         for name in names:
-            hit = next((h for h, b in zip(header, bases, strict=True) if b == name), None)
+            hit = next((h for h, b in zip(header, bases, strict=True)
+                        if re.fullmatch(name, b)), None)
             if hit is not None:
                 out[field] = hit
                 break

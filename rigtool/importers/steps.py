@@ -13,8 +13,14 @@ import numpy as np
 from rigtool.errors import UsageError
 from rigtool.importers.generic import Parsed
 
+TORQUE_CHANNEL = "tx"
+TEMPERATURE_CHANNEL = "temperature_c"
+
+# parsed field -> sample channel; torque is stored as `tx`, the torque about a thrust axis on
+# `fx` (the run's rig says so); `temperature_c` has no sample column in the store: the import
+# keeps it per point in `temperature` events (rigtool.importers.temperature_events)
 CHANNELS = {"thrust": "thrust_n", "speed": "speed_rpm", "current": "current_a",
-            "voltage": "voltage_v"}
+            "voltage": "voltage_v", "torque": TORQUE_CHANNEL, "temperature": TEMPERATURE_CHANNEL}
 MAX_SYNTH_SAMPLES = 10_000
 MAX_IMPORT_SAMPLES = 10_000_000  # samples one import may synthesise from a per-point table
 TIMESERIES_MIN_RUN = 3  # median rows per command above which `auto` reads a time series

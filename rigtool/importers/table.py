@@ -11,6 +11,7 @@ from rigtool.errors import UsageError
 from rigtool.files import MAX_TABLE_BYTES, read_regular_bytes
 
 CANDIDATE_DELIMITERS = (",", ";", "\t")
+OLE_MAGIC = b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"  # Compound File Binary: .xls, .doc
 
 
 @dataclass
@@ -37,9 +38,14 @@ def sniff_delimiter(line: str, decimal: str) -> str:
 
 
 def read_table(path: Path, *, delimiter: str | None = None, decimal: str = ".",
-               header_row: int | None = None) -> RawTable:
-    """Parse `path`; the header is line `header_row` or the first non-blank line."""
-    raw = read_regular_bytes(path, MAX_TABLE_BYTES)  # a FIFO or device is refused, not read
+               header_row: int | None = None, raw: bytes | None = None) -> RawTable:
+    """Parse `path` (or its bytes `raw`, already read); the header is line `header_row` or the
+    first non-blank line."""
+    if raw is None:
+        raw = read_regular_bytes(path, MAX_TABLE_BYTES)  # a FIFO or device is refused, not read
+    if raw.startswith(OLE_MAGIC):
+        raise UsageError(f"{path}: an old Excel .xls workbook (or another OLE file), not a text "
+                         "table: save it as .xlsx, or export each sheet as CSV")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:

@@ -23,8 +23,21 @@ FACTORS: dict[str, dict[str, float]] = {
 }
 FACTORS["supply"] = FACTORS["voltage"]
 FACTORS["thrust_std"] = FACTORS["thrust"]
+# torque about the thrust axis, to N m; the product sign is written many ways (N·m, N⋅m, N.m, Nm)
+_TORQUE_UNITS = {("n", "m"): 1.0, ("mn", "m"): 1e-3, ("n", "cm"): 1e-2, ("n", "mm"): 1e-3,
+                 ("kgf", "m"): G0, ("kgf", "cm"): G0 / 100, ("gf", "cm"): G0 / 1e5,
+                 ("lbf", "in"): 0.1129848290276167, ("lbf", "ft"): 1.3558179483314004,
+                 ("ozf", "in"): 0.00706155181422604}
+FACTORS["torque"] = {f"{a}{sep}{b}": k for (a, b), k in _TORQUE_UNITS.items()
+                     for sep in ("·", "⋅", ".", "*", "-", "")}
+# temperature, to °C: value * factor + OFFSETS (K and °F need an offset, not only a factor)
+FACTORS["temperature"] = {"°c": 1.0, "c": 1.0, "degc": 1.0, "celsius": 1.0, "k": 1.0,
+                          "°f": 5 / 9, "f": 5 / 9, "degf": 5 / 9}
+OFFSETS = {"temperature": {"k": -273.15, "°f": -32 * 5 / 9, "f": -32 * 5 / 9,
+                           "degf": -32 * 5 / 9}}
 DEFAULT_UNITS = {"time": "s", "thrust": "n", "speed": "rpm", "current": "a", "voltage": "v",
-                 "depth": "m", "supply": "v", "thrust_std": "n"}
+                 "depth": "m", "supply": "v", "thrust_std": "n", "torque": "n·m",
+                 "temperature": "°c"}
 # header unit -> rigtool command unit
 COMMAND_UNITS = {"us": "pulse_us", "pulse_us": "pulse_us", "%": "percent", "percent": "percent",
                  "pwm": "pwm_counts", "pwm_counts": "pwm_counts", "counts": "pwm_counts",
@@ -40,8 +53,10 @@ def split_header(header: str) -> tuple[str, str | None]:
 
 
 def normalise(unit: str) -> str:
-    """Lower-case, micro sign as 'u', no spaces: 'µs' -> 'us', 'N·m' -> 'n·m'."""
-    return unit.strip().lower().replace("µ", "u").replace("μ", "u").replace(" ", "")
+    """Lower-case, micro sign as 'u', ordinal º as degree sign, no spaces: 'µs' -> 'us',
+    'N·m' -> 'n·m', 'ºC' -> '°c'."""
+    return (unit.strip().lower().replace("µ", "u").replace("μ", "u").replace("º", "°")
+            .replace(" ", ""))
 
 
 def factor(quantity: str, unit: str | None) -> float:
@@ -51,6 +66,12 @@ def factor(quantity: str, unit: str | None) -> float:
     if key not in table:
         raise UsageError(f"unknown unit {unit!r} for {quantity}; known: {', '.join(sorted(table))}")
     return table[key]
+
+
+def offset(quantity: str, unit: str | None) -> float:
+    """What to add after the factor to reach the stored unit (temperature in K or °F: °C)."""
+    key = normalise(unit) if unit else DEFAULT_UNITS[quantity]
+    return OFFSETS.get(quantity, {}).get(key, 0.0)
 
 
 def command_unit(unit: str | None) -> str | None:
