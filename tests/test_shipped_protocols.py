@@ -1,21 +1,33 @@
-"""Every shipped protocol runs sweep -> calibrate -> report through the CLI with exit 0, as a
-user would run it on the simulated rig (luo2020-cavitation after its deep base run)."""
+"""Every shipped protocol runs sweep -> calibrate (with every export format) -> report through
+the CLI with exit 0, as a user would run it on the simulated rig (luo2020-cavitation after its
+deep base run). calibrate --export writes every vehicle file or none (exit 2 naming what is
+missing), no file holds an empty list, and the calibration and vehicle files are byte for byte
+those committed under tests/golden/ (run id, times and tool version aside): a restructuring
+must not change a number. `RIGTOOL_UPDATE_GOLDEN=1` writes them anew after an intended change."""
 
 from __future__ import annotations
 
+import os
 import re
+from pathlib import Path
 
 import pytest
 import yaml
 
+import rigtool
+from rigtool.artefacts.formats import FORMATS, MODULES
 from rigtool.cli import main
 from rigtool.sim.profiles import profile_with_overrides
 from rigtool.store import Store
 
 from .conftest import PROTOCOLS
+from .test_export_all_formats import OPTIONS, empty_lists
 
 SHIPPED = sorted(p.stem for p in PROTOCOLS.glob("*.yaml"))
 NEEDS = {"luo2020-cavitation": "luo2020-baseline"}  # a deep base run of the same thruster
+GOLDEN = Path(__file__).parent / "golden"
+COMPARED = ("calibration.json", "points.csv", "command_curve.csv", "inverse_lut.csv",
+            "performance.csv", "voltage.csv", *FORMATS.values())
 
 
 def test_the_list_is_the_shipped_protocols():
@@ -30,13 +42,30 @@ def test_sweep_calibrate_report(name, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("RIGTOOL_DB", str(tmp_path / "rigtool.sqlite"))
     for protocol in filter(None, (NEEDS.get(name), name)):
         assert main(["sweep", str(PROTOCOLS / f"{protocol}.yaml"), "--sim"]) == 0
-    assert main(["calibrate", "last"]) == 0
+    capsys.readouterr()
+    exports = [a for f in MODULES for a in ("--export", f)]
+    code = main(["calibrate", "last", *OPTIONS, *exports])
+    if code == 2:  # a format lacks what it needs: nothing written, then calibrate alone
+        assert "nothing exported" in capsys.readouterr().err
+        assert not (tmp_path / "calibrations").exists()
+        assert main(["calibrate", "last"]) == 0
+    else:
+        assert code == 0
     drift = [w for w in capsys.readouterr().err.splitlines() if "drift" in w]
     setting, matters = _twin_drift(name, tmp_path / "rigtool.sqlite")
     assert len(drift) == int(matters), (setting, drift)
     if matters:  # the rate quoted is the twin's
         rate = float(re.search(r"at (\S+) N/h", drift[0]).group(1))
         assert rate == pytest.approx(setting["drift_n_per_h"], rel=0.1), drift
+    folder = next((tmp_path / "calibrations").iterdir())
+    written = {f for f in FORMATS.values() if (folder / f).is_file()}
+    assert written in ({FORMATS["csv-lut"]}, set(FORMATS.values())), written
+    for fmt in MODULES:  # each format alone: written, or refused and not written
+        code = main(["export-cal", "last", "--format", fmt, *OPTIONS])
+        assert code in (0, 2) and (folder / FORMATS[fmt]).is_file() == (code == 0), fmt
+        assert code == 0 or f"{fmt}: " in capsys.readouterr().err
+    assert all(empty_lists(folder / f) == [] for f in FORMATS.values() if (folder / f).is_file())
+    _golden(name, folder)
     assert main(["report", "last"]) == 0
     report = capsys.readouterr().out.strip().splitlines()[-1]
     assert report.endswith("report.html") and (tmp_path / report).is_file()
@@ -66,3 +95,28 @@ def _twin_drift(name: str, db) -> tuple[dict, bool]:
 def _span_h(steps: list[dict]) -> float:
     """Hours from the first acquired sample of `steps` to the end of the last."""
     return (max(s["t_end_s"] for s in steps) - min(s["t_acquire_s"] for s in steps)) / 3600
+
+
+def _normalised(text: str, folder: Path) -> str:
+    """`text` with what changes from run to run replaced: the run id, creation times and the
+    tool version."""
+    text = text.replace(folder.name, "RUN-ID")
+    text = re.sub(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?(\+00:00|Z)", "TIME", text)
+    return text.replace(rigtool.__version__, "VERSION")
+
+
+def _golden(name: str, folder: Path) -> None:
+    """Compare (or, with RIGTOOL_UPDATE_GOLDEN=1, write) the calibration and vehicle files."""
+    want = GOLDEN / name
+    got = {f: _normalised((folder / f).read_text(), folder) for f in COMPARED
+           if (folder / f).is_file()}
+    if os.environ.get("RIGTOOL_UPDATE_GOLDEN") == "1":
+        want.mkdir(parents=True, exist_ok=True)
+        for old in want.iterdir():
+            old.unlink()
+        for f, text in got.items():
+            (want / f).write_text(text)
+        return
+    assert sorted(got) == sorted(p.name for p in want.iterdir()), name
+    for f, text in got.items():
+        assert text == (want / f).read_text(), f"{name}/{f} differs from tests/golden"
