@@ -66,6 +66,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
         calibrate_cavitation,
         cavitation_stage,
         training_runs,
+        unchecked_thruster,
     )
     from rigtool.analysis.dataset import load_run
     from rigtool.artefacts.calibration import calibration_document, write_artefacts
@@ -78,6 +79,9 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
         raise UsageError(f"--train-with: run {run_id} has no quasi-cavitation model to train "
                          f"({'; '.join(cav_stage.warnings) or 'no base run'})")
     extra = training_runs(store, run_id, train_with)
+    stage_notes = [*cav_stage.warnings, *(
+        f"quasi-cavitation: {n}" for n in (unchecked_thruster(store, run_id, rid, "training")
+                                           for rid in extra) if n)]
     with stage(f"calibrating run {run_id}"):
         run = load_run(store, run_id)
         cal = analyse(run)
@@ -87,7 +91,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     folder = run_folder(out_dir, run_id)
     paths = write_artefacts(cal, out_dir, created_utc=created)
     remove_exports(folder)
-    cav, notes = None, list(cav_stage.warnings)
+    cav, notes = None, list(stage_notes)
     if cav_stage.base_run_id is not None:
         with stage(f"quasi-cavitation model of run {run_id} (base run {cav_stage.base_run_id})"):
             cav = calibrate_cavitation(store, run_id, cav_stage.base_run_id,
@@ -95,7 +99,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
                                        run=run)
         store.replace_events(run_id, EVENT_KIND, cav.events)
         paths += write_cavitation_artefacts(cav, out_dir, created_utc=created)
-        notes = [f"quasi-cavitation: {w}" for w in cav.warnings]
+        notes = [*stage_notes, *(f"quasi-cavitation: {w}" for w in cav.warnings)]
         if causal:
             notes.append(CAUSAL_WARNING)
     results = Results(run_id, created, cal, cav, notes, folder, paths)

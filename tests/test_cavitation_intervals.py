@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from rigtool.analysis.cavitation import (
+    CHECK_LEVEL,
     ONE_RUN_WARNING,
+    OUTSIDE_CHECK_LEVEL,
     CavitationParams,
     block_folds,
     calibrate_cavitation,
@@ -107,6 +109,8 @@ def test_floor_in_cavitation_json_and_report(twin):
         assert floor["floor_p95_n"] > 0 and floor["heldout_p95_n"] >= floor["floor_p95_n"]
         assert floor["target_p95_n"] in (3.5, 1.0) and floor["verdict"]
         assert 0 < summary["interval_check"]["classes"][name]["coverage"] <= 1
+    assert summary["interval_check"]["check_levels"] == {"event": CHECK_LEVEL,
+                                                         "outside": OUTSIDE_CHECK_LEVEL}
     model = json.loads((out / train[0] / "qctm_gp.json").read_text())
     assert model["floor"] == summary["floor"]
     for html in ((out / train[0] / "report.html").read_text(),):
@@ -158,6 +162,27 @@ def test_calibrate_gate_covers_both_classes_on_fresh_data():
     resid, noise, z, event = rows(4000)
     inside = resid**2 <= Z95**2 * noise * shift.factor(z)
     assert 0.93 <= inside[event].mean() <= 0.97 and 0.93 <= inside[~event].mean() <= 0.97
+
+
+def test_outside_check_level_sets_the_quiet_scale_alone():
+    """With its own target outside events, the quiet shift covers that fraction of the held-out
+    outside rows (not 95 %), and the event shift still covers 95 % of the event rows."""
+    assert 0.9 < OUTSIDE_CHECK_LEVEL < CHECK_LEVEL == 0.95
+    rng = np.random.default_rng(11)
+    n = 6000
+    event = rng.random(n) < 0.3
+    z = np.where(event, rng.uniform(1.0, 3.0, n), rng.normal(0.0, 0.05, n))
+    resid = rng.normal(0.0, np.where(event, 3.0, 0.3))
+    noise = np.where(event, 1.5, 0.6) ** 2
+    post = np.zeros(n)
+    same = calibrate_gate(resid, post, noise, z, event, ~event, 0.5, 0.1, CHECK_LEVEL)
+    own = calibrate_gate(resid, post, noise, z, event, ~event, 0.5, 0.1, CHECK_LEVEL,
+                         OUTSIDE_CHECK_LEVEL)
+    assert own.d_quiet < same.d_quiet
+    for shift, quiet_level in ((same, CHECK_LEVEL), (own, OUTSIDE_CHECK_LEVEL)):
+        inside = resid**2 <= Z95**2 * noise * shift.factor(z)
+        assert inside[~event].mean() == pytest.approx(quiet_level, abs=0.003)
+        assert inside[event].mean() == pytest.approx(CHECK_LEVEL, abs=0.005)
 
 
 def test_shifted_noise_model_is_the_calibrated_one():

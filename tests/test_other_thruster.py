@@ -80,3 +80,22 @@ def test_runs_of_the_same_thruster_are_accepted(runs):
         shallow = ids["shallow port"]
         assert cavitation_stage(store, shallow, ids["deep port"]).base_run_id == ids["deep port"]
         assert training_runs(store, shallow, [ids["shallow port b"]]) == [ids["shallow port b"]]
+
+
+def test_a_run_without_a_thruster_id_joins_with_a_warning_naming_both(tmp_path, capsys):
+    """After an attack: with an id missing on either side the check was skipped without a
+    word. A base or training run without an id, or a run without one, is accepted with a
+    warning that names both runs (seeds 16-19, not developed on)."""
+    ids = {"deep anon": _sweep(tmp_path, "deep-anon", "''", 100, 16),
+           "shallow anon": _sweep(tmp_path, "shallow-anon", "''", 30, 17),
+           "shallow port": _sweep(tmp_path, "shallow-port", "port-7", 30, 18),
+           "deep port": _sweep(tmp_path, "deep-port", "port-7", 100, 19)}
+    cases = [(ids["shallow port"], ["--base", ids["deep anon"]], ids["deep anon"]),
+             (ids["shallow port"], ["--base", ids["deep port"], "--train-with",
+                                    ids["shallow anon"]], ids["shallow anon"]),
+             (ids["shallow anon"], ["--base", ids["deep port"]], ids["deep port"])]
+    for run, extra, other in cases:
+        capsys.readouterr()
+        assert _calibrate(tmp_path, run, *extra) == 0
+        warned = [w for w in capsys.readouterr().err.splitlines() if "cannot check" in w]
+        assert len(warned) == 1 and run in warned[0] and other in warned[0], warned

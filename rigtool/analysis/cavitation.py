@@ -213,6 +213,21 @@ def _other_thruster(store: Store, run_id: str, other_id: str) -> str | None:
     return None
 
 
+def unchecked_thruster(store: Store, run_id: str, other_id: str, role: str) -> str | None:
+    """A warning when run `other_id` (the `role`) joins `run_id`'s model and either has no
+    thruster id: nothing shows they are the same thruster."""
+    mine, theirs = _thruster_id(store.run(run_id)), _thruster_id(store.run(other_id))
+    if mine and theirs:
+        return None
+    return (f"{role} run {other_id} ({_id_text(theirs)}) joins the model of run {run_id} "
+            f"({_id_text(mine)}): with an id missing, rigtool cannot check they are the same "
+            "thruster (set metadata.thruster_id in both protocols)")
+
+
+def _id_text(tid: str | None) -> str:
+    return f"thruster {tid!r}" if tid else "no thruster id"
+
+
 def _latest_base_run(store: Store, run_id: str) -> str | None:
     """Most recent completed base run of the same thruster with >= 10 commands, or None."""
     tid = _thruster_id(store.run(run_id))
@@ -248,11 +263,14 @@ class CavitationStage:
     base_run_id: str | None
     reason: str | None = None  # why there is no stage
     warn: bool = False  # the run qualifies but has no base run: worth a warning
+    notes: tuple[str, ...] = ()  # about the base run (an id that cannot be checked)
 
     @property
     def warnings(self) -> list[str]:
-        """The warning `calibrate` and `report` both give for a qualifying run left without it."""
-        return [f"no quasi-cavitation section: {self.reason}"] if self.warn else []
+        """The warnings `calibrate` and `report` both give: a qualifying run left without the
+        stage, or a base run whose thruster cannot be checked."""
+        lost = [f"no quasi-cavitation section: {self.reason}"] if self.warn else []
+        return [*lost, *(f"quasi-cavitation: {n}" for n in self.notes)]
 
 
 def cavitation_stage(store: Store, run_id: str, base_ref: str | None) -> CavitationStage:
@@ -271,11 +289,12 @@ def cavitation_stage(store: Store, run_id: str, base_ref: str | None) -> Cavitat
         problem = base_run_problem(store, base_id) or _other_thruster(store, run_id, base_id)
         if problem:
             raise UsageError(f"--base {base_ref}: not usable as a base run: {problem}")
-        return CavitationStage(base_id)
-    base_id = _latest_base_run(store, run_id)
-    if base_id is None:
-        return CavitationStage(None, _no_base_run(run_id), warn=True)
-    return CavitationStage(base_id)
+    else:
+        base_id = _latest_base_run(store, run_id)
+        if base_id is None:
+            return CavitationStage(None, _no_base_run(run_id), warn=True)
+    note = unchecked_thruster(store, run_id, base_id, "base")
+    return CavitationStage(base_id, notes=(note,) if note else ())
 
 
 def build_betm(base: RunData, params: CavitationParams) -> tuple[Betm, list[EstimatorErrors],
@@ -435,6 +454,12 @@ def select(ts: TrainingSet, budget: int) -> TrainingSet:
 TARGET_P95_N = {"event": 3.5, "outside": 1.0}  # accuracy targets: Luo 2020, and outside events
 CHECK_CLASSES = ("event", "outside")
 CHECK_LEVEL = 0.95
+# Target of the held-out check outside events, below CHECK_LEVEL by the check's measured
+# pessimism there: on the cal-dev twin trainings (24: stock and weak, one and two runs) new
+# runs' outside coverage exceeded the check's by a median of 1.8 points (21 of 24 above),
+# so a check at 95 % left new runs at 96-98 % (docs/cavitation.md). During events the gap
+# had no consistent sign (median 0.0 points for the gated blocks), so events stay at 95 %.
+OUTSIDE_CHECK_LEVEL = 0.935
 BLOCK_FOLDS = 4  # folds of a single training run
 MIN_FOLD_ROWS = 50  # a fold model needs this many training rows
 MIN_CLASS_ROWS = 30  # held-out blocks a class needs for an interval scale of its own
@@ -499,9 +524,10 @@ def crossfit(pool: TrainingSet, gp: ExactGp, params: CavitationParams,
 
 def check_intervals(pool: TrainingSet, gp: ExactGp, params: CavitationParams) -> dict:
     """Check the 95 % intervals on held-out folds (`check_folds`) and scale them: the noise
-    model's quiet and ventilating levels are shifted until 95 % of the held-out blocks outside
-    events and during events are covered (classes by the detected events; `calibrate_gate`).
-    Sets gp.noise; returns the figures for cavitation.json."""
+    model's quiet and ventilating levels are shifted until CHECK_LEVEL (95 %) of the held-out
+    blocks during events and OUTSIDE_CHECK_LEVEL of those outside events are covered (classes
+    by the detected events; `calibrate_gate`). Sets gp.noise; returns the figures for
+    cavitation.json."""
     fold, kind = check_folds(pool)
     mean, post, noise = crossfit(pool, gp, params, fold)
     resid = pool.y - mean
@@ -509,12 +535,13 @@ def check_intervals(pool: TrainingSet, gp: ExactGp, params: CavitationParams) ->
     groups = {c: np.isfinite(resid) & (cls == c) for c in CHECK_CLASSES}
     z = pool.xf[:, 1]
     shift = calibrate_gate(resid, post, noise, z, groups["event"], groups["outside"],
-                           gp.noise.gate_z0, gp.noise.gate_s, CHECK_LEVEL)
+                           gp.noise.gate_z0, gp.noise.gate_s, CHECK_LEVEL, OUTSIDE_CHECK_LEVEL)
     before = resid**2 <= Z95**2 * (post + noise)
     after = resid**2 <= Z95**2 * (post + noise * shift.factor(z))
     gp.noise = shift_noise(gp.noise, shift)
     n_folds = int(np.unique(fold).size)
     return {"kind": kind, "folds": n_folds, "level": CHECK_LEVEL,
+            "check_levels": {"event": CHECK_LEVEL, "outside": OUTSIDE_CHECK_LEVEL},
             "method": (f"each of the {n_folds} training runs held out in turn" if kind == "run"
                        else f"{n_folds} folds of blocks of the one training run held out in turn"),
             "n_events": n_events(pool.take(np.flatnonzero(np.isfinite(resid)))),

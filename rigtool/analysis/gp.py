@@ -420,11 +420,13 @@ class GateShift:
 
 def calibrate_gate(resid: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray,
                    z: np.ndarray, event: np.ndarray, outside: np.ndarray,
-                   z0: float, s: float, level: float = 0.95) -> GateShift:
-    """The scale under which held-out residuals are covered at `level` in both classes:
-    `class_shifts` on the `outside` and the `event` rows, the latter through the rows the
-    gate (z0, s) calls ventilating. Without enough rows of a class, one shift for all;
-    without enough held-out rows at all, none."""
+                   z0: float, s: float, level: float = 0.95,
+                   outside_level: float | None = None) -> GateShift:
+    """The scale under which held-out residuals are covered at `level` during events and at
+    `outside_level` (default `level`) outside them: `class_shifts` on the `outside` and the
+    `event` rows, the latter through the rows the gate (z0, s) calls ventilating. Without
+    enough rows of a class, one shift for all at `level`; without enough held-out rows at
+    all, none."""
     r2 = np.asarray(resid, float) ** 2 / Z95**2
     if event.sum() < MIN_CHECK_ROWS or outside.sum() < MIN_CHECK_ROWS:
         use = event | outside
@@ -433,27 +435,29 @@ def calibrate_gate(resid: np.ndarray, post_var: np.ndarray, noise_var: np.ndarra
             return GateShift(z0, s, 0.0, 0.0)  # nothing to check on: the fit's own scale
         d = _bisect_shift(lambda c: _coverage(r2, post_var, noise_var, rows, c), level)
         return GateShift(z0, s, d, d)
-    dq, de = class_shifts(r2, post_var, noise_var, gate(z, z0, s), outside, event, level)
+    dq, de = class_shifts(r2, post_var, noise_var, gate(z, z0, s), outside, event, level,
+                          outside_level=outside_level)
     return GateShift(z0, s, dq, de)
 
 
 def class_shifts(r2: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray, g: np.ndarray,
                  outside: np.ndarray, event: np.ndarray, level: float,
-                 rounds: int = 4) -> tuple[float, float]:
-    """(d_quiet, d_event), in turn: d_quiet covers `level` of the `outside` rows; d_event
-    covers `level` of the `event` rows the gate calls ventilating (g >= 1/2), then more, up
-    to EVENT_EXTRA, until the `event` rows as a whole are covered at `level`: ventilation the
-    shortfall misses gets the quiet intervals, and the detected events make up for it
-    (d_event = d_quiet when too few rows are gated)."""
+                 rounds: int = 4, outside_level: float | None = None) -> tuple[float, float]:
+    """(d_quiet, d_event), in turn: d_quiet covers `outside_level` (default `level`) of the
+    `outside` rows; d_event covers `level` of the `event` rows the gate calls ventilating
+    (g >= 1/2), then more, up to EVENT_EXTRA, until the `event` rows as a whole are covered
+    at `level`: ventilation the shortfall misses gets the quiet intervals, and the detected
+    events make up for it (d_event = d_quiet when too few rows are gated)."""
     dq = de = 0.0
     hi = event & (g >= 0.5)
+    quiet_level = level if outside_level is None else outside_level
 
     def cover(rows: np.ndarray, a: float, b: float) -> float:
         var = post_var + noise_var * np.exp((1 - g) * a + g * b)
         return float(np.mean(r2[rows] <= var[rows]))
 
     for _ in range(rounds):
-        dq = _bisect_shift(lambda c, b=de: cover(outside, c, b), level)
+        dq = _bisect_shift(lambda c, b=de: cover(outside, c, b), quiet_level)
         if hi.sum() < MIN_CHECK_ROWS:
             de = dq
             continue
