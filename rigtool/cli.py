@@ -70,8 +70,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                 run_id = store.resolve_run_id(args.resume)
                 if store.run(run_id)["status"] == "running":
                     store.finish_run(run_id, "interrupted", "marked interrupted by --force")
-            outcome, n_plan = resume_sweep(store, args.resume, default_reporter(),
-                                           terminal_confirm(), rig)
+            with _watching(args.watch, store.path, args.bind):
+                outcome, n_plan = resume_sweep(store, args.resume, default_reporter(),
+                                               terminal_confirm(), rig)
             return _report_outcome(outcome, n_plan, store)
         finally:
             store.close()
@@ -83,10 +84,79 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     store = open_store(args.db, setup.rig, setup.rig_path)
     try:
-        outcome = run_sweep(setup, store, default_reporter(), terminal_confirm())
+        with _watching(args.watch, store.path, args.bind):
+            outcome = run_sweep(setup, store, default_reporter(), terminal_confirm())
         return _report_outcome(outcome, setup.protocol.n_points(), store)
     finally:
         store.close()
+
+
+@contextlib.contextmanager
+def _watching(port: int | None, db: Path, bind: str):
+    """With `--watch`: the watch server in a daemon thread beside the sweep, reading the
+    latest run through its own read-only connection; a server that cannot start is a
+    warning, never a reason to stop the sweep."""
+    if port is None:
+        yield
+        return
+    server = None
+    try:
+        from rigtool.watch import Watcher, WatchServer
+
+        server = WatchServer(Watcher(db, follow=True), port, bind)
+        server.serve_in_thread()
+        _announce_watch(server.url, bind)
+    except (OSError, RigtoolError) as exc:
+        err.print(f"warning: rigtool watch could not start ({exc}); the sweep goes on without it")
+    try:
+        yield
+    finally:
+        if server is not None:
+            with contextlib.suppress(BaseException):  # the run is closed: nothing to mask
+                server.stop()
+
+
+def _announce_watch(url: str, bind: str) -> None:
+    """Where the watch page is, and a warning when it is reachable from the network."""
+    from rigtool.watch.server import is_loopback
+
+    err.print(f"watch the run at {url} (read-only; Ctrl-C stops it)")
+    if not is_loopback(bind):
+        err.print(f"warning: the watch page is served on {bind}: anyone who can reach this "
+                  "host can read the run (names, events, data); it commands nothing")
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    from rigtool.watch import Watcher, WatchServer
+
+    watcher = Watcher(resolve_db_path(args.db), args.run)
+    try:
+        run_id = watcher.start()
+        server = WatchServer(watcher, args.port, args.bind)
+    except BaseException:
+        watcher.close()
+        raise
+    out.print(f"run {run_id}")
+    _announce_watch(server.url, args.bind)
+    try:
+        with stop_on_signals():
+            server.serve_forever(poll_interval=0.5)
+    except KeyboardInterrupt:
+        err.print("rigtool watch: stopped")
+    finally:
+        server.server_close()
+        watcher.close()
+    return 0
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port (0 .. 65535; 0: any free port)")
+    return value
 
 
 def _report_outcome(outcome: Outcome, n_plan: int, store: Store) -> int:
@@ -525,7 +595,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="simulator seed (overrides the protocol's)")
     p.add_argument("--dry-run", action="store_true", help="print the plan and estimated duration only")
     p.add_argument("--db", help=db_help)
+    p.add_argument("--watch", nargs="?", type=_port, const=8765, metavar="PORT",
+                   help="also serve the read-only watch page of the run (default port 8765; "
+                        "docs/watch.md)")
+    p.add_argument("--bind", default="127.0.0.1", metavar="ADDRESS",
+                   help="with --watch: address to serve on (default 127.0.0.1: this host only)")
     p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("watch", help="serve a local, read-only web page following a run "
+                       "(docs/watch.md)")
+    p.add_argument("run", nargs="?", default="last",
+                   help="run id, unique prefix, or `last` (default: the run most recently started)")
+    p.add_argument("--port", type=_port, default=8765, help="port (default 8765; 0: any free port)")
+    p.add_argument("--bind", default="127.0.0.1", metavar="ADDRESS",
+                   help="address to serve on (default 127.0.0.1: this host only; another "
+                        "address opens the page to the network)")
+    p.add_argument("--db", help=db_help)
+    p.set_defaults(func=cmd_watch)
 
     p = sub.add_parser("runs", help="list runs in the database")
     p.add_argument("--limit", type=int, default=50)

@@ -1,0 +1,326 @@
+"""`rigtool watch`: data bounds, the server's routes and headers, and the page in headless
+Chromium following a real sweep over real transports (docs/watch.md)."""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+import shutil
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rigtool.cli import main
+from rigtool.store import Store
+from rigtool.watch import Watcher, WatchServer
+from rigtool.watch.data import MAX_TRACE, decimate, fit_cp
+
+ROOT = Path(__file__).resolve().parent.parent
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None, reason="headless Chromium not installed (Debian: apt-get install chromium)")
+
+SIM_PROTOCOL = """\
+rigtool_protocol: 1
+name: {name}
+simulator: {{profile: can-bldc, seed: 3}}
+command: {{unit: percent, values: [-60, -45, -30, -15, 0, 15, 30, 45, 60]}}
+depth: {{unit: m, values: [1.0]}}
+timing:
+  settle: {{seconds: 0.2}}
+  acquire: {{samples: 300, rate_hz: 1000}}
+  rest_s: 0.1
+  tare: at_start
+limits: {{max_thrust_n: 90, slew_per_s: 400}}
+"""
+
+REAL_PROTOCOL = """\
+rigtool_protocol: 1
+name: watch-e2e
+command: {unit: pwm_counts, values: [0, 150, 300, 415, 460], repeats: 3}
+depth: {unit: m, values: [1.0]}
+timing:
+  settle: {seconds: 0.6}
+  acquire: {samples: 600, rate_hz: 1000}
+  rest_s: 0.2
+  tare: at_start
+limits: {max_thrust_n: 20}
+"""
+
+
+def _get(url: str, method: str = "GET", host: str | None = None) -> tuple[int, dict, bytes]:
+    req = urllib.request.Request(url, method=method)
+    if host:
+        req.add_header("Host", host)
+    try:
+        with urllib.request.urlopen(req, timeout=10) as resp:
+            return resp.status, dict(resp.headers), resp.read()
+    except urllib.error.HTTPError as exc:
+        return exc.code, dict(exc.headers), exc.read()
+
+
+def _sim_run(tmp_path: Path, name: str = "watch-sim") -> Path:
+    protocol = tmp_path / "p.yaml"
+    protocol.write_text(SIM_PROTOCOL.format(name=json.dumps(name, ensure_ascii=False)))
+    db = tmp_path / "w.sqlite"
+    assert main(["sweep", str(protocol), "--sim", "--db", str(db)]) == 0
+    return db
+
+
+@pytest.fixture
+def served(tmp_path):
+    """A finished sim run served on a free loopback port."""
+    db = _sim_run(tmp_path)
+    server = WatchServer(Watcher(db, "last"), 0)
+    server.watcher.start()
+    server.serve_in_thread()
+    yield server
+    server.stop()
+
+
+# -- data and bounds -----------------------------------------------------------------------
+def test_decimate_is_bounded_and_keeps_the_extremes():
+    n = 1_000_003
+    t = np.arange(n) / 7000.0
+    thrust = np.sin(t) + np.where(np.arange(n) == 123_457, 50.0, 0.0)
+    chunks = ({"t_s": t[i:i + 65536], "thrust_n": thrust[i:i + 65536],
+               "speed_rpm": np.full(min(65536, n - i), np.nan),
+               "current_a": np.full(min(65536, n - i), 1.0)} for i in range(0, n, 65536))
+    out = decimate(chunks, n)
+    assert 0 < len(out["t_s"]) <= MAX_TRACE
+    assert np.all(np.diff(out["t_s"]) >= 0)
+    assert out["thrust_n"].max() == pytest.approx(thrust.max())
+    assert out["thrust_n"].min() == pytest.approx(thrust.min())
+    short = decimate(iter([{"t_s": t[:10], "thrust_n": thrust[:10], "speed_rpm": t[:10],
+                            "current_a": t[:10]}]), 10)
+    assert len(short["t_s"]) == 10
+
+
+def test_provisional_cp_fit_per_direction():
+    n = np.array([-1500.0, -1000, -500, 0, 500, 1000, 1500])
+    f = np.where(n > 0, 2e-5, 1.5e-5) * np.abs(n) * n
+    fit = fit_cp(n, f)
+    assert fit["fwd"]["C_p"] == pytest.approx(2e-5) and fit["rev"]["C_p"] == pytest.approx(1.5e-5)
+    assert fit_cp(np.full(3, np.nan), f[:3])["reason"].startswith("no speed")
+    assert fit_cp(n[3:5], f[3:5])["fwd"]["C_p"] is None  # too few points yet
+
+
+def test_data_of_a_finished_run(tmp_path):
+    db = _sim_run(tmp_path)
+    watcher = Watcher(db)
+    try:
+        watcher.start()
+        d = watcher.data()
+    finally:
+        watcher.close()
+    assert d["run"]["status"] == "completed" and d["run"]["ended"]
+    assert d["points"]["n_sent"] == 9 and d["progress"]["done"] == 9
+    assert d["trace"]["n_samples"] == 300 and d["trace"]["step_idx"] == 8
+    assert d["fit"]["provisional"] and "provisional" in d["fit"]["label"]
+    assert d["fit"]["fwd"]["C_p"] > 0 and d["fit"]["rev"]["C_p"] > 0
+    json.dumps(d, allow_nan=False)
+
+
+# -- server: routes, headers, nothing writes --------------------------------------------------
+def test_routes_headers_and_refusals(served, tmp_path):
+    url = served.url
+    code, headers, body = _get(url)
+    assert code == 200 and b"<script src=\"/app.js\"" in body
+    assert headers["Content-Security-Policy"].startswith("default-src 'self'")
+    assert headers["X-Content-Type-Options"] == "nosniff"
+    code, headers, body = _get(url + "data")
+    assert code == 200 and headers["Content-Type"].startswith("application/json")
+    assert json.loads(body)["run"]["name"] == "watch-sim"
+    for path in ("data/../../etc/passwd", "static/app.js", "..%2f..%2fpyproject.toml", "x",
+                 "uPlot.iife.min.js/", "favicon.ico"):
+        assert _get(url + path)[0] == 404, path
+    for method in ("POST", "PUT", "DELETE", "PATCH", "OPTIONS"):
+        assert _get(url + "data", method)[0] == 404
+    assert _get(url + "data", host="attacker.example")[0] == 404  # DNS rebinding
+    assert _get(url + "uPlot.LICENSE")[2].startswith(b"The MIT License")
+    before = (tmp_path / "w.sqlite").stat().st_mtime_ns
+    for _ in range(3):
+        _get(url + "data")
+    assert (tmp_path / "w.sqlite").stat().st_mtime_ns == before
+
+
+def test_static_files_ship_as_package_data():
+    text = (ROOT / "pyproject.toml").read_text()
+    assert '"rigtool.watch" = ["static/*"]' in text
+    static = ROOT / "rigtool" / "watch" / "static"
+    for name in ("index.html", "app.js", "app.css", "uPlot.iife.min.js", "uPlot.min.css",
+                 "uPlot.LICENSE"):
+        assert (static / name).is_file()
+    page = (static / "index.html").read_text()
+    assert "<script>" not in page and "http" not in page.replace("http-equiv", "")  # no CDN
+    assert "innerHTML" not in (static / "app.js").read_text()
+
+
+def test_watch_cli_usage_errors(tmp_path, capsys):
+    assert main(["watch", "--db", str(tmp_path / "none.sqlite"), "--port", "0"]) == 2
+    assert "no run database" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["watch", "--port", "70000"])
+
+
+# -- the page in headless Chromium --------------------------------------------------------
+def _chromium(url: str, *extra: str, budget_ms: int = 3000) -> str:
+    """Chromium's DOM of `url` after `budget_ms` of virtual time (the page polls meanwhile)."""
+    out = subprocess.run(
+        [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+         "--no-first-run", "--disable-extensions", "--window-size=1300,1100",
+         f"--virtual-time-budget={budget_ms}", *extra, url],
+        capture_output=True, text=True, timeout=90)
+    return out.stdout
+
+
+def _dom(url: str) -> str:
+    return _chromium(url, "--dump-dom")
+
+
+def _attr(dom: str, element_id: str, attr: str) -> str:
+    tag = re.search(rf'<[^>]*\bid="{element_id}"[^>]*>', dom)
+    assert tag, f"#{element_id} not in the page"
+    value = re.search(rf'\b{attr}="([^"]*)"', tag.group(0))
+    return html.unescape(value.group(1)) if value else ""
+
+
+def _text(dom: str, element_id: str) -> str:
+    m = re.search(rf'<(\w+)[^>]*\bid="{element_id}"[^>]*>(.*?)</\1>', dom, re.S)
+    assert m, f"#{element_id} not in the page"
+    return html.unescape(re.sub(r"<[^>]+>", "", m.group(2)))
+
+
+def _start_sim(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
+    rig = tmp_path / "sim-rig.yaml"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rigtool.cli", "sim", "--profile", "stm32-pwm", "--netft",
+         "127.0.0.1:0", "--rig-out", str(rig)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 20
+    while not rig.exists():
+        assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline, "rigtool sim did not write its rig file"
+        time.sleep(0.05)
+    return proc, rig
+
+
+def _url_from(proc: subprocess.Popen) -> str:
+    """The page address a `watch` or `sweep --watch` process prints on stderr."""
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        m = re.search(r"(http://127\.0\.0\.1:\d+/)", line)
+        if m:
+            return m.group(1)
+        assert line or proc.poll() is None, "no watch address printed"
+    raise AssertionError("no watch address printed")
+
+
+def _stored(db: Path) -> int:
+    with Store(db, read_only=True) as store:
+        return len(store.steps(store.resolve_run_id("last")))
+
+
+@pytest.mark.slow
+@needs_chromium
+def test_page_follows_a_real_sweep_to_its_end(tmp_path):
+    """Sweep over TCP/UDP with `--watch`, and `rigtool watch` beside it: the plotted points
+    grow, the trace moves to the newest point, and the page says how the run ended."""
+    sim, rig = _start_sim(tmp_path)
+    protocol = tmp_path / "p.yaml"
+    protocol.write_text(REAL_PROTOCOL)
+    db = tmp_path / "e2e.sqlite"
+    sweep = watch = None
+    try:
+        sweep = subprocess.Popen(
+            [sys.executable, "-m", "rigtool.cli", "sweep", str(protocol), "--rig", str(rig),
+             "--db", str(db), "--watch", "0"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True)
+        in_sweep = _url_from(sweep)
+        deadline = time.monotonic() + 60
+        while _stored_or_zero(db) < 2:
+            assert time.monotonic() < deadline and sweep.poll() is None, "no points stored"
+            time.sleep(0.2)
+        code, _, body = _get(in_sweep + "data")  # the server inside the sweep process
+        assert code == 200 and json.loads(body)["run"]["status"] == "running"
+        watch = subprocess.Popen(
+            [sys.executable, "-m", "rigtool.cli", "watch", "--db", str(db), "--port", "0"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True)
+        url = _url_from(watch)
+        first = _dom(url)
+        count1 = int(_attr(first, "npoints", "data-count"))
+        step1 = _attr(first, "trace-info", "data-step")
+        assert count1 >= 2 and step1 != ""
+        assert _attr(first, "ended", "hidden") is not None and "run ended" not in _text(first, "ended")
+        target = _stored(db) + 2
+        while _stored(db) < target:
+            assert time.monotonic() < deadline + 60 and sweep.poll() is None, "sweep stalled"
+            time.sleep(0.2)
+        second = _dom(url)
+        count2 = int(_attr(second, "npoints", "data-count"))
+        step2 = _attr(second, "trace-info", "data-step")
+        assert count2 > count1, (count1, count2)
+        assert int(step2) > int(step1)
+        assert _text(second, "state") in ("rest", "settling", "acquiring", "finishing")
+        assert sweep.wait(timeout=120) == 0
+        end = _dom(url)
+        assert "run ended: completed" in _text(end, "ended")
+        assert int(_attr(end, "npoints", "data-count")) == 15
+        assert _text(end, "progress-text").startswith("15 / 15")
+        _chromium(url, f"--screenshot={tmp_path / 'watch.png'}")
+        assert (tmp_path / "watch.png").stat().st_size > 10_000
+    finally:
+        for proc in (sweep, watch):
+            if proc is not None and proc.poll() is None:
+                proc.terminate()
+                proc.wait(timeout=10)
+        sim.terminate()
+        sim.wait(timeout=10)
+    assert watch.returncode in (0, -15)
+
+
+def _stored_or_zero(db: Path) -> int:
+    try:
+        return _stored(db)
+    except Exception:  # noqa: BLE001 - the sweep has not created its run yet
+        return 0
+
+
+HOSTILE_NAME = ('<script>document.title="PWNED"</script><img src=x onerror="document.title='
+                '\'PWNED\'"> & "quotes" \u00dcn\u00efc\u00f8d\u00e9 \u2603 \U0001d54f \u202eRTL')
+HOSTILE_DETAIL = '</td><td><b>bold</b><iframe src="javascript:alert(1)"></iframe> \u2028\u0000'
+
+
+@needs_chromium
+def test_hostile_text_is_shown_literally(tmp_path):
+    db = _sim_run(tmp_path, HOSTILE_NAME)
+    with Store(db) as store:
+        run_id = store.resolve_run_id("last")
+        store.add_event(run_id, "warning", {"message": HOSTILE_DETAIL}, t_s=1.0, step_idx=2)
+        store.add_event(run_id, "<svg onload=alert(1)>", {"x": HOSTILE_NAME}, t_s=2.0)
+    watcher = Watcher(db)
+    server = WatchServer(watcher, 0)
+    watcher.start()
+    server.serve_in_thread()
+    try:
+        dom = _dom(server.url)
+    finally:
+        server.stop()
+    assert _text(dom, "run-name") == HOSTILE_NAME.replace("\u0000", "")
+    events = _text(dom, "events")
+    assert "<svg onload=alert(1)>" in events and "</td><td><b>bold</b><iframe" in events
+    assert "\u2603" in events and "\U0001d54f" in events
+    title = re.search(r"<title>(.*?)</title>", dom, re.S).group(1)
+    assert html.unescape(title).startswith("completed · <script>document.title=")  # no script ran
+    assert "<img" not in dom and "<iframe" not in dom and "<svg" not in dom and "<b>" not in dom
+    assert dom.count("<script") == 2  # uPlot and app.js only
