@@ -44,7 +44,7 @@ from rigtool.store import Store
 
 SummaryRow = tuple[str, float, float, float, str, str]
 NAN = math.nan
-DEEP_DEPTH_M = 0.6  # shallower than this, ventilation is possible (domain.md section 4)
+DEEP_DEPTH_M = 0.6  # shallower than this, ventilation is possible ([Luo2020], docs/references.md)
 # One coefficient per fit is checked for quality (the others share its R2 and n).
 CHECKED_FITS = ("C_p_fwd", "C_p_rev", "C_n", "k_free", "C_i_fwd_direct", "C_i_rev_direct")
 

@@ -451,7 +451,7 @@ def select(ts: TrainingSet, budget: int) -> TrainingSet:
 
 
 # --- held-out interval check and the floor (docs/cavitation.md, "Intervals and floor") ---
-TARGET_P95_N = {"event": 3.5, "outside": 1.0}  # accuracy targets: Luo 2020, and outside events
+TARGET_P95_N = {"event": 3.5, "outside": 1.0}  # accuracy targets: [Luo2020], and outside events
 CHECK_CLASSES = ("event", "outside")
 CHECK_LEVEL = 0.95
 # Target of the held-out check outside events, below CHECK_LEVEL by the check's measured

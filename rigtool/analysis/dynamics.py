@@ -2,8 +2,8 @@
 
 Speed is a state x in forward thrust units (x|x| is the forward thrust; thrust = rho x|x|
 below zero, rho = C_p_rev / C_p_fwd, fitted when a step passes through zero). The candidates
-(rigtool/analysis/dynamics_response.py): one-state (linear lag, tau_n), two-state (Healey-type
-axial inflow: tau_n, tau_a, gain g), yoerger (Yoerger 1990: x' = alpha (X|X| - x|x|)), the
+(rigtool/analysis/dynamics_response.py): one-state (linear lag, tau_n), two-state ([Healey1995]
+axial inflow: tau_n, tau_a, gain g), yoerger ([Yoerger1990]: x' = alpha (X|X| - x|x|)), the
 Healey models when none of those fits, and rise-fall (the lag with tau_rise while |x| grows,
 tau_fall while it shrinks).
 The command acts `delay` seconds after it is sent. Each is fitted by least squares over every

@@ -9,7 +9,7 @@ the speed target X = sign(F) sqrt(|F| / c(F)). Between command switches:
 - rise-fall: the same lag with tau_n (the rise constant) while |x| grows, x (X - x) >= 0
   (spin-up, and from zero), and tau_fall while it shrinks (spin-down, and down to zero on
   the way through it);
-- two-state (Healey-type axial inflow): the same x, and m' = (x - m) / tau_a, thrust
+- two-state ([Healey1995] axial inflow): the same x, and m' = (x - m) / tau_a, thrust
   c(x) (x|x| + g (x|x| - m|m|));
 - yoerger (Yoerger, Cooke & Slotine 1990): x' = alpha (X|X| - x|x|), quadratic damping, so
   small steps settle more slowly than large ones;

@@ -1,4 +1,4 @@
-"""Steady-state thruster model fits with 95 % intervals (domain.md section 2).
+"""Steady-state thruster model fits with 95 % intervals ([Fossen2011], [Luo2020]; docs/references.md).
 
 All fits are weighted least squares on per-point means with the per-point standard errors,
 using the effective-variance method for the error in the regressor (one re-weighting pass).
@@ -145,7 +145,7 @@ def coefficient_correlation(fit_a: LinearFit, i: int, rows_a: np.ndarray, fit_b:
     """Correlation of coefficient i of fit_a with coefficient j of fit_b, from the errors of
     the points both fits use (`rows_*`: the point index of each fit row, in time order).
 
-    A cross sandwich of the two fits' residuals with a Bartlett lag window (Newey-West): a
+    A cross sandwich of the two fits' residuals with a Bartlett lag window ([NeweyWest1987]): a
     point's speed error moves the residuals of thrust-vs-speed and current-vs-speed together,
     and a slow speed error moves neighbouring points too, so C_p and C_n share it.
     """
@@ -168,7 +168,7 @@ def _lags(size: int) -> int:
 
 
 def _long_run(x: np.ndarray, y: np.ndarray, lags: int) -> float:
-    """Newey-West long-run covariance of two per-point series (Bartlett weights)."""
+    """Long-run covariance ([NeweyWest1987]) of two per-point series (Bartlett weights)."""
     total = float(x @ y)
     for k in range(1, min(lags, x.size - 1) + 1):
         total += (1 - k / (lags + 1)) * float(x[:-k] @ y[k:] + y[:-k] @ x[k:])
@@ -185,7 +185,7 @@ def sandwich_variance(parts: list[Part], n_params: int) -> tuple[float, int]:
     `LinearFit.hc2_resid`) times the weight that point has in the estimate along one path;
     contributions of a point are added before squaring (paths that share a point's error
     cancel or add as they should). Errors are taken as independent between points: scale the
-    result for serial correlation (`LinearFit.serial`). A Newey-West lag window would not
+    result for serial correlation (`LinearFit.serial`). A [NeweyWest1987] lag window would not
     do: a fit's weighted residuals sum to zero, so their lagged products are biased low.
     """
     size = int(max(rows.max(initial=-1) for rows, _ in parts)) + 1

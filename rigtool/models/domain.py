@@ -16,7 +16,7 @@ CURRENT_FAULT = 2  # shortfall outside bounds.shortfall: fell back to the speed 
 CLAMPED = 4  # the corrected thrust was held to [0, f_BETM + above_n] (direction of the speed)
 
 DOMAIN_INPUTS = ("speed_rpm", "current_a", "depth_m", "shortfall_thrust_n")
-# Ventilation lowers the current by at most ~10 % (twin 2-6 %, Luo 2020 similar) and a 0.2 s
+# Ventilation lowers the current by at most ~10 % (twin 2-6 %, [Luo2020] similar) and a 0.2 s
 # block's shortfall scatters by < 0.1 without it: beyond this range the current is not a
 # ventilating propeller's but a dropout, a current below idle or a wrong speed reading.
 DEFAULT_SHORTFALL = (-0.2, 0.3)

@@ -78,7 +78,7 @@ class ThrusterProfile:
     # cycle, PWM) the speed reached scales with the supply voltage (back-EMF)
     speed_loop: bool = False
     voltage_noise_v: float = 0.05
-    # --- quasi-cavitation (domain.md section 4) ---
+    # --- quasi-cavitation ([Luo2020], docs/references.md) ---
     cav_ref_speed_rpm: float = 1404.0  # speed at which the onset/duration tables hold
     cav_min_speed_rpm: float = 300.0  # no onset below this |speed|; events end when stopped
     cav_speed_exponent: float = 1.2  # onset rate scales as (|n| / cav_ref_speed_rpm) ** this
@@ -93,7 +93,7 @@ class ThrusterProfile:
     cav_ramp_out_s: float = 0.3  # and recovers over its last ramp_out
     cav_current_drop: float = 0.08  # mean current drops by this * drop_frac
     cav_noise_frac: float = 0.03  # extra thrust noise std per newton of unventilated thrust
-    # Axial inflow (Healey-type second state): the inflow speed m follows the propeller speed
+    # Axial inflow (second state, [Healey1995]): the inflow speed m follows the propeller speed
     # n with time constant inflow_tau_s, and thrust is C_p (n|n| + inflow_gain (n|n| - m|m|)):
     # a step overshoots while the inflow builds up. inflow_gain 0 is the first-order thruster.
     inflow_gain: float = 0.0
@@ -160,7 +160,7 @@ def _problems(p: ThrusterProfile) -> list[str]:
 
 _CAN_BLDC = ThrusterProfile(
     name="can-bldc",
-    description="Pool rig, Luo et al. 2020: 350 W 48 V BLDC, speed control over CAN, ATI mini45",
+    description="Pool rig [Luo2020]: 350 W 48 V BLDC, speed control over CAN, ATI mini45",
     command_unit="percent",
     neutral=0.0,
     command_min=-100.0,
