@@ -25,6 +25,7 @@ import numpy as np
 
 from rigtool.errors import UsageError
 from rigtool.files import decode_utf8, read_regular_bytes
+from rigtool.models import laws
 from rigtool.models.thrust_map import STATUS_KEYS, ThrustMap, thrust_map
 from rigtool.readback import MAX_JSON_BYTES, Invalid, calibration_document, parse_json, show
 from rigtool.store import DB_ENV, DEFAULT_DB, RunRecord, Store
@@ -394,9 +395,8 @@ class Calibration:
         """Thrust (N) from propeller speed (r/min): f = C_p |n| n, C_p_fwd for n > 0 and
         C_p_rev for n < 0 (NaN where that direction was not fitted)."""
         coef = self._at(depth, voltage).coefficients
-        n = np.asarray(speed_rpm, dtype=float)
         fwd, rev = (_value(coef, k) for k in ("C_p_fwd", "C_p_rev"))
-        return _like(speed_rpm, np.where(n >= 0, fwd, rev) * np.abs(n) * n)
+        return _like(speed_rpm, laws.thrust_from_speed(speed_rpm, fwd, rev))
 
     def thrust_from_current(self, current_a: Any, direction: str = "forward",
                             depth: float | None = None, voltage: float | None = None) -> Any:
@@ -415,8 +415,8 @@ class Calibration:
         k = _value(coef, "current_exponent")  # the free current law, where it replaced k = 3
         i_0 = _value(coef, "I_0" if math.isnan(k) else "I_0_free")
         i_0 = 0.0 if math.isnan(i_0) else i_0
-        current = np.abs(np.asarray(current_a, dtype=float))
-        f = c_i * np.maximum(current - i_0, 0.0) ** (2 / (3.0 if math.isnan(k) else k))
+        f = laws.thrust_from_current(current_a, c_i, i_0,
+                                     laws.CURRENT_EXPONENT if math.isnan(k) else k)
         return _like(current_a, f if direction == "forward" else -f)
 
     def _at(self, depth: float | None, voltage: float | None = None) -> _Depth:

@@ -52,6 +52,7 @@ from rigtool.analysis.fits import (
     with_systematic,
 )
 from rigtool.analysis.steady import PointTable
+from rigtool.models import laws
 
 DIRECTIONS = (("fwd", 1.0), ("rev", -1.0))
 FAST_FRAC = 0.3  # "fast" points: |speed| above this fraction of the largest (9 % of thrust)
@@ -253,8 +254,9 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
     result.used = thrust_fit.used
     result.zero = thrust_fit.zero
     zero = result.zero.at(t)
-    pred = _signed_model(cp, n, lambda c, v: c * np.abs(v) * v)
-    pred_s = _signed_model(cp, n_s, lambda c, v: c * np.abs(v) * v, np.sign(n)[samples.point])
+    pred = _signed_model(cp, n, lambda c, v: laws.thrust_from_speed(v, c, c))
+    pred_s = _signed_model(cp, n_s, lambda c, v: laws.thrust_from_speed(v, c, c),
+                           np.sign(n)[samples.point])
     in_fit = result.used[samples.point]
     out["sigma_n_point"] = residual_spread(
         (f - zero - pred)[result.used], "sigma_n_point",

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rigtool.analysis.fits import Coefficient, derive_thrust_current, with_systematic, wls
+from rigtool.models import laws
 
 Z95 = 1.96
 CP_DIFFERS_P = 1e-3  # C_p differs between voltages when chance gives its scatter less often
@@ -57,7 +58,7 @@ class VoltageLaw:
 
     def ci_at(self, voltage_v: float | np.ndarray, cp: float) -> float | np.ndarray:
         """C_i = C_p / C_n(U)^(2/3) at supply voltage U."""
-        return cp / self.cn_at(voltage_v) ** (2 / 3)
+        return laws.c_i_from(cp, self.cn_at(voltage_v))
 
 
 def _se(c: Coefficient) -> float:

@@ -22,6 +22,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from rigtool.models import laws
+
 
 @dataclass(frozen=True)
 class Betm:
@@ -85,8 +87,7 @@ class Betm:
 
     def speed_estimate(self, speed_rpm: np.ndarray) -> np.ndarray:
         """f_n = C_p |n| n with the forward or reverse coefficient."""
-        n = np.asarray(speed_rpm, dtype=float)
-        return np.where(n >= 0, self.cp_fwd, self.cp_rev) * np.abs(n) * n
+        return laws.thrust_from_speed(speed_rpm, self.cp_fwd, self.cp_rev)
 
     def current_estimate(self, current_a: np.ndarray, sign: np.ndarray,
                          voltage_v: np.ndarray | None = None) -> np.ndarray:
@@ -94,7 +95,7 @@ class Betm:
         the speed (or command) direction, U the bus voltage per sample (None: the
         calibration's voltage)."""
         s = np.sign(np.asarray(sign, dtype=float))
-        d = np.maximum(np.abs(np.asarray(current_a, dtype=float)) - self.i_0, 0.0)
+        d = laws.current_excess(current_a, self.i_0)
         scale = np.asarray(self.voltage_scale(voltage_v)) ** -self.current_power
         return s * np.where(s >= 0, self.ci_fwd, self.ci_rev) * scale * d**self.current_power
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from rigtool.errors import UsageError
 from rigtool.files import check_regular_file, read_regular_bytes
+from rigtool.models import laws
 from rigtool.models.betm import Betm
 from rigtool.models.domain import (
     CLAMPED,
@@ -103,7 +104,7 @@ def window_mean(v: np.ndarray, segment: np.ndarray | None, window: int,
 def shortfall(betm: Betm, speed_rpm: np.ndarray, current_a: np.ndarray) -> np.ndarray:
     """1 - |I| / (C_n |n|^3 + I_0): the fraction of the expected current that is missing."""
     n = np.asarray(speed_rpm, dtype=float)
-    i_hat = betm.c_n * np.abs(n) ** 3 + betm.i_0
+    i_hat = laws.current_from_speed(n, betm.c_n, betm.i_0)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(i_hat > 0, 1.0 - np.abs(np.asarray(current_a, dtype=float)) / i_hat, 0.0)
 

@@ -26,6 +26,7 @@ from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.quality import Hysteresis, TareDrift
 from rigtool.analysis.steady import PointTable
 from rigtool.analysis.voltage import VoltageLaw
+from rigtool.models import laws
 
 FWD = "#1f5fa8"
 REV = "#c0392b"
@@ -140,7 +141,7 @@ def _cp_model(fits: dict[str, Coefficient], n: np.ndarray) -> np.ndarray:
         c = fits.get(f"C_p_{key}")
         if c is not None:
             side = np.sign(n) == s
-            out[side] = c.value * np.abs(n[side]) * n[side]
+            out[side] = laws.thrust_from_speed(n[side], c.value, c.value)
     return out
 
 
@@ -161,7 +162,7 @@ def thrust_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
         if c is not None and m.any():
             edge = float(np.nanmax(np.abs(n[m | (np.sign(n) == s)])))
             grid = s * np.linspace(0, edge * 1.03, 200)
-            top.plot(grid, c.value * np.abs(grid) * grid, "-", color=color, lw=1.2,
+            top.plot(grid, laws.thrust_from_speed(grid, c.value, c.value), "-", color=color, lw=1.2,
                      label=f"fit C_p_{key} = {c.value:.4g} N/(r/min)²")
     top.axhline(0, color="k", lw=0.6)
     top.set_ylabel("thrust − zero (N)")
@@ -193,11 +194,11 @@ def current_speed(points: PointTable, fits: dict[str, Coefficient]) -> Figure:
     seen = n[np.isfinite(n)]
     grid = np.linspace(min(float(seen.min()), 0.0) * 1.03, max(float(seen.max()), 0.0) * 1.03, 400)
     cn, i0 = fits["C_n"], fits["I_0"]
-    ax.plot(grid, cn.value * np.abs(grid) ** 3 + i0.value, "k-", lw=1.2,
+    ax.plot(grid, laws.current_from_speed(grid, cn.value, i0.value), "k-", lw=1.2,
             label=f"I = C_n |n|³ + I_0, C_n = {cn.value:.4g} A/(r/min)³, I_0 = {i0.value:.3g} A")
     if "k_free" in fits and "C_free" in fits and "I_0_free" in fits:
         k, c, j = fits["k_free"].value, fits["C_free"].value, fits["I_0_free"].value
-        ax.plot(grid, c * np.abs(grid) ** k + j, "--", color=SAT, lw=1.0,
+        ax.plot(grid, laws.current_from_speed(grid, c, j, k), "--", color=SAT, lw=1.0,
                 label=f"free exponent: k = {k:.3g}")
     ax.set_xlabel("propeller speed n (r/min)")
     ax.set_ylabel("motor current |I| (A)")

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rigtool.models import laws
 from rigtool.sim.profiles import ThrusterProfile
 
 _TIME_SLACK_S = 1e-9  # tolerated round-off when a caller's time lies just before the last one
@@ -207,7 +208,7 @@ class ThrusterTwin:
             thrust = p.cp_reverse * nn
         else:
             thrust = np.where(n >= 0, p.cp_forward, p.cp_reverse) * nn
-        current = self._cn * absn**3 + self._idle
+        current = laws.current_from_speed(absn, self._cn, self._idle)
         thrust_sd = np.hypot(p.vibration_noise_frac * thrust, p.force_noise_n)
         weight, drop = self._ventilation(t)
         if weight is not None:
@@ -229,7 +230,7 @@ class ThrusterTwin:
         """Noise-free steady (speed_rpm, thrust_n, current_a) at `command`, without ventilation."""
         p = self.profile
         n = self.target_speed_rpm(min(max(float(command), p.command_min), p.command_max))
-        return n, self._thrust(n), self._cn * abs(n) ** 3 + self._idle
+        return n, self._thrust(n), float(laws.current_from_speed(n, self._cn, self._idle))
 
     def target_speed_rpm(self, command: float) -> float:
         """Speed the propeller settles at under `command` (already within range) at the
