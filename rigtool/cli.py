@@ -70,10 +70,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                 run_id = store.resolve_run_id(args.resume)
                 if store.run(run_id)["status"] == "running":
                     store.finish_run(run_id, "interrupted", "marked interrupted by --force")
-            with _watching(args.watch, store.path, args.bind):
-                outcome, n_plan = resume_sweep(store, args.resume, default_reporter(),
+            reporter = default_reporter()
+            with _closing_signals(reporter), _watching(args.watch, store.path, args.bind):
+                outcome, n_plan = resume_sweep(store, args.resume, reporter,
                                                terminal_confirm(), rig)
-            return _report_outcome(outcome, n_plan, store)
+                return _report_outcome(outcome, n_plan, store)
         finally:
             store.close()
     if not args.protocol:
@@ -84,9 +85,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     store = open_store(args.db, setup.rig, setup.rig_path)
     try:
-        with _watching(args.watch, store.path, args.bind):
-            outcome = run_sweep(setup, store, default_reporter(), terminal_confirm())
-        return _report_outcome(outcome, setup.protocol.n_points(), store)
+        reporter = default_reporter()
+        with _closing_signals(reporter), _watching(args.watch, store.path, args.bind):
+            outcome = run_sweep(setup, store, reporter, terminal_confirm())
+            return _report_outcome(outcome, setup.protocol.n_points(), store)
     finally:
         store.close()
 
@@ -348,6 +350,37 @@ def cmd_merge(args: argparse.Namespace) -> int:
             err.print(f"warning: {src}: run {run_id} is running in {target}: not updated "
                       "(merge again when it has ended)")
     return 0
+
+
+class Stopped(KeyboardInterrupt):
+    """A signal stopped the command outside a run (opening devices): SIGINT exits 130, others
+    1, as a run stopped by them does."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _closing_signals(reporter: object):
+    """Around a sweep: a signal before the run starts stops the command (devices closed); once
+    the run has ended (the actuator sent to neutral), a further signal while the rig closes and
+    the outcome prints is only noted, so the exit status stays the run's."""
+    def _on_signal(signum: int, frame: object) -> None:
+        if getattr(reporter, "finished", False):
+            err.print(f"rigtool: {signal.Signals(signum).name} while closing: the run has "
+                      "ended; finishing")
+            return
+        raise Stopped(signum)
+
+    sigs = [s for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+            if signal.getsignal(s) is not signal.SIG_IGN]
+    old = {sig: signal.signal(sig, _on_signal) for sig in sigs}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 @contextlib.contextmanager
@@ -768,9 +801,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:  # a path or port the user gave that the system refuses
         err.print(f"rigtool: error: {exc}")
         return 1
-    except KeyboardInterrupt:
-        err.print("rigtool: interrupted")
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:
+        stopped_by = getattr(exc, "signum", signal.SIGINT)
+        err.print("rigtool: interrupted" if stopped_by == signal.SIGINT
+                  else f"rigtool: stopped by {signal.Signals(stopped_by).name}")
+        return EXIT_INTERRUPTED if stopped_by == signal.SIGINT else 1
 
 
 if __name__ == "__main__":

@@ -77,6 +77,7 @@ class RichReporter:
         self.console.print(text, markup=False)
 
     def finish(self) -> None:
+        self.finished = True
         if self._progress is not None:
             self._progress.stop()
             self._progress = None
@@ -119,7 +120,7 @@ class PlainReporter:
         self._print(text)
 
     def finish(self) -> None:
-        return None
+        self.finished = True
 
 
 class SilentReporter:
@@ -140,7 +141,7 @@ class SilentReporter:
         return None
 
     def finish(self) -> None:
-        return None
+        self.finished = True
 
 
 def default_reporter() -> RichReporter | PlainReporter:

@@ -269,6 +269,11 @@ def _is_pid(value: object) -> bool:
     return isinstance(value, int) and 0 < value <= MAX_PID
 
 
+def owner_gone(host: object, pid: object) -> bool:
+    """Whether a run's sweep process, on this host, no longer exists (False elsewhere)."""
+    return host == socket.gethostname() and _is_pid(pid) and not _pid_alive(pid)
+
+
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -401,14 +406,12 @@ class Store:
         the next command that can write marks them. A read-only store writes through a
         second, short-lived connection, only when there is something to mark.
         """
-        host = socket.gethostname()
         try:
             rows = self.conn.execute(
                 "SELECT id, host, pid FROM runs WHERE status = 'running'").fetchall()
         except (sqlite3.DatabaseError, DataError):
             return
-        dead = [run_id for run_id, run_host, pid in rows
-                if run_host == host and _is_pid(pid) and not _pid_alive(pid)]
+        dead = [run_id for run_id, run_host, pid in rows if owner_gone(run_host, pid)]
         if not dead:
             return
         conn = self.conn

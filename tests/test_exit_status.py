@@ -135,3 +135,37 @@ def test_unconfirmed_neutral_after_an_error_exits_3(write_yaml, db_path, monkeyp
     last = err.splitlines()[-1]
     assert "sensor cable pulled" in last and "THE NEUTRAL COMMAND FAILED" in last
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_after_the_run_ended_leaves_the_exit_status_the_runs(write_yaml, db_path,
+                                                                     monkeypatch, capsys, sig):
+    """After an attack: a second signal while the rig closed and the outcome printed killed
+    the process (-15, -2). It is noted, and the status stays the run's (0 here)."""
+    from rigtool import cli
+
+    report = cli._report_outcome
+
+    def signalled(*args, **kwargs):
+        os.kill(os.getpid(), sig)
+        return report(*args, **kwargs)
+
+    monkeypatch.setattr(cli, "_report_outcome", signalled)
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 0
+    assert "while closing" in capsys.readouterr().err
+
+
+def test_sigterm_before_the_run_starts_exits_1(write_yaml, db_path, monkeypatch, capsys):
+    """A SIGTERM while the devices open (before any run) stops the command with 1, as a
+    SIGTERM during a run does (it was killed by the signal: -15)."""
+    from rigtool import sweep
+
+    opened = sweep.open_checked
+
+    def slow_open(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return opened(*args, **kwargs)
+
+    monkeypatch.setattr(sweep, "open_checked", slow_open)
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 1
+    assert "stopped by SIGTERM" in capsys.readouterr().err

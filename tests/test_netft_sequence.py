@@ -316,7 +316,13 @@ R = list(range(1, 101))  # a stream's first hundred records
     (R + [600] + list(range(101, 1001)), list(range(1, 1001)), {"bad_sequence": 1}),
     (R + [600] + list(range(102, 200)), R + list(range(102, 200)),
      {"bad_sequence": 1, "lost_packets": 1}),
-    ([900, 2, 3, 4], [2, 3, 4], {"bad_sequence": 1, "lost_packets": 1}),
+    ([900, 2, 3, 4, 5, 6], [2, 3, 4, 5, 6], {"bad_sequence": 1, "lost_packets": 1}),
+    # after a real gap: a near corrupt record as the third, an overtaken pair, a gap inside
+    (R + [102, 103, 600] + list(range(104, 301)), R + list(range(102, 301)),
+     {"bad_sequence": 1, "lost_packets": 1}),
+    (R + [103, 102, 104, 105], R + [102, 103, 104, 105], {"lost_packets": 1}),
+    (R + [102, 110, 111, 112], R + [102, 110, 111, 112], {"lost_packets": 8}),
+    (list(range(1, 41, 2)), list(range(1, 39, 2)), {"lost_packets": 18}),  # every other lost
     (R + [1_024, 1_025] + list(range(101, 111)), list(range(1, 111)), {"bad_sequence": 2}),
     (R + [500_000, 500_001] + list(range(101, 111)), list(range(1, 111)), {"bad_sequence": 2}),
 ])
@@ -409,3 +415,32 @@ def test_a_batch_taken_at_once_is_judged_as_one_by_one(before, steps):
             assert by_one == seqs and state(tracker) == state(one)
         else:
             assert state(tracker) == untouched
+
+
+def test_lossy_streams_with_corrupt_numbers_store_almost_no_invented_record():
+    """After a second attack: 600 random streams of 800 records, 0-10 % lost and 3 % with a
+    corrupt number 5 to 3000 away (inserted, or in the record's place). A corrupt record is
+    stored in at most 1.5 % of the streams (measured 0.6 % on 3000), a genuine one dropped in
+    at most 1.5 % (0.4 %), never more than two in a stream; loss alone is always exact."""
+    rng = np.random.default_rng(8301)
+    invented = dropped = 0
+    for _ in range(600):
+        loss, sent, genuine = rng.uniform(0.0, 0.1), [], []
+        for q in range(1, 800):
+            if rng.random() < loss:
+                continue
+            if rng.random() < 0.03:
+                sent.append((q + int(rng.integers(5, 3000)) * int(rng.choice([-1, 1])), 0))
+                if rng.random() < 0.5:
+                    continue
+            sent.append((q, 1))
+            genuine.append(q)
+        tracker = RdtSequence(NetFTStats())
+        out = [(item[1], item[2]) for q, flag in sent
+               for item in tracker.offer((0.0, q % WRAP, flag))]
+        invented += any(flag == 0 for _, flag in out)
+        kept = {q for q, flag in out if flag}
+        missing = [q for q in genuine[:-3] if q not in kept]
+        dropped += bool(missing)
+        assert len(missing) <= 2
+    assert invented <= 9 and dropped <= 9, (invented, dropped)

@@ -128,6 +128,59 @@ def test_data_of_a_finished_run(tmp_path):
     json.dumps(d, allow_nan=False)
 
 
+def _running_run(db: Path, name: str, pid: int | None = None) -> str:
+    """A run left marked running (its process `pid`, this one by default)."""
+    with Store(db) as store:
+        run_id = store.create_run(name=name, protocol={}, protocol_path=None, rig={}, plan=[],
+                                  metadata={}, seed=1, command_unit="percent",
+                                  tool_version="test")
+        if pid is not None:
+            store.conn.execute("UPDATE runs SET pid = ? WHERE id = ?", (pid, run_id))
+    return run_id
+
+
+def test_following_keeps_the_running_run_and_a_dead_one_shows_interrupted(tmp_path):
+    """After an attack: a run created in the same database during a watched sweep took the
+    page over, and a sweep killed with -9 showed "running" for ever."""
+    db = _sim_run(tmp_path)
+    watcher = Watcher(db, follow=True, cache_s=0.0)
+    try:
+        watcher.start()
+        sweep = _running_run(db, "the sweep")
+        assert watcher.data()["run"]["id"] == sweep
+        assert main(["sweep", str(tmp_path / "p.yaml"), "--sim", "--db", str(db)]) == 0
+        assert watcher.data()["run"]["id"] == sweep  # the new, finished run does not take over
+    finally:
+        watcher.close()
+    other = tmp_path / "other"
+    other.mkdir()
+    db = _sim_run(other)
+    watcher = Watcher(db, follow=True, cache_s=0.0)
+    try:
+        watcher.start()  # open first: the sweep dies while it is watched
+        gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True)
+        dead = _running_run(db, "killed", pid=int(gone.stdout))
+        run = watcher.data()["run"]
+    finally:
+        watcher.close()
+    assert run["id"] == dead and run["status"] == "interrupted" and run["ended"]
+    assert "gone" in run["stop_reason"]
+
+
+def test_an_ended_run_is_read_once_and_queued_requests_share_a_read(tmp_path):
+    db = _sim_run(tmp_path)
+    now = [0.0]
+    watcher = Watcher(db, "last", cache_s=0.5, clock=lambda: now[0])
+    try:
+        watcher.start()
+        first = watcher.data()
+        now[0] = 1e6  # long after: the run has ended, so nothing is read again
+        assert watcher.data() is first
+    finally:
+        watcher.close()
+
+
 # -- server: routes, headers, nothing writes --------------------------------------------------
 def test_routes_headers_and_refusals(served, tmp_path):
     url = served.url

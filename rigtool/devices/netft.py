@@ -81,6 +81,7 @@ RECORD = struct.Struct(">III6i")  # rdt_sequence, ft_sequence, status, Fx..Tz (c
 RECORD_DTYPE = np.dtype([("seq", ">u4"), ("ft_seq", ">u4"), ("status", ">u4"), ("counts", ">i4", (6,))])
 SEQUENCE_WINDOW = 1024  # late records are recognised this far behind the stream
 CONFIRM_RECORDS = 2  # a jump is stored once this many records go on from it
+RUN_STEP_MAX = 4  # a held run goes on only with a number at most this far past its last
 MAX_CANDIDATES = 4  # candidate runs held at once (more: the oldest was corrupt)
 MAX_SEQUENCE_JUMP = 1_000_000  # a confirmed move ahead up to this is a gap (lost); more, a restart
 _SEQ_MOD = 1 << 32
@@ -285,7 +286,7 @@ class RdtSequence:
             if not step:
                 self.stats.duplicates += 1
                 return []
-            if step <= SEQUENCE_WINDOW:
+            if step <= RUN_STEP_MAX:  # a near number joins a run; farther starts another
                 run.append(item)
                 return self._confirm(k) if len(run) > CONFIRM_RECORDS else []
         self._held.append([item])
@@ -343,12 +344,46 @@ class RdtSequence:
 
     def _confirm(self, k: int) -> list[tuple]:
         """Candidate run k went on for CONFIRM_RECORDS records: the stream really moved there
-        (a gap, or a restart); the other candidates were corrupt."""
+        (a gap, or a restart). On a gap within the window, the candidates that lie between
+        the stream and the run, in order, are stored before it (a further gap split them off);
+        candidates still ahead within the window stay held; the others were corrupt."""
         run = self._held.pop(k)
         self._passed.pop(k)
-        self._drop_all()
-        self._follow(run[0][1])
-        return [run[0], *self._take(run[1:])]
+        first = run[0][1]
+        near = self.last is None or (first - self.last) % _SEQ_MOD <= SEQUENCE_WINDOW
+        if near:
+            out = self._take_between(first)
+        else:
+            out = []
+            self._drop_all()
+        self._follow(first)
+        out += [run[0], *self._take(run[1:])]
+        for j in reversed(range(len(self._held))):
+            if not 0 < (self._held[j][0][1] - self.last) % _SEQ_MOD <= SEQUENCE_WINDOW:
+                self._drop(j)
+        return _monotone(out) if len(out) > 1 else out
+
+    def _take_between(self, first: int) -> list[tuple]:
+        """Store the candidates that lie wholly between the stream (or, at a stream's start,
+        SEQUENCE_WINDOW before it) and the confirmed run's `first`, lowest first."""
+        base = (first - SEQUENCE_WINDOW - 1) % _SEQ_MOD if self.last is None else self.last
+        ahead = (first - base) % _SEQ_MOD
+        between = sorted((j for j, run in enumerate(self._held)
+                          if 0 < (run[-1][1] - base) % _SEQ_MOD < ahead
+                          and (run[0][1] - base) % _SEQ_MOD <= (run[-1][1] - base) % _SEQ_MOD),
+                         key=lambda j: (self._held[j][0][1] - base) % _SEQ_MOD)
+        out: list[tuple] = []
+        for j in between:
+            run = self._held[j]
+            if self.last is None:  # the stream starts with this candidate
+                self._follow(run[0][1])
+                out.append(run[0])
+                run = run[1:]
+            out += self._take(run)
+        for j in sorted(between, reverse=True):
+            self._held.pop(j)
+            self._passed.pop(j)
+        return out
 
     def _take(self, run: list[tuple]) -> list[tuple]:
         """Store a run that goes on from `last`, counting the numbers it skips as lost."""

@@ -22,7 +22,7 @@ import numpy as np
 
 import rigtool.api
 from rigtool.errors import RigtoolError
-from rigtool.store import TRAFFIC_COUNTERS
+from rigtool.store import TRAFFIC_COUNTERS, owner_gone
 
 MAX_POINTS = 5000  # points sent per refresh (the newest)
 MAX_TRACE = 2000  # samples of the current point's trace sent per refresh
@@ -129,6 +129,7 @@ class Watcher:
         self.clock = clock
         self._lab: rigtool.api.Lab | None = None
         self._run_id: str | None = None
+        self._pinned = False  # following: the running run found is kept
         self._lock = threading.Lock()
         self._cached: tuple[float, dict] | None = None
         self._records: dict[str, dict] = {}
@@ -139,9 +140,11 @@ class Watcher:
         self._reader = ThreadPoolExecutor(1, thread_name_prefix="rigtool-watch-reader")
 
     def resolve(self) -> str | None:
-        """The run to show (None while a followed database has no run yet)."""
+        """The run to show (None while a followed database has no run yet). Following, the
+        latest run is shown until one is running: that one is then kept (another run created
+        in the same database meanwhile does not take the page over)."""
         lab = self._open()
-        if self._run_id is not None and not self.follow:
+        if self._run_id is not None and (not self.follow or self._pinned):
             return self._run_id
         try:
             self._run_id = lab.store.resolve_run_id(self.ref)
@@ -149,6 +152,8 @@ class Watcher:
             if not self.follow:
                 raise
             return None
+        if self.follow and lab.store.run(self._run_id).get("status") == "running":
+            self._pinned = True
         return self._run_id
 
     def _open(self) -> rigtool.api.Lab:
@@ -177,14 +182,21 @@ class Watcher:
     def _data(self) -> dict:
         with self._lock:
             now = self.clock()
-            if self._cached is not None and now - self._cached[0] < self.cache_s:
+            if self._cached is not None and (now - self._cached[0] < self.cache_s
+                                             or self._final(self._cached[1])):
                 return self._cached[1]
             lab = self._open()
             with lab.snapshot():
                 run_id = self.resolve()
                 doc = self._build(lab, run_id, now)
-            self._cached = (now, doc)
+            self._cached = (self.clock(), doc)  # stamped when read: queued requests share it
             return doc
+
+    def _final(self, doc: dict) -> bool:
+        """Whether a document can no longer change: its run has ended and is the one shown
+        for good (not following, or pinned)."""
+        run = doc.get("run") or {}
+        return bool(run.get("ended")) and (not self.follow or self._pinned)
 
     def _build(self, lab: rigtool.api.Lab, run_id: str | None, now: float) -> dict:
         bounds = {"max_points": MAX_POINTS, "max_trace": MAX_TRACE, "max_events": MAX_EVENTS}
@@ -215,7 +227,17 @@ class Watcher:
         }
 
     def _record(self, store: Any, run_id: str, now: float) -> dict:
-        """The run record: its plan and timing parsed once per run, its status every refresh."""
+        """The run record: its plan and timing parsed once per run, its status every refresh;
+        a run still marked running whose sweep process on this host is gone is shown as
+        interrupted (the store is not written: the next rigtool command marks it)."""
+        rec = self._stored_record(store, run_id, now)
+        if rec["status"] == "running" and owner_gone(rec["host"], rec["pid"]):
+            return rec | {"status": "interrupted",
+                          "stop_reason": "its sweep process is gone (killed or crashed)"}
+        return rec
+
+    def _stored_record(self, store: Any, run_id: str, now: float) -> dict:
+        """The run record as stored."""
         rec = self._records.get(run_id)
         listed = {r["id"]: r for r in store.runs(limit=20)}.get(run_id)
         stale = listed is None and now - self._listed_at.get(run_id, -1e9) > RUN_RECHECK_S
@@ -226,6 +248,7 @@ class Watcher:
                                            "created_utc", "finished_utc", "command_unit",
                                            "n_planned")}
             rec["rig_name"] = (run.get("rig") or {}).get("name")
+            rec["host"], rec["pid"] = run.get("host"), run.get("pid")
             rec["plan"] = [s for s in run.get("plan") or [] if isinstance(s, dict)]
             rec["timing"] = _timing(timing)
             self._records = {run_id: rec}

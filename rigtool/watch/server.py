@@ -15,13 +15,14 @@ import json
 import socket
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from importlib.resources import files
+from pathlib import Path
 from typing import Any
 
 from rigtool.errors import RigtoolError
 from rigtool.watch.data import Watcher
 
 DEFAULT_PORT = 8765
+STATIC_DIR = Path(__file__).parent / "static"  # shipped as package data
 STATIC = {  # route -> (file in static/, content type)
     "/": ("index.html", "text/html; charset=utf-8"),
     "/index.html": ("index.html", "text/html; charset=utf-8"),
@@ -144,7 +145,7 @@ class WatchServer(ThreadingHTTPServer):
     def static(self, name: str) -> bytes:
         """A bundled static file, read once."""
         if name not in self._static:
-            self._static[name] = files("rigtool.watch").joinpath("static", name).read_bytes()
+            self._static[name] = (STATIC_DIR / name).read_bytes()
         return self._static[name]
 
     def serve_in_thread(self) -> threading.Thread:
