@@ -7,6 +7,7 @@ import html
 import json
 import re
 import shutil
+import socket
 import subprocess
 import sys
 import time
@@ -197,11 +198,24 @@ def test_routes_headers_and_refusals(served, tmp_path):
     for method in ("POST", "PUT", "DELETE", "PATCH", "OPTIONS"):
         assert _get(url + "data", method)[0] == 404
     assert _get(url + "data", host="attacker.example")[0] == 404  # DNS rebinding
+    code, headers, _ = _get(url + "data", "PROPFIND")  # the server's own error page
+    assert code == 501 and headers["Content-Security-Policy"].startswith("default-src 'self'")
     assert _get(url + "uPlot.LICENSE")[2].startswith(b"The MIT License")
     before = (tmp_path / "w.sqlite").stat().st_mtime_ns
     for _ in range(3):
         _get(url + "data")
     assert (tmp_path / "w.sqlite").stat().st_mtime_ns == before
+
+
+def test_a_port_in_use_is_named(tmp_path, capsys):
+    db = _sim_run(tmp_path)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        capsys.readouterr()
+        assert main(["watch", "--db", str(db), "--port", str(port)]) == 1
+    assert f"127.0.0.1:{port}" in capsys.readouterr().err
 
 
 def test_static_files_ship_as_package_data():

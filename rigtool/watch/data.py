@@ -27,6 +27,7 @@ from rigtool.store import TRAFFIC_COUNTERS, owner_gone
 MAX_POINTS = 5000  # points sent per refresh (the newest)
 MAX_TRACE = 2000  # samples of the current point's trace sent per refresh
 MAX_EVENTS = 200  # newest events sent per refresh
+READ_SHARE = 10.0  # the next read waits 10 times the last one: reading takes <= 10 % of a core
 MAX_DETAIL = 400  # characters of one event's detail
 MAX_GROUPS = 12  # depth/voltage groups plotted separately; the rest share one
 MIN_FIT_POINTS = 3  # stored points per direction before a provisional C_p is shown
@@ -130,6 +131,7 @@ class Watcher:
         self._lab: rigtool.api.Lab | None = None
         self._run_id: str | None = None
         self._pinned = False  # following: the running run found is kept
+        self._read_s = 0.0  # how long the last read took
         self._lock = threading.Lock()
         self._cached: tuple[float, dict] | None = None
         self._records: dict[str, dict] = {}
@@ -182,13 +184,16 @@ class Watcher:
     def _data(self) -> dict:
         with self._lock:
             now = self.clock()
-            if self._cached is not None and (now - self._cached[0] < self.cache_s
+            wait = max(self.cache_s, READ_SHARE * self._read_s)
+            if self._cached is not None and (now - self._cached[0] < wait
                                              or self._final(self._cached[1])):
                 return self._cached[1]
             lab = self._open()
+            started = time.monotonic()
             with lab.snapshot():
                 run_id = self.resolve()
                 doc = self._build(lab, run_id, now)
+            self._read_s = time.monotonic() - started
             self._cached = (self.clock(), doc)  # stamped when read: queued requests share it
             return doc
 

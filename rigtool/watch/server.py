@@ -41,6 +41,7 @@ HEADERS = {
     "Cross-Origin-Resource-Policy": "same-origin",
 }
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "[::1]")
+REQUEST_TIMEOUT_S = 10.0
 
 
 def is_loopback(address: str) -> bool:
@@ -64,6 +65,13 @@ class _Handler(BaseHTTPRequestHandler):
     server: WatchServer
     server_version = "rigtool-watch"
     sys_version = ""
+    timeout = REQUEST_TIMEOUT_S  # a client that stops sending mid-request frees its thread
+
+    def end_headers(self) -> None:
+        """Every response, the server's own error pages included, carries HEADERS."""
+        for key, value in HEADERS.items():
+            self.send_header(key, value)
+        super().end_headers()
 
     def do_GET(self) -> None:
         self._serve(body=True)
@@ -109,8 +117,6 @@ class _Handler(BaseHTTPRequestHandler):
         self.send_header("Content-Type", kind)
         self.send_header("Content-Length", str(len(payload)))
         self.send_header("Cache-Control", "no-store")
-        for key, value in HEADERS.items():
-            self.send_header(key, value)
         self.end_headers()
         if body:
             self.wfile.write(payload)
@@ -126,12 +132,18 @@ class WatchServer(ThreadingHTTPServer):
 
     def __init__(self, watcher: Watcher, port: int = DEFAULT_PORT,
                  bind: str = "127.0.0.1") -> None:
-        """Bind now (OSError if the port is taken); nothing is read until a request."""
+        """Bind now (RigtoolError naming the address when it is taken or refused); nothing is
+        read until a request."""
         self.watcher = watcher
         self.loopback = is_loopback(bind)
         if ":" in bind:
             self.address_family = socket.AF_INET6
-        super().__init__((bind, port), _Handler)
+        try:
+            super().__init__((bind, port), _Handler)
+        except OSError as exc:
+            why = exc.strerror or str(exc)
+            raise RigtoolError(f"cannot serve the watch page on {bind}:{port} ({why}): choose "
+                               "another --port, or 0 for any free one") from exc
         self._static: dict[str, bytes] = {}
         self._thread: threading.Thread | None = None
 
