@@ -25,7 +25,6 @@ from collections.abc import Callable, Mapping
 from typing import Annotated, Any, Literal
 
 import numpy as np
-import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, PositiveSeconds, Scale
@@ -134,6 +133,7 @@ class AsciiGauge:
 
     def __init__(self, config: AsciiGaugeConfig | Mapping, *,
                  now: Callable[[], float] = time.monotonic) -> None:
+        import serial
         cfg = config if isinstance(config, AsciiGaugeConfig) else AsciiGaugeConfig.model_validate(config)
         self.config = cfg
         self.name = f"force gauge on {cfg.url}"
@@ -206,6 +206,7 @@ class AsciiGauge:
 
     # -- internals ------------------------------------------------------------------------
     def _poll(self, n: int, rate_hz: float) -> list[tuple]:
+        import serial
         cfg = self.config
         rows: list[tuple] = []
         failures = 0
@@ -252,6 +253,7 @@ class AsciiGauge:
         return rows
 
     def _read_loop(self) -> None:
+        import serial
         framer = LineFramer(_MAX_LINE)
         while not self._stop.is_set():
             try:

@@ -15,14 +15,15 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
 import numpy as np
 
-from rigtool.devices import udp_loopback
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
 from rigtool.errors import DeviceError
+
+if TYPE_CHECKING:  # the drivers import them when they open a bus
+    import can
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +57,9 @@ def bus_name(interface: str, channel: str) -> str:
 def open_bus(interface: str, channel: str, bitrate: int | None = None) -> can.BusABC:
     """Open a python-can bus (or rigtool's loopback-only `udp_loopback`, see udp_loopback.py);
     any failure becomes a DeviceError naming interface and channel."""
+    import can
+
+    from rigtool.devices import udp_loopback
     kwargs = {} if bitrate is None else {"bitrate": bitrate}
     try:
         if interface == udp_loopback.INTERFACE:
@@ -117,6 +121,7 @@ class CanLink:
 
     def send(self, msg: can.Message) -> None:
         """Transmit one frame; a failure is counted and raised as DeviceError naming the bus."""
+        import can
         try:
             with self._send_lock:
                 self._bus.send(msg, timeout=_SEND_TIMEOUT_S)
@@ -163,6 +168,7 @@ class CanLink:
         thread.start()
 
     def _rx_loop(self) -> None:
+        import can
         while not self._stop.is_set():
             try:
                 msg = self._bus.recv(timeout=_RECV_POLL_S)

@@ -14,10 +14,8 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import can
-import cantools
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
@@ -27,6 +25,10 @@ from rigtool.devices.canbus import FEEDBACK_FIELDS, CanActuator, FeedbackBuffer,
 from rigtool.errors import DeviceError, UsageError
 from rigtool.files import MAX_DBC_BYTES, UnreadableFile, read_regular_bytes
 from rigtool.units import COMMAND_UNITS
+
+if TYPE_CHECKING:  # the drivers import them when they open a bus
+    import can
+    import cantools
 
 log = logging.getLogger(__name__)
 
@@ -135,6 +137,7 @@ def resolve(config: DbcCanConfig) -> DbcCanConfig:
 
 def load_dbc(path: Path) -> cantools.database.can.Database:
     """Read a DBC file; a missing or invalid file is a UsageError naming it."""
+    import cantools
     try:
         text = read_regular_bytes(path, MAX_DBC_BYTES).decode("cp1252", errors="replace")
     except UnreadableFile as exc:
@@ -316,6 +319,7 @@ class DbcCanDriver(CanActuator):
         return self._frame_for(self._cmd_msg, data)
 
     def _frame_for(self, message, data: bytes) -> can.Message:
+        import can
         return can.Message(arbitration_id=self._frame_id(message), data=data,
                            is_extended_id=message.is_extended_frame)  # fmt: skip
 
@@ -324,6 +328,7 @@ class DbcCanDriver(CanActuator):
 
     def _on_frame(self, msg: can.Message, t: float) -> str:
         """Decode one received frame; return the stats counter it belongs to."""
+        import cantools
         fields = self._rx.get(msg.arbitration_id)
         if fields is None or msg.is_remote_frame:
             return "ignored"

@@ -26,7 +26,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
-import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, PositiveSeconds
@@ -94,6 +93,7 @@ class ScpiSupply:
     reached_by = "supply"
 
     def __init__(self, config: ScpiSupplyConfig) -> None:
+        import serial
         self.config = config
         self.name = f"SCPI supply on {config.url}"
         self.stats = dict.fromkeys(("lines", "garbage", "timeouts", "errors"), 0)
@@ -283,6 +283,7 @@ class ScpiSupply:
                     self._state("OUTP?")
 
     def _release(self) -> None:
+        import serial
         self._keepalive_stop.set()
         with self._lock:
             self._closed = True
@@ -320,6 +321,7 @@ class ScpiSupply:
         return _STATES[self._query(query, lambda text: text.upper() in _STATES).upper()]
 
     def _write(self, line: str) -> None:
+        import serial
         if self._closed:
             raise DeviceError(f"{self.name} is closed")
         try:
@@ -331,6 +333,7 @@ class ScpiSupply:
     def _query(self, query: str, accept: Callable[[str], bool] = bool) -> str:
         """Send `query` and return the first reply line that `accept`s; other lines (not ASCII,
         or not of the expected form) are counted as garbage and skipped."""
+        import serial
         with self._lock:
             with contextlib.suppress(serial.SerialException, OSError):
                 self._ser.reset_input_buffer()

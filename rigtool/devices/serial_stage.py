@@ -15,7 +15,6 @@ import re
 import time
 from typing import Annotated, Literal
 
-import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, DepthM, PositiveSeconds
@@ -57,6 +56,7 @@ class SerialStage:
     reached_by = "stage"
 
     def __init__(self, config: SerialStageConfig) -> None:
+        import serial
         self.config = config
         self.name = f"serial stage on {config.url}"
         self.stats = dict.fromkeys(("lines", "garbage", "unexpected", "errors", "timeouts"), 0)
@@ -90,6 +90,7 @@ class SerialStage:
 
     def close(self) -> None:
         """Release the port. Idempotent."""
+        import serial
         if self._closed:
             return
         self._closed = True
@@ -135,6 +136,7 @@ class SerialStage:
 
     def _request(self, line: str, kind: str) -> str | None:
         """Send `line` and return the argument of the first `kind` reply."""
+        import serial
         if self._closed:
             raise DeviceError(f"{self.name} is closed")
         try:
@@ -170,6 +172,7 @@ class SerialStage:
 
     def _lines(self) -> list[str]:
         """Complete lines read within one poll period (undecodable ones counted as garbage)."""
+        import serial
         try:
             chunk = self._ser.read(max(1, self._ser.in_waiting))
         except (serial.SerialException, OSError) as exc:

@@ -18,7 +18,6 @@ import time
 from typing import Literal
 
 import numpy as np
-import serial
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import MAX_CLOCK_HZ, MAX_DURATION_S, Baudrate, Command, PositiveSeconds, Seconds
@@ -137,6 +136,7 @@ class Stm32Bridge:
     """Actuator driver for the STM32 PWM bridge over any pyserial URL."""
 
     def __init__(self, config: Stm32BridgeConfig) -> None:
+        import serial
         self.config = config
         self.info = actuator_info(config)
         self.name = f"STM32 bridge on {config.url}"
@@ -247,6 +247,7 @@ class Stm32Bridge:
 
     def _transact(self, line: str) -> str | None:
         """Send one line and wait for its reply; return the reply's `value` group."""
+        import serial
         with self._tx_lock:
             if self._closed:
                 raise _WriteFailed(f"{self.name} is closed")
@@ -286,6 +287,7 @@ class Stm32Bridge:
                 log.debug("heartbeat to %s failed: %s", self.name, exc)
 
     def _read_loop(self) -> None:
+        import serial
         framer = LineFramer(_MAX_LINE)
         while not self._stop.is_set():
             try:
@@ -332,6 +334,7 @@ class Stm32Bridge:
             self.stats["garbage"] += 1
 
     def _shutdown(self) -> None:
+        import serial
         self._closed = True
         self._stop.set()
         for thread in (self._heart, self._reader):

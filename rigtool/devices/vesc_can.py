@@ -19,9 +19,8 @@ from __future__ import annotations
 
 import logging
 import struct
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import can
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from rigtool.bounds import MAX_CURRENT_A, MAX_SPEED_RPM, Baudrate, PositiveSeconds, Seconds
@@ -33,6 +32,9 @@ from rigtool.devices.canbus import (
     check_keepalive,
 )
 from rigtool.errors import DeviceError
+
+if TYPE_CHECKING:  # the drivers import them when they open a bus
+    import can
 
 log = logging.getLogger(__name__)
 
@@ -221,6 +223,7 @@ class VescCanDriver(CanActuator):
         return self._message(SET_CURRENT, 0.0)
 
     def _message(self, packet: int, value: float) -> can.Message:
+        import can
         return can.Message(
             arbitration_id=can_id(packet, self.config.controller_id),
             data=encode_command(packet, value), is_extended_id=True,
@@ -228,6 +231,7 @@ class VescCanDriver(CanActuator):
 
     def _poll_fault(self) -> None:
         """Ask the controller for its fault code (sent with every keep-alive)."""
+        import can
         self._link.send(can.Message(
             arbitration_id=can_id(PROCESS_SHORT_BUFFER, self.config.controller_id),
             data=fault_poll(self.config.host_id), is_extended_id=True,
