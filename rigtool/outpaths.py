@@ -16,6 +16,9 @@ MAX_COMPONENT = 120
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]")
 
 
+REPORT_FILE = "report.html"  # the HTML report in a run's folder
+
+
 def safe_component(text: str) -> str:
     """`text` as one file-name component: characters other than letters, digits, `.`, `_`
     and `-` become `_`, no leading dot or dash, at most MAX_COMPONENT characters."""

@@ -15,7 +15,7 @@ import numpy as np
 import rigtool
 from rigtool.artefacts import state
 from rigtool.errors import DataError, UsageError
-from rigtool.outpaths import run_folder
+from rigtool.outpaths import REPORT_FILE, run_folder
 from rigtool.progress import stage
 from rigtool.readback import brief
 from rigtool.store import Store, is_run_id, run_label, utc_now
@@ -91,6 +91,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     folder = run_folder(out_dir, run_id)
     paths = write_artefacts(cal, out_dir, created_utc=created)
     remove_exports(folder)
+    (folder / REPORT_FILE).unlink(missing_ok=True)  # the earlier calibration's: write it again
     cav, notes = None, list(stage_notes)
     if cav_stage.base_run_id is not None:
         with stage(f"quasi-cavitation model of run {run_id} (base run {cav_stage.base_run_id})"):

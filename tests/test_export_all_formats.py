@@ -172,9 +172,11 @@ def test_a_failed_write_leaves_no_file_and_a_new_calibration_no_stale_one(lab, c
     (out / run / FORMATS["ros2"]).rmdir()
     assert main(["export-cal", run, "--db", db, "--out", str(out), "--format", "c-header",
                  "--format", "px4"]) == 0
+    assert main(["report", run, "--db", db, "--out", str(out)]) == 0
     assert main(["calibrate", run, "--db", db, "--out", str(out)]) == 0
     left = {p.name for p in (out / run).iterdir()}
-    assert not left & {FORMATS["c-header"], FORMATS["px4"]} and "calibration.json" in left
+    assert not left & {FORMATS["c-header"], FORMATS["px4"], "report.html"}
+    assert "calibration.json" in left
 
 
 def test_px4_refuses_a_curve_its_model_cannot_follow(tmp_path, capsys):

@@ -59,8 +59,8 @@ def render(x: ExportInput) -> str:
     params |= {"dynamics_model": "none"} if dyn is None else dyn
     notes = [*x.head(list(x.texts)),
              "map_*: thrust (N, ascending) -> command; interpolate linearly; neutral for 0 N;",
-             "beyond a map's last thrust its last command; below its first thrust the neutral",
-             "command. Where a direction has several branches (a dead zone between them),",
+             "by |thrust|: beyond a map's largest its command there, below its smallest the",
+             "neutral command. Where a direction has several branches (a dead zone between them),",
              "map_*_branch_start gives the index each begins at: interpolate within one, and",
              "between two take the nearer end. A list that would be empty is left out",
              "(has_*_map, n_dead_zones: 0).",
