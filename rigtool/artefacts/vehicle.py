@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -168,12 +169,12 @@ class ExportInput:
     dynamics: DynamicsSource | None
     options: ExportOptions
 
-    @property
+    @cached_property
     def tables(self) -> list[Table]:
         """The inverse table of each branch, as inverse_lut.csv writes it."""
         return branches(self.sec)
 
-    @property
+    @cached_property
     def map(self) -> ThrustMap:
         """Thrust -> command with the vehicle semantics (rigtool.models.thrust_map)."""
         curve = self.sec.curve
