@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from rigtool.devices.dbc_can import DBC_DIR, DbcCanConfig, DbcCanDriver
-from rigtool.errors import DeviceError, UsageError
+from rigtool.devices.dbc_can import DBC_DIR, DbcCanConfig, DbcCanDriver, resolve
+from rigtool.errors import ConfigError, DeviceError, UsageError
+from rigtool.rig import load_rig
 from rigtool.sim.odrive_twin import ODRIVE_DBC, OdriveTwin
 from rigtool.sim.profiles import PROFILES
 
@@ -218,3 +219,18 @@ def test_mapping_errors_name_the_problem(fields, message):
 def test_odrive_mapping_without_watchdog_allows_keepalive_off():
     cfg = DbcCanConfig(driver="dbc-can", channel="x", mapping="odrive_velocity", keepalive_s=0)
     assert cfg.keepalive_s == 0
+
+
+def test_mapping_servo_driver_is_the_default_servo_setup():
+    named = resolve(DbcCanConfig(driver="dbc-can", channel="x", mapping="servo_driver"))
+    default = resolve(DbcCanConfig(driver="dbc-can", channel="x"))
+    assert named.model_dump(exclude={"mapping", "command_timeout_s"}) == default.model_dump(
+        exclude={"mapping", "command_timeout_s"})  # fmt: skip
+    assert named.command_timeout_s == 0.5 and named.dbc is None
+
+
+def test_an_unknown_mapping_in_a_rig_file_names_file_and_line(write_yaml):
+    text = ("name: r\nactuator:\n  driver: dbc-can\n  channel: can0\n  mapping: odrive\n"
+            "sensor: {driver: ati-netft, host: h}\n")  # fmt: skip
+    with pytest.raises(ConfigError, match=r"rig.yaml:5: actuator.mapping.*no shipped mapping"):
+        load_rig(write_yaml(text, "rig.yaml"))
