@@ -121,5 +121,6 @@ def _actuator_unit(rig: dict) -> str:
 
         return PROFILES[rig["simulator"]["profile"]].command_unit
     act = rig["actuator"]
-    return act.get("command_unit") or act.get("unit") or "percent"
+    command = act.get("command") or {}  # dbc-can: the unit is in its command section
+    return act.get("command_unit") or act.get("unit") or command.get("unit") or "percent"
 

@@ -3,16 +3,20 @@
 The DBC (read with cantools) gives frame layouts; the rig file maps rigtool's actuator
 onto them: the command signal and its unit, feedback signals for speed, current and
 voltage, an optional fault signal and enable signal. Frame ids in the DBC are offset by
-`node_id` (CANopen style: id + node). Without a `dbc:` the shipped servo_driver.dbc and
-its mapping servo_driver.yaml describe a speed/current servo like the pool rig's; rig
-sections given explicitly replace the shipped ones. A keep-alive thread re-sends the
-command in force for drives with a command watchdog.
+`node_id << node_id_shift` (CANopen style: id + node; ODrive: node << 5 | command). Without a
+`dbc:` the shipped servo_driver.dbc and its mapping servo_driver.yaml describe a
+speed/current servo like the pool rig's; `mapping: NAME` picks another shipped mapping
+(rigtool/dbc/NAME.yaml, which names its DBC), e.g. odrive_velocity. Rig sections given
+explicitly replace the shipped ones. A keep-alive thread re-sends the command in force
+for drives with a command watchdog.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -32,10 +36,35 @@ if TYPE_CHECKING:  # the drivers import them when they open a bus
 
 log = logging.getLogger(__name__)
 
-SHIPPED_DBC = Path(__file__).resolve().parent.parent / "dbc" / "servo_driver.dbc"
+DBC_DIR = Path(__file__).resolve().parent.parent / "dbc"  # shipped DBC files and mappings
+SHIPPED_DBC = DBC_DIR / "servo_driver.dbc"
 SHIPPED_MAPPING = SHIPPED_DBC.with_suffix(".yaml")
 SHIPPED_WATCHDOG_S = 0.5  # the shipped servo stops this long after its last SERVO_CONTROL
 _SECTIONS = ("command", "feedback", "fault", "enable")
+# what a shipped mapping may give besides the sections (`dbc`: a file name in DBC_DIR)
+_MAPPING_FIELDS = ("dbc", "node_id_shift", "command_timeout_s", *_SECTIONS)
+_MAPPING_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+STANDARD_ID_MAX = 0x7FF
+EXTENDED_ID_MAX = 0x1FFFFFFF
+
+
+def shipped_mappings() -> list[str]:
+    """Names of the mappings shipped in rigtool/dbc/ (for `mapping:`)."""
+    return sorted(p.stem for p in DBC_DIR.glob("*.yaml"))
+
+
+@functools.lru_cache(maxsize=8)
+def shipped_mapping(name: str) -> dict:
+    """The shipped mapping NAME (rigtool/dbc/NAME.yaml), its `dbc` made a path; ValueError
+    listing the shipped mappings when there is no such one."""
+    path = DBC_DIR / f"{name}.yaml"
+    if not _MAPPING_NAME.fullmatch(name) or not path.is_file():
+        raise ValueError(f"no shipped mapping {name!r} (shipped: {', '.join(shipped_mappings())})")
+    data = yaml.safe_load(path.read_text())
+    mapping = {k: data[k] for k in _MAPPING_FIELDS if k in data}
+    if "dbc" in mapping:
+        mapping["dbc"] = str(DBC_DIR / mapping["dbc"])
+    return mapping
 
 
 class _Strict(BaseModel):
@@ -100,7 +129,9 @@ class DbcCanConfig(_Strict):
     channel: str = Field(min_length=1)  # python-can channel: can0, /dev/ttyACM0, a virtual bus name
     bitrate: Baudrate | None = 500000  # bit/s; null keeps the interface's own setting
     dbc: str | None = None  # path to the .dbc; null: shipped servo_driver.dbc + servo_driver.yaml
-    node_id: int = Field(1, ge=0, le=0x1FFFFFFF)  # added to every DBC frame id; 0 for absolute ids
+    mapping: str | None = None  # a shipped mapping (rigtool/dbc/NAME.yaml) filling what is left out
+    node_id: int = Field(1, ge=0, le=0x1FFFFFFF)  # its frame ids: DBC id + (node_id << shift)
+    node_id_shift: int | None = Field(None, ge=0, le=28)  # null: the mapping's, else 0
     command: CommandRef | None = None  # required with your own dbc
     feedback: FeedbackMap | None = None  # none: the actuator reports no feedback
     fault: FaultRef | None = None
@@ -111,10 +142,20 @@ class DbcCanConfig(_Strict):
     keepalive_s: Seconds = Field(0.1, validate_default=True)  # re-send period; 0 = off
     timeout_s: PositiveSeconds = 1.0  # no feedback/fault frame this long -> DeviceError
 
+    @field_validator("mapping")
+    @classmethod
+    def _shipped(cls, value: str | None) -> str | None:
+        if value is not None:
+            shipped_mapping(value)
+        return value
+
     @field_validator("keepalive_s")
     @classmethod
     def _keeps_alive(cls, value: float, info: ValidationInfo) -> float:
         timeout = info.data.get("command_timeout_s")
+        mapping = info.data.get("mapping")
+        if timeout is None and mapping is not None:
+            timeout = shipped_mapping(mapping).get("command_timeout_s", 0.0)
         if timeout is None:
             timeout = SHIPPED_WATCHDOG_S if info.data.get("dbc") is None else 0.0
         return check_keepalive(value, timeout, "drive")
@@ -127,11 +168,16 @@ class DbcCanConfig(_Strict):
 
 
 def resolve(config: DbcCanConfig) -> DbcCanConfig:
-    """The config with the shipped mapping in the sections it leaves out (shipped DBC only)."""
-    if config.dbc is not None:
+    """The config with a shipped mapping in what it leaves out: the one `mapping` names, else
+    servo_driver's sections when no `dbc` is given."""
+    if config.mapping is not None:
+        shipped = shipped_mapping(config.mapping)
+    elif config.dbc is None:
+        shipped = {k: v for k, v in yaml.safe_load(SHIPPED_MAPPING.read_text()).items()
+                   if k in _SECTIONS}  # fmt: skip
+    else:
         return config
-    shipped = yaml.safe_load(SHIPPED_MAPPING.read_text())
-    missing = {k: shipped[k] for k in _SECTIONS if getattr(config, k) is None and k in shipped}
+    missing = {k: v for k, v in shipped.items() if getattr(config, k) is None}
     return DbcCanConfig.model_validate({**config.model_dump(exclude_none=True), **missing})
 
 
@@ -300,7 +346,13 @@ class DbcCanDriver(CanActuator):
         return signal_message(self.db, self.dbc_path, ref, where)
 
     def _frame_id(self, message) -> int:
-        return message.frame_id + self.config.node_id
+        """The message's id on the bus: its DBC id + (node_id << node_id_shift), checked to fit."""
+        frame_id = message.frame_id + (self.config.node_id << (self.config.node_id_shift or 0))
+        if frame_id > (EXTENDED_ID_MAX if message.is_extended_frame else STANDARD_ID_MAX):
+            raise UsageError(f"dbc-can: node_id {self.config.node_id} puts {message.name} at "
+                             f"frame id {frame_id:#x}, beyond the "
+                             f"{29 if message.is_extended_frame else 11}-bit range")
+        return frame_id
 
     def _listen(self, message) -> int:
         """Register `message` as one we receive; return its frame id on the bus."""
