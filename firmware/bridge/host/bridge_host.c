@@ -1,8 +1,9 @@
 /* Host build of the bridge firmware: the portable core served on a pseudo-terminal (--pty,
  * whose path is printed on the first stdout line) or on stdin/stdout.
  *
- * The timer is not real: every compare value the core sets, and every watchdog trip, is
- * written to the trace file (--trace FILE) as "<t_ms> ccr <ch> <value>" / "<t_ms> watchdog".
+ * The timer is not real: every compare value the core sets is written to the trace file
+ * (--trace FILE) as "<t_ms> ccr <ch> <value> <cause>", the cause being boot, command,
+ * watchdog or exit.
  * SIGTERM, SIGINT and end of input put every channel at neutral before exiting. */
 #define _XOPEN_SOURCE 600
 
@@ -23,6 +24,7 @@
 typedef struct {
     int out_fd;
     FILE *trace;
+    const char *cause;  /* what the core is doing when it sets a compare value */
 } host_io;
 
 static volatile sig_atomic_t quit;
@@ -44,8 +46,8 @@ static void set_compare(void *ctx, uint8_t ch, uint32_t ccr)
 {
     host_io *io = ctx;
     if (io->trace != NULL) {
-        fprintf(io->trace, "%lu ccr %u %lu\n", (unsigned long)now_ms(), (unsigned)ch,
-                (unsigned long)ccr);
+        fprintf(io->trace, "%lu ccr %u %lu %s\n", (unsigned long)now_ms(), (unsigned)ch,
+                (unsigned long)ccr, io->cause);
         fflush(io->trace);
     }
 }
@@ -130,9 +132,9 @@ int main(int argc, char **argv)
     bridge_config cfg = {BRIDGE_TIMER_CLOCK_HZ, BRIDGE_PSC, BRIDGE_ARR, BRIDGE_NEUTRAL_CCR,
                          BRIDGE_WATCHDOG_MS, BRIDGE_TELEMETRY_MS, BRIDGE_CHANNELS};
     static bridge b;
-    host_io io = {1, NULL};
+    host_io io = {1, NULL, "boot"};
     bridge_hooks hooks = {set_compare, write_bytes, read_telemetry, NULL};
-    uint32_t channels = cfg.channels, trips = 0;
+    uint32_t channels = cfg.channels;
     struct sigaction sa;
     int use_pty = 0, in_fd = 0, slave = -1, i;
 
@@ -204,16 +206,14 @@ int main(int argc, char **argv)
                 break;  /* end of input, or the pty is gone */
             }
             if (n > 0) {
+                io.cause = "command";
                 bridge_feed(&b, buf, (size_t)n, now_ms());
             }
         }
+        io.cause = "watchdog";  /* the only compare values a tick sets */
         bridge_tick(&b, now_ms());
-        if (b.watchdog_trips != trips && io.trace != NULL) {
-            trips = b.watchdog_trips;
-            fprintf(io.trace, "%lu watchdog\n", (unsigned long)now_ms());
-            fflush(io.trace);
-        }
     }
+    io.cause = "exit";
     bridge_all_neutral(&b);
     if (slave >= 0) {
         close(slave);
