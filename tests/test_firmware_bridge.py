@@ -8,6 +8,7 @@ driver test, and one scripted conversation gets the same replies from them as fr
 from __future__ import annotations
 
 import os
+import random
 import re
 import select
 import shutil
@@ -256,25 +257,29 @@ CONVERSATION = [
 ]
 
 
-def converse(path: str) -> list[bytes]:
+def converse(path: str, lines: list[bytes]) -> list[bytes]:
     fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
     try:
         tty.setraw(fd)
-        return [exchange(fd, line) for line in CONVERSATION]
+        return [exchange(fd, line) for line in lines]
     finally:
         os.close(fd)
 
 
-def test_same_conversation_same_replies_from_twin_and_firmware(firmware):
+def twin_replies(lines: list[bytes]) -> list[bytes]:
+    """The twin's answers (stm32-pwm: 72 MHz, PSC 0, ARR 799, neutral 0, like bridge_rig.h)."""
     live = LiveTwin(ThrusterTwin(PROFILES["stm32-pwm"], seed=1)).start()
     twin = Stm32BridgeTwin(live).start()
     try:
-        from_twin = converse(twin.pty_path)
+        return converse(twin.pty_path, lines)
     finally:
         twin.stop()
         live.stop()
-    from_firmware = converse(firmware.pty_path)
-    assert from_firmware == from_twin
+
+
+def test_same_conversation_same_replies_from_twin_and_firmware(firmware):
+    from_twin = twin_replies(CONVERSATION)
+    assert converse(firmware.pty_path, CONVERSATION) == from_twin
     replies = dict(zip(CONVERSATION, from_twin, strict=True))
     assert replies[b"A" * 65 + b"\n"] == b"ERR line too long\n"
     assert replies[b"SET 1 7" + b" " * 57 + b"\n"] == b"OK 7\n"  # 64 bytes: the longest line
@@ -282,3 +287,33 @@ def test_same_conversation_same_replies_from_twin_and_firmware(firmware):
     assert replies[b"SET 1 800\n"] == b"ERR out of range 0..799\n"
     assert replies[b"FOO\n"] == b"ERR unknown command\n"
     assert replies[b"SET 99999999999999999999 1\n"] == b"ERR no channel 99999999999999999999\n"
+
+
+TOKENS = ["SET", "PW", "GET", "STOP", "HB", "PING", " ", " ", " ", "  ", "\t", "\x0c", "\x1f", "0",
+          "1", "2", "4", "5", "9", "12", "799", "800", "-", "+", "007", "99999999999999999999",
+          ".", "x", "\x00", "\x7f", "\x80", "\xff", "set", "A" * 30]
+
+
+def random_lines(seed: int, n: int) -> list[bytes]:
+    """Seeded hostile lines: token soup and near-miss commands, each non-empty, LF-ended."""
+    rng = random.Random(seed)
+    out = []
+    for _ in range(n):
+        if rng.random() < 0.5:
+            text = "".join(rng.choice(TOKENS) for _ in range(rng.randint(1, 8)))
+        else:
+            cmd = rng.choice(["SET", "PW", "GET"])
+            text = f"{cmd} {rng.choice(['1', '4', '5', '0', '01'])} {rng.randint(-50, 900)}"
+            if cmd == "GET":
+                text = text.rsplit(" ", 1)[0]
+        out.append(text.encode("latin-1") + b"\n")
+    return out
+
+
+def test_seeded_hostile_lines_get_the_twins_replies(firmware):
+    lines = random_lines(2017, 200)
+    from_twin = twin_replies(lines)
+    from_firmware = converse(firmware.pty_path, lines)
+    assert [(line, got) for line, got, want in zip(lines, from_firmware, from_twin, strict=True)
+            if got != want] == []
+    assert len(set(from_twin)) > 20  # the soup reaches many different answers
