@@ -288,7 +288,7 @@ static void end_of_line(bridge *b, uint32_t now_ms)
 
 int bridge_init(bridge *b, const bridge_config *cfg, const bridge_hooks *hooks, uint32_t now_ms)
 {
-    if (cfg->arr == 0u || cfg->neutral_ccr > cfg->arr || cfg->channels < 1u ||
+    if (cfg->timer_clock_hz == 0u || cfg->arr == 0u || cfg->neutral_ccr > cfg->arr || cfg->channels < 1u ||
         cfg->channels > BRIDGE_MAX_CHANNELS || hooks->set_compare == NULL || hooks->write == NULL) {
         return -1;
     }

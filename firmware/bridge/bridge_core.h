@@ -57,7 +57,7 @@ typedef struct {
 } bridge;
 
 /* Check `cfg`, keep the hooks and put every channel at neutral. 0 on success, -1 if the
- * config is inconsistent (arr 0, neutral above arr, channels outside 1..4, no hooks). */
+ * config is inconsistent (no clock, arr 0, neutral above arr, channels outside 1..4, no hooks). */
 int bridge_init(bridge *b, const bridge_config *cfg, const bridge_hooks *hooks, uint32_t now_ms);
 
 /* Take `n` received bytes; every complete line is answered before this returns. */
