@@ -19,7 +19,8 @@ import numpy as np
 from rigtool.sim.line_server import LineServer
 from rigtool.sim.live import LiveTwin
 
-_PLACEHOLDERS = {"{channel}": r"(?P<channel>\d+)", "{value}": r"(?P<value>[-+]?\d+(?:\.\d*)?)"}
+_PLACEHOLDERS = {"{channel}": r"(?P<channel>\d+)", "{value}": r"(?P<value>[-+]?\d+)"}  # integers
+MAX_LINE = 64  # bytes between line ends, as in the firmware; a longer line is refused whole
 
 
 @dataclass(frozen=True)
@@ -143,10 +144,8 @@ class Stm32BridgeTwin:
         if channel not in self.channels:
             return d.error.format(reason=f"no channel {channel}")
         if kind in ("set", "pulse"):
-            value = float(groups["value"])
-            ccr = round(value / self.tick_us) if kind == "pulse" else round(value)
-            if kind == "set" and ccr != value:
-                return d.error.format(reason="counts must be an integer")
+            value = int(groups["value"])
+            ccr = round(value / self.tick_us) if kind == "pulse" else value
             if not 0 <= ccr <= self.arr:
                 return d.error.format(reason=f"out of range 0..{self.arr}")
             self._apply(channel, ccr)
@@ -177,13 +176,20 @@ class Stm32BridgeTwin:
         self.lines_received += 1
         self._last_line_t = time.monotonic()
         self._armed = True
-        try:
-            answer = self._reply(raw.decode("ascii").strip())
-        except UnicodeDecodeError:
+        if len(raw) > MAX_LINE:
             self.bad_lines += 1
-            answer = self.dialect.error.format(reason="bad line")
+            answer = self.dialect.error.format(reason="line too long")
+        else:
+            answer = self._decode_and_reply(raw)
         if not self.no_replies:
             self._send(end, answer)
+
+    def _decode_and_reply(self, raw: bytes) -> str:
+        try:
+            return self._reply(raw.decode("ascii").strip())
+        except UnicodeDecodeError:
+            self.bad_lines += 1
+            return self.dialect.error.format(reason="bad line")
 
     def _tick(self) -> None:
         now = time.monotonic()
