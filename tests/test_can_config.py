@@ -4,6 +4,7 @@ CAN_* environment variables, named sections via `context:`) for what they leave 
 
 from __future__ import annotations
 
+import os
 import uuid
 
 import can
@@ -28,7 +29,6 @@ def can_home(tmp_path, monkeypatch):
     home = tmp_path / "home"
     home.mkdir()
     monkeypatch.setenv("HOME", str(home))
-    import os
     for name in [n for n in os.environ if n.startswith("CAN_")]:
         monkeypatch.delenv(name)
     monkeypatch.setattr(can, "rc", {})
@@ -117,6 +117,14 @@ def test_a_configuration_python_can_refuses_is_a_usage_error(can_home):
     can_home("[default]\ninterface = no-such-can\nchannel = x\n")
     with pytest.raises(UsageError, match="python-can configuration refused.*no-such-can"):
         bus_settings(_vesc())
+
+
+@pytest.mark.parametrize("text", ["interface = virtual\n", "[default]\ninterface\n  = x\n [\n",
+                                  "[default]\nport = eighty\n"])
+def test_a_damaged_can_conf_is_a_usage_error(can_home, text):
+    can_home(text)
+    with pytest.raises(UsageError, match="python-can configuration refused"):
+        bus_settings(_vesc(channel="x"))
 
 
 def _link(config: VescCanConfig) -> tuple[CanLink, list[int]]:

@@ -109,7 +109,7 @@ class BusSettings:
     """A bus as it will be opened: interface, channel and the other Bus arguments."""
 
     interface: str
-    channel: str
+    channel: str | int  # python-can's config turns a channel of digits into a number
     kwargs: dict[str, Any]
     from_config: bool  # python-can's configuration was read
 
@@ -140,22 +140,24 @@ def bus_settings(config: CanBusFields) -> BusSettings:
         raise UsageError(f"no CAN channel for interface {interface!r}: give `channel:` in the "
                          f"rig file, or set {where}CAN_CHANNEL or `channel =` in a python-can "
                          "config file (~/can.conf, /etc/can.conf, ~/.can, ~/.canrc)")
-    return BusSettings(str(interface), str(channel), resolved, from_config)
+    return BusSettings(str(interface), channel, resolved, from_config)
 
 
 def _python_can_config(given: dict[str, Any], context: str | None) -> dict[str, Any]:
     """python-can's own merge of `given` over its environment and config files."""
+    import configparser
+
     import can
 
-    sources = [can.rc, can.util.load_environment_config(context),
-               can.util.load_environment_config(), can.util.load_file_config(None, context),
-               can.util.load_file_config(None)]
-    if "interface" not in given and not any(s.get("interface") or s.get("bustype")
-                                            for s in sources):
-        given = {**given, "interface": DEFAULT_INTERFACE}
     try:
+        sources = [can.rc, can.util.load_environment_config(context),
+                   can.util.load_environment_config(), can.util.load_file_config(None, context),
+                   can.util.load_file_config(None)]
+        if "interface" not in given and not any(s.get("interface") or s.get("bustype")
+                                                for s in sources):
+            given = {**given, "interface": DEFAULT_INTERFACE}
         return dict(can.util.load_config(config=given, context=context))
-    except (can.CanError, ValueError, TypeError) as exc:
+    except (can.CanError, ValueError, TypeError, configparser.Error) as exc:
         ctx = f" (context {context!r})" if context else ""
         raise UsageError(f"python-can configuration{ctx} refused: {exc}") from None
 
@@ -175,12 +177,12 @@ def check_keepalive(keepalive_s: float, command_timeout_s: float, drive: str) ->
                      f"{command_timeout_s:g} s (command_timeout_s); set keepalive_s {limit}")
 
 
-def bus_name(interface: str, channel: str) -> str:
+def bus_name(interface: str, channel: str | int) -> str:
     """How a bus is named in messages: interface and channel, e.g. `socketcan:can0`."""
     return f"{interface}:{channel}"
 
 
-def open_bus(interface: str, channel: str, bitrate: int | None = None,
+def open_bus(interface: str, channel: str | int, bitrate: int | None = None,
              **bus_args: Any) -> can.BusABC:
     """Open a python-can bus with exactly these arguments (python-can's configuration is not
     read here: see bus_settings), or rigtool's loopback-only `udp_loopback`
