@@ -112,8 +112,8 @@ def test_opening_pyvisa_sim_only_asks(resource, caplog):
 
 
 def test_visa_errors_name_the_resource():
-    with pytest.raises(DeviceError, match=r"cannot open VISA resource 'TCPIP::10\.1\.2\.3"):
-        ScpiSupply(ScpiSupplyConfig(driver="scpi-supply", resource="TCPIP::10.1.2.3::5025::SOCKET",
+    with pytest.raises(DeviceError, match=r"cannot open VISA resource 'TCPIP::127\.0\.0\.9"):
+        ScpiSupply(ScpiSupplyConfig(driver="scpi-supply", resource="TCPIP::127.0.0.9::5025::SOCKET",
                                     visa_library=SIM_LIBRARY))  # not in the simulator's list
     with ScpiSupplyTwin() as twin:
         twin.no_replies = True
