@@ -97,7 +97,7 @@ def supply_lines(config: ScpiSupplyConfig) -> list[str]:
     supply = ScpiSupply(config)
     try:
         found, have = supply.found, supply.protection
-        lines = [f"supply: {supply.identity} on {config.url}",
+        lines = [f"supply: {supply.identity} on {config.where}",
                  f"  found: output {'ON' if found.output_on else 'off'}, setpoint "
                  f"{found.setpoint_v:g} V, current limit {found.current_limit_a:g} A (rig "
                  f"max_voltage_v {config.max_voltage_v:g} V; a sweep switches it off, programs "

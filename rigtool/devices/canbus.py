@@ -1,5 +1,12 @@
-"""What the CAN actuator drivers share: opening a python-can bus, its threads, feedback
-buffering, and the actuator life cycle (`CanActuator`).
+"""What the CAN actuator drivers share: the bus fields of their rig-file sections, opening a
+python-can bus, its threads, feedback buffering, and the actuator life cycle (`CanActuator`).
+
+A section that leaves `interface:` or `channel:` out, or names a `context:`, takes what it
+leaves out from python-can's own configuration (can.util.load_config: the CAN_INTERFACE /
+CAN_CHANNEL / CAN_BITRATE / CAN_CONFIG variables, with a `_<context>` suffix first, then the
+`[<context>]` and `[default]` sections of ~/can.conf, /etc/can.conf, ~/.can, ~/.canrc); a
+section that names both is the whole truth and python-can's configuration is not read.
+`bus_args:` are passed to python-can's Bus as they are (fd, data_bitrate, can_filters...).
 
 A `CanLink` owns one python-can bus, a receive thread that hands every frame (stamped
 with `time.monotonic()` on receipt) to the driver's decoder, and an optional keep-alive
@@ -15,12 +22,16 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Annotated, Any, Union
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, model_validator
 
+from rigtool.bounds import Baudrate, Scale
+from rigtool.config import FieldError
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
-from rigtool.errors import DeviceError
+from rigtool.errors import DeviceError, UsageError
 
 if TYPE_CHECKING:  # the drivers import them when they open a bus
     import can
@@ -32,6 +43,123 @@ _RECV_POLL_S = 0.05  # receive thread wakes this often to notice close()
 _SEND_TIMEOUT_S = 0.1  # wait this long for room in the interface's transmit queue
 # Counter names a frame handler may return; each received frame bumps exactly one of them.
 FRAME_COUNTERS = ("frames", "garbage", "ignored")
+
+
+DEFAULT_INTERFACE = "socketcan"  # when neither the rig file nor python-can's config names one
+CanId = Annotated[int, Field(ge=0, le=0x1FFFFFFF)]
+# bus arguments are single values: a backend takes flags, numbers and names
+BusValue = Union[StrictBool, Annotated[StrictInt, Field(ge=-(2**63), le=2**64)],  # noqa: UP007
+                 Scale, Annotated[str, Field(max_length=256)]]
+# what the section's own fields say; a bus argument may not say it again
+_OWN_FIELDS = ("interface", "channel", "bitrate", "context", "config_context", "bustype",
+               "ignore_config")
+
+
+class CanFilter(BaseModel):
+    """One receive filter: a frame passes when `id & can_mask == can_id & can_mask`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    can_id: CanId
+    can_mask: CanId
+    extended: StrictBool | None = None  # only frames of this id length (None: either)
+
+
+class BusArgs(BaseModel):
+    """Extra keyword arguments for python-can's Bus; the common ones typed, any other a
+    single value (the backend's own, e.g. `poll_interval`, `app_name`)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
+    __pydantic_extra__: dict[str, BusValue] = Field(init=False)
+    fd: StrictBool | None = None  # CAN FD frames
+    data_bitrate: Baudrate | None = None  # the FD data phase's bit rate
+    can_filters: list[CanFilter] | None = Field(None, max_length=256)
+    receive_own_messages: StrictBool | None = None
+
+    @model_validator(mode="after")
+    def _names(self) -> BusArgs:
+        for key in self.__pydantic_extra__ or {}:
+            if key in _OWN_FIELDS:
+                raise FieldError((key,), f"{key!r} is a field of the section itself, not a "
+                                 "bus argument")
+            if not key.isidentifier() or len(key) > 64:
+                raise FieldError((key,), f"{key[:64]!r} is not an argument name")
+        return self
+
+    def kwargs(self) -> dict[str, Any]:
+        """The arguments as python-can takes them (unset ones left out)."""
+        return self.model_dump(exclude_none=True)
+
+
+class CanBusFields(BaseModel):
+    """The bus fields of a CAN driver's rig-file section (vesc-can, dbc-can)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    # python-can: socketcan, slcan, pcan, virtual...; left out: python-can's config, else socketcan
+    interface: str | None = Field(None, min_length=1, max_length=64)
+    # python-can channel: can0, /dev/ttyACM0, a virtual bus name; left out: python-can's config
+    channel: str | None = Field(None, min_length=1, max_length=256)
+    bitrate: Baudrate | None = 500000  # bit/s (VESC default); null: the interface's own
+    # a python-can config section / environment suffix (CAN_CHANNEL_<context>) to read
+    context: str | None = Field(None, pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    bus_args: BusArgs = BusArgs()  # passed to python-can's Bus: fd, data_bitrate, can_filters...
+
+
+@dataclass(frozen=True)
+class BusSettings:
+    """A bus as it will be opened: interface, channel and the other Bus arguments."""
+
+    interface: str
+    channel: str | int  # python-can's config turns a channel of digits into a number
+    kwargs: dict[str, Any]
+    from_config: bool  # python-can's configuration was read
+
+
+def bus_settings(config: CanBusFields) -> BusSettings:
+    """The bus a rig-file section means, python-can's configuration filling what it leaves
+    out (see the module docstring). A configuration python-can refuses, or no channel
+    anywhere, is a UsageError."""
+    from rigtool.devices import udp_loopback
+
+    given: dict[str, Any] = {k: getattr(config, k) for k in ("interface", "channel")
+                             if getattr(config, k) is not None}
+    if "bitrate" in config.model_fields_set and config.bitrate is not None:
+        given["bitrate"] = config.bitrate
+    given.update(config.bus_args.kwargs())
+    from_config = (config.interface is None or config.channel is None
+                   or config.context is not None) and config.interface != udp_loopback.INTERFACE
+    resolved = _python_can_config(given, config.context) if from_config else dict(given)
+    if resolved.get("interface") is None:
+        resolved["interface"] = DEFAULT_INTERFACE
+    if "bitrate" not in config.model_fields_set and config.bitrate is not None:
+        resolved.setdefault("bitrate", config.bitrate)
+    elif config.bitrate is None:
+        resolved.pop("bitrate", None)
+    interface, channel = resolved.pop("interface"), resolved.pop("channel", None)
+    if channel is None:
+        where = f"CAN_CHANNEL_{config.context} or " if config.context else ""
+        raise UsageError(f"no CAN channel for interface {interface!r}: give `channel:` in the "
+                         f"rig file, or set {where}CAN_CHANNEL or `channel =` in a python-can "
+                         "config file (~/can.conf, /etc/can.conf, ~/.can, ~/.canrc)")
+    return BusSettings(str(interface), channel, resolved, from_config)
+
+
+def _python_can_config(given: dict[str, Any], context: str | None) -> dict[str, Any]:
+    """python-can's own merge of `given` over its environment and config files."""
+    import configparser
+
+    import can
+
+    try:
+        sources = [can.rc, can.util.load_environment_config(context),
+                   can.util.load_environment_config(), can.util.load_file_config(None, context),
+                   can.util.load_file_config(None)]
+        if "interface" not in given and not any(s.get("interface") or s.get("bustype")
+                                                for s in sources):
+            given = {**given, "interface": DEFAULT_INTERFACE}
+        return dict(can.util.load_config(config=given, context=context))
+    except (can.CanError, ValueError, TypeError, configparser.Error) as exc:
+        ctx = f" (context {context!r})" if context else ""
+        raise UsageError(f"python-can configuration{ctx} refused: {exc}") from None
 
 
 def check_keepalive(keepalive_s: float, command_timeout_s: float, drive: str) -> float:
@@ -49,22 +177,24 @@ def check_keepalive(keepalive_s: float, command_timeout_s: float, drive: str) ->
                      f"{command_timeout_s:g} s (command_timeout_s); set keepalive_s {limit}")
 
 
-def bus_name(interface: str, channel: str) -> str:
+def bus_name(interface: str, channel: str | int) -> str:
     """How a bus is named in messages: interface and channel, e.g. `socketcan:can0`."""
     return f"{interface}:{channel}"
 
 
-def open_bus(interface: str, channel: str, bitrate: int | None = None) -> can.BusABC:
-    """Open a python-can bus (or rigtool's loopback-only `udp_loopback`, see udp_loopback.py);
-    any failure becomes a DeviceError naming interface and channel."""
+def open_bus(interface: str, channel: str | int, bitrate: int | None = None,
+             **bus_args: Any) -> can.BusABC:
+    """Open a python-can bus with exactly these arguments (python-can's configuration is not
+    read here: see bus_settings), or rigtool's loopback-only `udp_loopback`
+    (udp_loopback.py); any failure becomes a DeviceError naming interface and channel."""
     import can
 
     from rigtool.devices import udp_loopback
-    kwargs = {} if bitrate is None else {"bitrate": bitrate}
+    kwargs = bus_args if bitrate is None else {**bus_args, "bitrate": bitrate}
     try:
         if interface == udp_loopback.INTERFACE:
             return udp_loopback.UdpLoopbackBus(channel, **kwargs)
-        return can.Bus(interface=interface, channel=channel, **kwargs)
+        return can.Bus(interface=interface, channel=channel, ignore_config=True, **kwargs)
     except Exception as exc:  # noqa: BLE001 - backends raise anything from ImportError to OSError
         raise DeviceError(
             f"cannot open CAN bus interface={interface!r} channel={channel!r}: {exc}"
@@ -83,17 +213,15 @@ class CanLink:
 
     def __init__(
         self,
-        interface: str,
-        channel: str,
-        bitrate: int | None,
+        settings: BusSettings,
         on_frame: Callable[[can.Message, float], str],
         device: str,
     ) -> None:
         self.device = device
-        self.where = bus_name(interface, channel)
+        self.where = bus_name(settings.interface, settings.channel)
         self.stats = dict.fromkeys((*FRAME_COUNTERS, "error_frames", "sent", "send_errors"), 0)
         self.rx_error: Exception | None = None  # last failure of the receive side, if any
-        self._bus = open_bus(interface, channel, bitrate)
+        self._bus = open_bus(settings.interface, settings.channel, **settings.kwargs)
         self._on_frame = on_frame
         self._send_lock = threading.Lock()
         self._frame_lock = threading.Lock()
@@ -248,8 +376,7 @@ class CanActuator:
     """What the CAN actuators share: a CanLink with its keep-alive, the command / neutral /
     close life cycle, silence detection and the wait for the first frame.
 
-    A driver sets `name`, `info` and `config` (with interface, channel, bitrate, keepalive_s
-    and timeout_s), calls `_open_link`, and supplies `_command_frame(value)`,
+    A driver sets `name`, `info` and `config` (CanBusFields with keepalive_s and timeout_s), calls `_open_link`, and supplies `_command_frame(value)`,
     `_neutral_frame()` and `_on_frame(msg, t)`. `close` calls `_before_release` between
     stopping the link's threads and releasing the bus (e.g. to disable the drive).
     """
@@ -262,7 +389,7 @@ class CanActuator:
                    extra: Callable[[], None] | None = None) -> None:
         c = self.config
         self._closed = False
-        self._link = CanLink(c.interface, c.channel, c.bitrate, self._on_frame, self.name)
+        self._link = CanLink(bus_settings(c), self._on_frame, self.name)
         self.stats = self._link.stats
         self._opened_t = time.monotonic()
         self._link.start(c.keepalive_s, keepalive_frame, extra)

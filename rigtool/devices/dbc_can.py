@@ -23,9 +23,15 @@ from typing import TYPE_CHECKING, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from rigtool.bounds import Baudrate, Command, PositiveSeconds, Scale, Seconds
+from rigtool.bounds import Command, PositiveSeconds, Scale, Seconds
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
-from rigtool.devices.canbus import FEEDBACK_FIELDS, CanActuator, FeedbackBuffer, check_keepalive
+from rigtool.devices.canbus import (
+    FEEDBACK_FIELDS,
+    CanActuator,
+    CanBusFields,
+    FeedbackBuffer,
+    check_keepalive,
+)
 from rigtool.errors import DeviceError, UsageError
 from rigtool.files import MAX_DBC_BYTES, UnreadableFile, read_regular_bytes
 from rigtool.units import COMMAND_UNITS
@@ -121,13 +127,11 @@ class EnableRef(_Strict):
     on_close: Scale = 0.0
 
 
-class DbcCanConfig(_Strict):
-    """Rig-file section for a DBC-described CAN motor driver (`driver: dbc-can`)."""
+class DbcCanConfig(_Strict, CanBusFields):
+    """Rig-file section for a DBC-described CAN motor driver (`driver: dbc-can`); the bus
+    fields (interface, channel, bitrate, context, bus_args) are CanBusFields'."""
 
     driver: Literal["dbc-can"]
-    interface: str = Field("socketcan", min_length=1)  # python-can: socketcan, slcan, pcan, virtual
-    channel: str = Field(min_length=1)  # python-can channel: can0, /dev/ttyACM0, a virtual bus name
-    bitrate: Baudrate | None = 500000  # bit/s; null keeps the interface's own setting
     dbc: str | None = None  # path to the .dbc; null: shipped servo_driver.dbc + servo_driver.yaml
     mapping: str | None = None  # a shipped mapping (rigtool/dbc/NAME.yaml) filling what is left out
     node_id: int = Field(1, ge=0, le=0x1FFFFFFF)  # its frame ids: DBC id + (node_id << shift)
@@ -178,7 +182,7 @@ def resolve(config: DbcCanConfig) -> DbcCanConfig:
     else:
         return config
     missing = {k: v for k, v in shipped.items() if getattr(config, k) is None}
-    return DbcCanConfig.model_validate({**config.model_dump(exclude_none=True), **missing})
+    return DbcCanConfig.model_validate({**config.model_dump(exclude_unset=True), **missing})
 
 
 def load_dbc(path: Path) -> cantools.database.can.Database:

@@ -2,7 +2,8 @@
 Korad in SCPI mode): the supply-voltage axis of a sweep (docs/drivers/scpi-supply.md).
 
 Talks over any pyserial URL: a serial port, or `socket://host:port` for a LAN supply's raw
-SCPI socket (port 5025 on most). Opening the supply only asks (identity, output state,
+SCPI socket (port 5025 on most); or, with the optional `visa` extra, over a VISA resource
+(`resource: TCPIP::host::5025::SOCKET`, USBTMC, VXI-11, serial) through pyvisa (visa_link.py). Opening the supply only asks (identity, output state,
 setpoints, which protections it has) and commands nothing, unless its output is already on
 outside the rig's limits, which is switched off at once. Every setting is confirmed: after
 `VOLT`, `CURR` or `OUTP` the driver reads `SYST:ERR?` and the setting back. An output is only
@@ -26,10 +27,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from rigtool.bounds import Baudrate, PositiveSeconds
+from rigtool.config import FieldError
 from rigtool.devices.framing import LineFramer
+from rigtool.devices.visa_link import VisaLink, check_resource, looks_like_resource
 from rigtool.errors import DeviceError, UsageError
 
 _MAX_LINE = 256
@@ -46,8 +49,11 @@ class ScpiSupplyConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     driver: Literal["scpi-supply"]
-    url: str = Field(min_length=1)  # pyserial URL: /dev/ttyUSB0, socket://192.168.1.20:5025
-    baudrate: Baudrate = 9600  # ignored by socket://
+    url: str | None = Field(None, min_length=1)  # pyserial URL: /dev/ttyUSB0, socket://host:5025
+    # or a VISA resource string (needs the `visa` extra): TCPIP::host::5025::SOCKET, USB0::...::INSTR
+    resource: str | None = Field(None, min_length=1)
+    visa_library: str = Field("@py", min_length=1, max_length=4096)  # pyvisa backend: @py, x.yaml@sim
+    baudrate: Baudrate = 9600  # serial ports only
     timeout_s: PositiveSeconds = 1.0  # reply timeout
     max_voltage_v: Volts = 60.0  # refuse setpoints above this (the thruster's rating)
     current_limit_a: Amps = 10.0  # the supply's current limit (from the protocol's limits)
@@ -60,6 +66,26 @@ class ScpiSupplyConfig(BaseModel):
     watchdog_s: Annotated[float, Field(ge=1, le=3600, allow_inf_nan=False)] = 10.0
     # a setting reads back within this (V or A) or 0.1 %: a supply's setpoint resolution
     readback_tolerance: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.011
+
+    @field_validator("resource")
+    @classmethod
+    def _visa_resource(cls, value: str | None) -> str | None:
+        return None if value is None else check_resource(value)
+
+    @model_validator(mode="after")
+    def _one_link(self) -> ScpiSupplyConfig:
+        if self.url is not None and looks_like_resource(self.url):
+            raise FieldError(("url",), f"{self.url!r} is a VISA resource string: give it as "
+                             "`resource:` (opened through pyvisa, the `visa` extra)")
+        if (self.url is None) == (self.resource is None):
+            raise ValueError("give the supply's link as either `url:` (pyserial) or "
+                             "`resource:` (VISA), exactly one of them")
+        return self
+
+    @property
+    def where(self) -> str:
+        """The link in messages: the pyserial URL or the VISA resource string."""
+        return self.resource or self.url or ""
 
     @model_validator(mode="after")
     def _safe_voltage_within_limit(self) -> ScpiSupplyConfig:
@@ -93,9 +119,8 @@ class ScpiSupply:
     reached_by = "supply"
 
     def __init__(self, config: ScpiSupplyConfig) -> None:
-        import serial
         self.config = config
-        self.name = f"SCPI supply on {config.url}"
+        self.name = f"SCPI supply on {config.where}"
         self.stats = dict.fromkeys(("lines", "garbage", "timeouts", "errors"), 0)
         self._framer = LineFramer(_MAX_LINE)
         self._closed = False
@@ -106,11 +131,7 @@ class ScpiSupply:
         self._armed = False  # limits, protection and a safe setpoint programmed this session
         self._watchdog_armed = False
         self._ovp_set = False
-        try:
-            self._ser = serial.serial_for_url(config.url, baudrate=config.baudrate, timeout=0.02,
-                                              write_timeout=config.timeout_s)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceError(f"cannot open {config.url} (SCPI supply): {exc}") from None
+        self._link = _open_link(config)
         try:
             self.identity = self._query("*IDN?")
             self._output_on = self._state("OUTP?")
@@ -283,12 +304,11 @@ class ScpiSupply:
                     self._state("OUTP?")
 
     def _release(self) -> None:
-        import serial
         self._keepalive_stop.set()
         with self._lock:
             self._closed = True
-            with contextlib.suppress(serial.SerialException, OSError):
-                self._ser.close()
+            with contextlib.suppress(OSError):
+                self._link.close()
 
     def _probe(self, query: str) -> float | None:
         """What the supply answers to `query`, or None when it does not know it (it stays
@@ -321,29 +341,27 @@ class ScpiSupply:
         return _STATES[self._query(query, lambda text: text.upper() in _STATES).upper()]
 
     def _write(self, line: str) -> None:
-        import serial
         if self._closed:
             raise DeviceError(f"{self.name} is closed")
         try:
-            self._ser.write((line + self.config.line_end).encode("ascii"))
-        except (serial.SerialException, OSError) as exc:
+            self._link.write((line + self.config.line_end).encode("ascii"))
+        except OSError as exc:
             raise DeviceError(f"cannot write to {self.name}: {exc}") from None
         self._last_io = time.monotonic()
 
     def _query(self, query: str, accept: Callable[[str], bool] = bool) -> str:
         """Send `query` and return the first reply line that `accept`s; other lines (not ASCII,
         or not of the expected form) are counted as garbage and skipped."""
-        import serial
         with self._lock:
-            with contextlib.suppress(serial.SerialException, OSError):
-                self._ser.reset_input_buffer()
+            with contextlib.suppress(OSError):
+                self._link.discard_input()
             self._framer.clear()
             self._write(query)
             deadline = time.monotonic() + self.config.timeout_s
             while time.monotonic() < deadline:
                 try:
-                    chunk = self._ser.read(max(1, self._ser.in_waiting))
-                except (serial.SerialException, OSError) as exc:
+                    chunk = self._link.read(_MAX_LINE, deadline - time.monotonic())
+                except OSError as exc:
                     raise DeviceError(f"lost connection to {self.name}: {exc}") from None
                 lines, overflow = self._framer.feed(chunk)
                 self.stats["garbage"] += overflow
@@ -364,6 +382,38 @@ class ScpiSupply:
     def _number(self, query: str) -> float:
         """The number a query answers (lines that are not a finite number are garbage)."""
         return float(self._query(query, _is_number))
+
+
+class _SerialLink:
+    """A pyserial port or URL as the driver's byte link (reads poll every 20 ms)."""
+
+    def __init__(self, url: str, baudrate: int, timeout_s: float) -> None:
+        import serial
+        try:
+            self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=0.02,
+                                              write_timeout=timeout_s)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceError(f"cannot open {url} (SCPI supply): {exc}") from None
+
+    def write(self, data: bytes) -> None:
+        self._ser.write(data)
+
+    def read(self, max_bytes: int, timeout_s: float) -> bytes:
+        """What has arrived (at least one byte is waited for, 20 ms at most)."""
+        return self._ser.read(min(max_bytes, max(1, self._ser.in_waiting)))
+
+    def discard_input(self) -> None:
+        self._ser.reset_input_buffer()
+
+    def close(self) -> None:
+        self._ser.close()
+
+
+def _open_link(config: ScpiSupplyConfig) -> _SerialLink | VisaLink:
+    """The supply's byte link: pyserial for `url:`, pyvisa (imported only then) for `resource:`."""
+    if config.resource is None:
+        return _SerialLink(config.url or "", config.baudrate, config.timeout_s)
+    return VisaLink(config.resource, config.visa_library, config.baudrate, config.timeout_s)
 
 
 def _is_number(text: str) -> bool:

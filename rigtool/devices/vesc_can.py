@@ -21,13 +21,14 @@ import logging
 import struct
 from typing import TYPE_CHECKING, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from rigtool.bounds import MAX_CURRENT_A, MAX_SPEED_RPM, Baudrate, PositiveSeconds, Seconds
+from rigtool.bounds import MAX_CURRENT_A, MAX_SPEED_RPM, PositiveSeconds, Seconds
 from rigtool.devices.base import ActuatorInfo, FeedbackBlock
 from rigtool.devices.canbus import (
     FEEDBACK_FIELDS,
     CanActuator,
+    CanBusFields,
     FeedbackBuffer,
     check_keepalive,
 )
@@ -53,14 +54,12 @@ FAULT_NAMES = (
 _DEFAULT_UNIT = {"duty": "percent", "rpm": "rpm", "current": "amps"}
 
 
-class VescCanConfig(BaseModel):
-    """Rig-file section for a VESC on a CAN bus (`driver: vesc-can`)."""
+class VescCanConfig(CanBusFields):
+    """Rig-file section for a VESC on a CAN bus (`driver: vesc-can`); the bus fields
+    (interface, channel, bitrate, context, bus_args) are CanBusFields'."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     driver: Literal["vesc-can"]
-    interface: str = Field("socketcan", min_length=1)  # python-can: socketcan, slcan, pcan, virtual
-    channel: str = Field(min_length=1)  # python-can channel: can0, /dev/ttyACM0, socket://host:port
-    bitrate: Baudrate | None = 500000  # bit/s (VESC default); null: the interface's own
     controller_id: int = Field(0, ge=0, le=254)  # VESC ID (VESC Tool: App Settings > General)
     host_id: int = Field(254, ge=0, le=254)  # our CAN id for fault-poll replies; unused by any VESC
     mode: Literal["duty", "current", "rpm"] = "duty"  # which SET_* packet carries the command

@@ -1,0 +1,205 @@
+"""CAN rig sections honour python-can's own configuration (its config files under $HOME, the
+CAN_* environment variables, named sections via `context:`) for what they leave out, and pass
+`bus_args:` to python-can's Bus; all over python-can `virtual` buses with the real drivers."""
+
+from __future__ import annotations
+
+import os
+import uuid
+
+import can
+import pytest
+
+from rigtool.cli import main
+from rigtool.devices.canbus import CanLink, bus_settings
+from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
+from rigtool.errors import ConfigError, UsageError
+from rigtool.rig import load_rig
+from rigtool.sim.vesc_twin import VescTwin
+
+from .helpers import wait_for
+
+CTRL = 5
+
+
+@pytest.fixture(autouse=True)
+def can_home(tmp_path, monkeypatch):
+    """A HOME of the test's own (python-can reads ~/can.conf, ~/.can, ~/.canrc) and no CAN_*
+    variable from the machine; returns a function writing ~/can.conf."""
+    home = tmp_path / "home"
+    home.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    for name in [n for n in os.environ if n.startswith("CAN_")]:
+        monkeypatch.delenv(name)
+    monkeypatch.setattr(can, "rc", {})
+
+    def _write(text: str, name: str = "can.conf") -> None:
+        (home / name).write_text(text)
+
+    return _write
+
+
+@pytest.fixture
+def channel() -> str:
+    return f"cfg-{uuid.uuid4().hex[:10]}"
+
+
+def _vesc(**fields) -> VescCanConfig:
+    return VescCanConfig(driver="vesc-can", controller_id=CTRL, **fields)
+
+
+def test_a_section_without_interface_or_channel_takes_them_from_can_conf(can_home, channel,
+                                                                         live):
+    can_home(f"[default]\ninterface = virtual\nchannel = {channel}\nbitrate = 250000\n")
+    settings = bus_settings(_vesc())
+    assert (settings.interface, settings.channel, settings.kwargs) == ("virtual", channel,
+                                                                       {"bitrate": 250000})
+    twin = VescTwin(live, channel=channel, controller_id=CTRL).start()
+    try:
+        driver = VescCanDriver(_vesc(timeout_s=0.5))  # opens the bus can.conf names
+        try:
+            assert driver._link.where == f"virtual:{channel}"
+            assert wait_for(lambda: driver.stats["frames"] > 0, 2.0)
+        finally:
+            driver.close()
+    finally:
+        twin.stop()
+
+
+def test_the_rig_file_wins_then_environment_then_file(can_home, monkeypatch):
+    can_home("[default]\ninterface = pcan\nchannel = filebus\nbitrate = 125000\n", ".canrc")
+    monkeypatch.setenv("CAN_CHANNEL", "envbus")
+    settings = bus_settings(_vesc(interface="virtual"))
+    assert (settings.interface, settings.channel) == ("virtual", "envbus")
+    assert settings.kwargs == {"bitrate": 125000}  # left out of the rig: from ~/.canrc
+    settings = bus_settings(_vesc(interface="virtual", bitrate=1000000))
+    assert settings.kwargs == {"bitrate": 1000000}
+    monkeypatch.setenv("CAN_BITRATE", "250000")
+    assert bus_settings(_vesc(interface="virtual")).kwargs == {"bitrate": 250000}
+    assert "bitrate" not in bus_settings(_vesc(interface="virtual", bitrate=None)).kwargs
+
+
+def test_a_named_context_reads_its_section_and_suffixed_variables(can_home, monkeypatch):
+    can_home("[default]\ninterface = virtual\nchannel = default-bus\n"
+             "[bench2]\nchannel = bench2-bus\nreceive_own_messages = True\n")
+    settings = bus_settings(_vesc(context="bench2"))
+    assert (settings.interface, settings.channel) == ("virtual", "bench2-bus")
+    assert settings.kwargs == {"bitrate": 500000, "receive_own_messages": True}
+    monkeypatch.setenv("CAN_CHANNEL", "plain-env")
+    monkeypatch.setenv("CAN_CHANNEL_bench2", "bench2-env")
+    assert bus_settings(_vesc(context="bench2")).channel == "bench2-env"
+    assert bus_settings(_vesc()).channel == "plain-env"
+
+
+def test_a_section_naming_interface_and_channel_reads_no_python_can_config(can_home,
+                                                                           monkeypatch):
+    can_home("[default]\ninterface = pcan\nchannel = filebus\nfd = True\nbitrate = 1\n")
+    monkeypatch.setenv("CAN_BITRATE", "125000")
+    settings = bus_settings(_vesc(interface="virtual", channel="mine"))
+    assert (settings.interface, settings.channel, settings.kwargs, settings.from_config) == (
+        "virtual", "mine", {"bitrate": 500000}, False)
+
+
+def test_with_no_configuration_the_interface_is_socketcan(can_home):
+    assert bus_settings(_vesc(channel="can7")).interface == "socketcan"
+
+
+def test_no_channel_anywhere_is_a_usage_error_through_the_cli(can_home, tmp_path, capsys):
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("rigtool_rig: 1\nname: r\nactuator: {driver: vesc-can, interface: virtual, "
+                   "context: lab}\nsensor: {driver: ati-netft, host: 127.0.0.1}\n")
+    assert main(["check", str(rig)]) == 2
+    err = capsys.readouterr().err
+    assert "no CAN channel" in err and "CAN_CHANNEL_lab" in err and "Traceback" not in err
+
+
+def test_a_configuration_python_can_refuses_is_a_usage_error(can_home):
+    can_home("[default]\ninterface = no-such-can\nchannel = x\n")
+    with pytest.raises(UsageError, match="python-can configuration refused.*no-such-can"):
+        bus_settings(_vesc())
+
+
+@pytest.mark.parametrize("text", ["interface = virtual\n", "[default]\ninterface\n  = x\n [\n",
+                                  "[default]\nport = eighty\n"])
+def test_a_damaged_can_conf_is_a_usage_error(can_home, text):
+    can_home(text)
+    with pytest.raises(UsageError, match="python-can configuration refused"):
+        bus_settings(_vesc(channel="x"))
+
+
+def _link(config: VescCanConfig) -> tuple[CanLink, list[int]]:
+    seen: list[int] = []
+
+    def _on_frame(msg: can.Message, t: float) -> str:
+        seen.append(msg.arbitration_id)
+        return "frames"
+
+    link = CanLink(bus_settings(config), _on_frame, "test")
+    link.start(0, can.Message(arbitration_id=0x7FF, is_extended_id=False))
+    return link, seen
+
+
+def test_can_filters_from_the_rig_file_filter_frames_on_the_bus(tmp_path, channel):
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(
+        "rigtool_rig: 1\nname: r\nsensor: {driver: ati-netft, host: 127.0.0.1}\n"
+        f"actuator:\n  driver: vesc-can\n  interface: virtual\n  channel: {channel}\n"
+        "  bus_args:\n    can_filters:\n"
+        "      - {can_id: 0x100, can_mask: 0x7F0, extended: false}\n")
+    link, seen = _link(load_rig(rig)[0].actuator)
+    sender = can.Bus(interface="virtual", channel=channel)
+    try:
+        for frame_id, extended in ((0x105, False), (0x200, False), (0x101, True),
+                                   (0x10A, False)):  # 0x10A last: all have been received
+            sender.send(can.Message(arbitration_id=frame_id, is_extended_id=extended))
+        assert wait_for(lambda: len(seen) >= 2, 1.0)
+        link.stop_threads()
+        assert seen == [0x105, 0x10A]
+    finally:
+        sender.shutdown()
+        link.close()
+
+
+@pytest.mark.parametrize("own", [True, False])
+def test_receive_own_messages_reaches_the_bus(channel, own):
+    link, seen = _link(_vesc(interface="virtual", channel=channel,
+                             bus_args={"receive_own_messages": own}))
+    try:
+        link.send(can.Message(arbitration_id=0x123, is_extended_id=False))
+        assert wait_for(lambda: seen == [0x123], 0.5) is own
+    finally:
+        link.close()
+
+
+RIG = "rigtool_rig: 1\nname: r\nsensor: {{driver: ati-netft, host: 127.0.0.1}}\n" \
+      "actuator:\n  driver: dbc-can\n  channel: can0\n{extra}"
+
+
+@pytest.mark.parametrize(("extra", "line", "field", "message"), [
+    ("  bus_args: {fd: 'yes please'}\n", 7, "actuator.bus_args.fd", "valid boolean"),
+    ("  bus_args:\n    data_bitrate: -5\n", 8, "actuator.bus_args.data_bitrate",
+     "greater than 0"),
+    ("  bus_args:\n    can_filters: [{can_id: 0x100}]\n", 8,
+     "actuator.bus_args.can_filters.0.can_mask", "missing"),
+    ("  bus_args:\n    bitrate: 250000\n", 8, "actuator.bus_args.bitrate",
+     "a field of the section itself"),
+    ("  bus_args:\n    poll_interval: [1, 2]\n", 8, "actuator.bus_args.poll_interval",
+     "valid"),
+    ("  context: 'lab bench'\n", 7, "actuator.context", "pattern"),
+])
+def test_rig_file_bus_mistakes_name_file_line_and_field(tmp_path, extra, line, field, message):
+    path = tmp_path / "rig.yaml"
+    path.write_text(RIG.format(extra=extra))
+    with pytest.raises(ConfigError) as info:
+        load_rig(path)
+    problems = str(info.value)
+    assert f"{path}:{line}: {field}" in problems and message in problems
+
+
+def test_rig_file_bus_args_reach_the_settings(tmp_path, can_home):
+    path = tmp_path / "rig.yaml"
+    path.write_text(RIG.format(extra="  interface: virtual\n  bus_args: {fd: true, "
+                                     "data_bitrate: 2000000, poll_interval: 0.01}\n"))
+    settings = bus_settings(load_rig(path)[0].actuator)
+    assert settings.kwargs == {"bitrate": 500000, "fd": True, "data_bitrate": 2000000,
+                               "poll_interval": 0.01}
