@@ -23,13 +23,11 @@ from rigtool.devices.base import ActuatorInfo, FeedbackBlock, ForceSensor
 from rigtool.devices.depth import PresetDepth
 from rigtool.devices.netft import (
     CMD_STOP,
-    FORCE_UNITS_N,
     RECORD,
     NetFTConfig,
     NetFTSensor,
     pack_request,
     parse_netftapi2,
-    unit_factor,
 )
 from rigtool.engine import Engine
 from rigtool.errors import DeviceError
@@ -40,6 +38,7 @@ from rigtool.sim.live import LiveTwin
 from rigtool.sim.netft_twin import NetFTFaults, NetFTTwin
 from rigtool.sim.profiles import PROFILES
 from rigtool.store import Store
+from rigtool.units import FORCE_UNITS_N, unit_factor
 
 from .conftest import ROOT
 from .helpers import wait_for

@@ -31,9 +31,8 @@ from rigtool.bounds import Baudrate, PositiveSeconds, Scale
 from rigtool.devices.base import ForceBlock
 from rigtool.devices.buffer import SampleBuffer
 from rigtool.devices.framing import LineFramer
-from rigtool.devices.netft import FORCE_UNITS_N, unit_factor
 from rigtool.errors import DeviceError
-from rigtool.units import FT_CHANNELS
+from rigtool.units import FORCE_UNITS_N, FT_CHANNELS, unit_factor
 
 log = logging.getLogger(__name__)
 
