@@ -64,7 +64,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from rigtool.bounds import MAX_SAMPLES_PER_POINT, PositiveScale, PositiveSeconds
 from rigtool.devices import mmsg
-from rigtool.devices.base import ForceBlock
+from rigtool.devices.base import Device, ForceBlock
 from rigtool.devices.buffer import SampleBuffer
 from rigtool.errors import DeviceError
 from rigtool.units import FORCE_UNITS_N, FT_CHANNELS, TORQUE_UNITS_NM, unit_factor
@@ -409,7 +409,7 @@ class RdtSequence:
             self.stats.duplicates += 1
 
 
-class NetFTSensor:
+class NetFTSensor(Device):
     """ForceSensor for an ATI Net F/T box (or NetFTTwin) at `config.host:config.port`.
 
     `read(n, rate_hz)` returns the next `n` records at the box's own RDT rate: `rate_hz`
@@ -446,7 +446,6 @@ class NetFTSensor:
         self._buffer = SampleBuffer(cfg.buffer_samples)
         self._stop = threading.Event()
         self._first = threading.Event()
-        self._closed = False
         self._sock = self._open_socket()
         self._batched = self._kernel_stamps()
         self._batch_s = RECEIVE_BATCH_S
@@ -523,11 +522,8 @@ class NetFTSensor:
         else:
             self._bias = self._bias + b
 
-    def close(self) -> None:
-        """Stop streaming and release the socket (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
+    def _release(self) -> None:
+        """Stop streaming and release the socket (on `close`)."""
         with contextlib.suppress(OSError, DeviceError):
             self._send(CMD_STOP)
         self._stop.set()
@@ -535,12 +531,6 @@ class NetFTSensor:
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout=1.0)
         self._sock.close()
-
-    def __enter__(self) -> NetFTSensor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- diagnostics ----------------------------------------------------------------------
     @property
