@@ -36,8 +36,8 @@ from rigtool.protocol import load_protocol
 from rigtool.rig import RigSet
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.netft_twin import NetFTFaults, NetFTTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.store import Store
+from rigtool.thruster_profiles import PROFILES
 from rigtool.units import FORCE_UNITS_N, unit_factor
 
 from .conftest import ROOT

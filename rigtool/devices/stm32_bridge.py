@@ -135,6 +135,8 @@ class _WriteFailed(DeviceError):
 class Stm32Bridge(Device):
     """Actuator driver for the STM32 PWM bridge over any pyserial URL."""
 
+    info_for = staticmethod(actuator_info)  # the command space from a config alone (registry)
+
     def __init__(self, config: Stm32BridgeConfig) -> None:
         import serial
         self.config = config
