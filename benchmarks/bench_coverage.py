@@ -41,8 +41,8 @@ sys.path.insert(0, str(ROOT))
 from rigtool.analysis.calibrate import CalibrationParams, calibrate_run  # noqa: E402
 from rigtool.analysis.models import FitParams  # noqa: E402
 from rigtool.cli import main  # noqa: E402
-from rigtool.sim.profiles import PROFILES  # noqa: E402
 from rigtool.store import Store  # noqa: E402
+from rigtool.thruster_profiles import PROFILES  # noqa: E402
 from tests import importdata, tabledata  # noqa: E402
 
 CAN = PROFILES["can-bldc"]

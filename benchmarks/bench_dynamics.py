@@ -45,7 +45,7 @@ import rigtool
 from rigtool.analysis.dynamics import simulate_document
 from rigtool.cli import main
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import profile_with_overrides
+from rigtool.thruster_profiles import profile_with_overrides
 
 ROOT = Path(__file__).resolve().parent.parent
 CAN_CP, ESC_CP = 1.926e-5, 50.0 / 3800.0**2

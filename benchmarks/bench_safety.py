@@ -29,9 +29,9 @@ from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.netft_twin import NetFTTwin
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.sim.stm32_twin import Stm32BridgeTwin
 from rigtool.sim.vesc_twin import VescTwin
+from rigtool.thruster_profiles import PROFILES
 
 POLL_S = 0.0002
 

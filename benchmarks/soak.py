@@ -31,9 +31,9 @@ from rigtool.rig import RigSet
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.netft_twin import NetFTFaults, NetFTTwin
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.sim.stm32_twin import Stm32BridgeTwin
 from rigtool.store import Store
+from rigtool.thruster_profiles import PROFILES
 
 PAGE = os.sysconf("SC_PAGE_SIZE")
 

@@ -1,17 +1,22 @@
 """Pre-flight check of a rig: open every device, read for a while, summarise what came in.
 
-Commands nothing beyond neutral unless a test command is asked for explicitly.
+Commands nothing beyond neutral unless a test command is asked for explicitly, and writes
+nothing; the engine alone drives devices through a run (docs/design.md).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rigtool.devices.scpi_supply import ScpiSupply, ScpiSupplyConfig
+from rigtool.devices.registry import open_device
 from rigtool.rig import RigSet
 from rigtool.units import FT_CHANNELS
+
+if TYPE_CHECKING:
+    from rigtool.devices.scpi_supply import ScpiSupplyConfig
 
 FEEDBACK = {"speed_rpm": "r/min", "current_a": "A", "voltage_v": "V"}
 SETTLE_S = 1.0  # after a test command, before measuring
@@ -94,8 +99,7 @@ def run_check(rigset: RigSet, seconds: float = 3.0, rate_hz: float = 1000.0,
 def supply_lines(config: ScpiSupplyConfig) -> list[str]:
     """What `rigtool check` says of a rig's SCPI supply: identity, the state it was found in,
     and which protections it has. Only queries are sent; the supply is left as found."""
-    supply = ScpiSupply(config)
-    try:
+    with open_device("supply", config) as supply:
         found, have = supply.found, supply.protection
         lines = [f"supply: {supply.identity} on {config.where}",
                  f"  found: output {'ON' if found.output_on else 'off'}, setpoint "
@@ -112,5 +116,3 @@ def supply_lines(config: ScpiSupplyConfig) -> list[str]:
             lines.append("  output watchdog: NO: after kill -9 or a host crash the output stays "
                          "on at the last voltage until switched off by hand (docs/safety.md)")
         return lines
-    finally:
-        supply.close()

@@ -39,7 +39,7 @@ from rigtool.bounds import (
 )
 from rigtool.config import FieldError, load_model
 from rigtool.errors import UsageError
-from rigtool.sim.profiles import PROFILES, profile_with_overrides
+from rigtool.thruster_profiles import PROFILES, profile_with_overrides
 from rigtool.units import COMMAND_UNITS
 
 CommandUnit = Literal["percent", "pwm_counts", "pulse_us", "rpm", "amps"]

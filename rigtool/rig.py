@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -15,24 +15,31 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from rigtool.bounds import DepthM
 from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model
+from rigtool.devices.ascii_gauge import AsciiGaugeConfig
 from rigtool.devices.axes import rotation_deg, wrench_transform
 from rigtool.devices.base import Actuator, ActuatorInfo, Clock, DepthStage, ForceSensor, Supply
+from rigtool.devices.dbc_can import DbcCanConfig
 from rigtool.devices.depth import ManualDepth, PresetDepth
 from rigtool.devices.manual_supply import ManualSupply
-from rigtool.devices.registry import (
-    ACTUATOR_INFO,
-    ACTUATORS,
-    SENSORS,
-    STAGES,
-    SUPPLIES,
-    ActuatorConfig,
-    SensorConfig,
-    StageConfig,
-    SupplyConfig,
-)
+from rigtool.devices.netft import NetFTConfig
+from rigtool.devices.registry import actuator_info, open_device
+from rigtool.devices.scpi_supply import ScpiSupplyConfig
+from rigtool.devices.serial_stage import SerialStageConfig
+from rigtool.devices.stm32_bridge import Stm32BridgeConfig
+from rigtool.devices.vesc_can import VescCanConfig
 from rigtool.errors import UsageError
 from rigtool.protocol import SimulatorSpec
+from rigtool.thruster_profiles import profile_with_overrides
 from rigtool.units import FT_CHANNELS
+
+# Each device section is validated against the config model of the driver it names
+# (devices/registry.py says which class opens it).
+ActuatorConfig = Annotated[
+    Union[Stm32BridgeConfig, VescCanConfig, DbcCanConfig], Field(discriminator="driver")  # noqa: UP007
+]
+SensorConfig = Annotated[Union[NetFTConfig, AsciiGaugeConfig], Field(discriminator="driver")]  # noqa: UP007
+StageConfig = Annotated[Union[SerialStageConfig], Field(discriminator="driver")]  # noqa: UP007
+SupplyConfig = Annotated[Union[ScpiSupplyConfig], Field(discriminator="driver")]  # noqa: UP007
 
 
 class ThrustAxis(BaseModel):
@@ -180,12 +187,12 @@ def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset",
         return rigset
     opened: list = []
     try:
-        actuator = ACTUATORS[rig.actuator.driver](rig.actuator)
+        actuator: Actuator = open_device("actuator", rig.actuator)
         opened.append(actuator)
-        sensor = SENSORS[rig.sensor.driver](rig.sensor)
+        sensor: ForceSensor = open_device("sensor", rig.sensor)
         opened.append(sensor)
         if rig.depth_stage is not None:
-            stage: DepthStage = STAGES[rig.depth_stage.driver](rig.depth_stage)
+            stage: DepthStage = open_device("depth_stage", rig.depth_stage)
         elif depth_mode == "stage":
             raise UsageError(f"rig {rig.name!r}: the protocol asks for a depth stage, "
                              "but the rig has no `depth_stage:` section")
@@ -211,12 +218,10 @@ def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset",
 def rig_actuator_info(rig: Rig) -> ActuatorInfo:
     """The actuator's command space from the rig file (or the twin's profile) alone."""
     if rig.simulator is not None:
-        from rigtool.sim.profiles import profile_with_overrides
-
         p = profile_with_overrides(rig.simulator.profile, dict(rig.simulator.overrides))
         return ActuatorInfo(p.command_unit, p.neutral, p.command_min, p.command_max,
                             tuple(p.feedback))
-    return ACTUATOR_INFO[rig.actuator.driver](rig.actuator)
+    return actuator_info(rig.actuator)
 
 
 def _open_supply(rig: Rig, voltage_mode: str | None,
@@ -232,14 +237,13 @@ def _open_supply(rig: Rig, voltage_mode: str | None,
     config = rig.supply
     if current_limit_a is not None:
         config = config.model_copy(update={"current_limit_a": current_limit_a})
-    return SUPPLIES[config.driver](config)
+    return open_device("supply", config)
 
 
 def _open_sim(rig: Rig, spec: SimulatorSpec, start_depth_m: float) -> RigSet:
     """The in-process twin: a simulated operator sets every depth, time is virtual unless real_time."""
     from rigtool.sim.devices import SimActuator, SimDepthStage, SimForceSensor, SimWorld
     from rigtool.sim.physics import ThrusterTwin
-    from rigtool.sim.profiles import profile_with_overrides
 
     profile = profile_with_overrides(spec.profile, dict(spec.overrides))
     clock: Clock = RealClock() if rig.real_time else VirtualClock()

@@ -15,7 +15,7 @@ def live(request):
     """A LiveTwin of the test module's LIVE_PROFILE (default can-bldc) and LIVE_SEED, stopped after."""
     from rigtool.sim.live import LiveTwin
     from rigtool.sim.physics import ThrusterTwin
-    from rigtool.sim.profiles import PROFILES
+    from rigtool.thruster_profiles import PROFILES
 
     profile = getattr(request.module, "LIVE_PROFILE", "can-bldc")
     twin = LiveTwin(ThrusterTwin(PROFILES[profile], seed=getattr(request.module, "LIVE_SEED", 1)))

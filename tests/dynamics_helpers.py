@@ -10,7 +10,7 @@ import numpy as np
 
 from rigtool.cli import main
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import profile_with_overrides
+from rigtool.thruster_profiles import profile_with_overrides
 
 PROTOCOL = """\
 rigtool_protocol: 1

@@ -15,7 +15,7 @@ from rigtool.devices.ascii_gauge import AsciiGauge, AsciiGaugeConfig, LineParser
 from rigtool.devices.base import ForceSensor
 from rigtool.errors import DeviceError
 from rigtool.sim.gauge_twin import GaugeTwin
-from rigtool.sim.profiles import PROFILES
+from rigtool.thruster_profiles import PROFILES
 
 LBF_N = 4.4482216152605
 BIAS_N = PROFILES["can-bldc"].bias_n

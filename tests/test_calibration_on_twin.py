@@ -12,8 +12,8 @@ import pytest
 
 from rigtool.analysis.calibrate import calibrate_run
 from rigtool.cli import main
-from rigtool.sim.profiles import PROFILES
 from rigtool.store import Store
+from rigtool.thruster_profiles import PROFILES
 
 from .conftest import PROTOCOLS
 

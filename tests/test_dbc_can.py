@@ -21,7 +21,7 @@ from rigtool.devices.base import Actuator
 from rigtool.devices.dbc_can import SHIPPED_DBC, DbcCanConfig, DbcCanDriver, encode_signal, load_dbc
 from rigtool.errors import DeviceError, UsageError
 from rigtool.sim.dbc_twin import DbcServoTwin
-from rigtool.sim.profiles import PROFILES
+from rigtool.thruster_profiles import PROFILES
 
 from .helpers import drain, wait_for
 

@@ -117,7 +117,7 @@ def test_dry_run_on_every_shipped_rig_opens_nothing(rig_file, tmp_path, capsys):
 
 def _actuator_unit(rig: dict) -> str:
     if rig.get("simulator"):
-        from rigtool.sim.profiles import PROFILES
+        from rigtool.thruster_profiles import PROFILES
 
         return PROFILES[rig["simulator"]["profile"]].command_unit
     act = rig["actuator"]

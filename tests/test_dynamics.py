@@ -79,7 +79,7 @@ def test_twin_command_delay_shifts_the_response():
     """A delayed twin gives the undelayed twin's thrust, shifted by the delay, also when two
     commands are sent at the same instant (the last one holds)."""
     from rigtool.sim.physics import ThrusterTwin
-    from rigtool.sim.profiles import profile_with_overrides
+    from rigtool.thruster_profiles import profile_with_overrides
 
     delay, t = 0.03, np.arange(0.0, 3.0, 0.002)
     over = {"inflow_gain": 0.3}

@@ -15,7 +15,7 @@ from rigtool.analysis.dynamics_response import quadratic_hop
 from rigtool.artefacts.formats import FORMATS
 from rigtool.cli import main
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import profile_with_overrides
+from rigtool.thruster_profiles import profile_with_overrides
 
 from .dynamics_helpers import dynamics_doc, import_steps, sweep_steps, tyto_rows, write_csv
 

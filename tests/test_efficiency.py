@@ -12,7 +12,7 @@ from rigtool.analysis.dataset import Samples
 from rigtool.analysis.steady import steady_windows
 from rigtool.cli import main
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import profile_with_overrides
+from rigtool.thruster_profiles import profile_with_overrides
 
 PROTOCOL = """\
 rigtool_protocol: 1

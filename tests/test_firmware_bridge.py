@@ -25,8 +25,8 @@ from rigtool.devices.stm32_bridge import Stm32Bridge, Stm32BridgeConfig
 from rigtool.errors import DeviceError
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.sim.stm32_twin import Stm32BridgeTwin
+from rigtool.thruster_profiles import PROFILES
 
 ROOT = Path(__file__).resolve().parent.parent
 FW = ROOT / "firmware" / "bridge"

@@ -257,7 +257,7 @@ def test_twin_intervals_hold_without_wasted_width(tmp_path: Path) -> None:
     their half-width is on average at most 2.25 times the scatter of the estimates across
     seeds. On 100 other seeds of this protocol the intervals measure 2.01 (1.96 is an exact
     95 % interval), the former propagated C_i intervals and one-sided scaling 2.45."""
-    from rigtool.sim.profiles import PROFILES
+    from rigtool.thruster_profiles import PROFILES
 
     can = PROFILES["can-bldc"]
     truth = {"C_p_fwd": can.cp_forward, "C_p_rev": can.cp_reverse, "C_n": can.cn}

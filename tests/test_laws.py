@@ -17,7 +17,7 @@ from rigtool.cli import main
 from rigtool.models import laws
 from rigtool.models.betm import Betm
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import profile_with_overrides
+from rigtool.thruster_profiles import profile_with_overrides
 
 RNG = np.random.default_rng(8201)
 SPEED = RNG.uniform(-3000.0, 3000.0, 500)

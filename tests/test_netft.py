@@ -23,13 +23,11 @@ from rigtool.devices.base import ActuatorInfo, FeedbackBlock, ForceSensor
 from rigtool.devices.depth import PresetDepth
 from rigtool.devices.netft import (
     CMD_STOP,
-    FORCE_UNITS_N,
     RECORD,
     NetFTConfig,
     NetFTSensor,
     pack_request,
     parse_netftapi2,
-    unit_factor,
 )
 from rigtool.engine import Engine
 from rigtool.errors import DeviceError
@@ -38,8 +36,9 @@ from rigtool.protocol import load_protocol
 from rigtool.rig import RigSet
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.netft_twin import NetFTFaults, NetFTTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.store import Store
+from rigtool.thruster_profiles import PROFILES
+from rigtool.units import FORCE_UNITS_N, unit_factor
 
 from .conftest import ROOT
 from .helpers import wait_for

@@ -22,7 +22,7 @@ from rigtool.devices.dbc_can import DBC_DIR, DbcCanConfig, DbcCanDriver, resolve
 from rigtool.errors import ConfigError, DeviceError, UsageError
 from rigtool.rig import load_rig
 from rigtool.sim.odrive_twin import ODRIVE_DBC, OdriveTwin
-from rigtool.sim.profiles import PROFILES
+from rigtool.thruster_profiles import PROFILES
 
 from .helpers import drain, wait_for
 
@@ -117,6 +117,7 @@ def test_every_sent_frame_decodes_with_the_vendor_dbc(live, channel, recorder, n
         driver.set_command(-450.0)
         time.sleep(0.12)  # a keep-alive or two
         driver.close()
+        wait_for(lambda: len(twin.requested_states) >= 2, 2.0)  # the twin's thread has read it
     finally:
         twin.stop()
     sent = [m for m in drain(recorder) if m.arbitration_id in

@@ -22,8 +22,8 @@ from rigtool.analysis.fits import ZeroLine, fit_thrust_speed
 from rigtool.cli import main
 from rigtool.progress import SilentReporter
 from rigtool.sim import physics
-from rigtool.sim.profiles import PROFILES
 from rigtool.store import Store
+from rigtool.thruster_profiles import PROFILES
 
 from .conftest import PROTOCOLS
 

@@ -23,10 +23,10 @@ from rigtool.rig import load_rig
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.netft_twin import NetFTTwin
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.sim.scpi_supply_twin import ScpiSupplyTwin
 from rigtool.sim.stm32_twin import Stm32BridgeTwin
 from rigtool.store import Store
+from rigtool.thruster_profiles import PROFILES
 
 pytest.importorskip("pyvisa_py")
 pytest.importorskip("pyvisa_sim")

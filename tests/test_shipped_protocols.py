@@ -20,8 +20,8 @@ from rigtool.artefacts.formats import FORMATS, MODULES
 from rigtool.artefacts.vehicle import ExportOptions
 from rigtool.cli import main
 from rigtool.errors import UsageError
-from rigtool.sim.profiles import profile_with_overrides
 from rigtool.store import Store
+from rigtool.thruster_profiles import profile_with_overrides
 from rigtool.workflows import export_calibration, stored_results
 
 from .conftest import PROTOCOLS

@@ -9,7 +9,7 @@ import pytest
 
 from rigtool.errors import UsageError
 from rigtool.sim.physics import ThrusterTwin, pwm_thrust_n
-from rigtool.sim.profiles import PROFILES, profile_with_overrides
+from rigtool.thruster_profiles import PROFILES, profile_with_overrides
 
 QUIET = {
     "speed_noise_rpm": 0,

@@ -24,8 +24,8 @@ from rigtool.errors import DeviceError, UsageError
 from rigtool.sim.line_server import open_pty
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.sim.stm32_twin import Dialect, Stm32BridgeTwin
+from rigtool.thruster_profiles import PROFILES
 
 from .helpers import wait_for as _wait_for
 

@@ -24,11 +24,11 @@ from rigtool.errors import DeviceError
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.netft_twin import NetFTTwin
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import PROFILES
 from rigtool.sim.scpi_supply_twin import ScpiSupplyTwin
 from rigtool.sim.stm32_twin import Stm32BridgeTwin
 from rigtool.store import Store
 from rigtool.sweep import open_checked, resolve
+from rigtool.thruster_profiles import PROFILES
 
 from .helpers import wait_for
 

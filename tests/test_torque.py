@@ -12,7 +12,7 @@ import pytest
 
 from rigtool.cli import main
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import profile_with_overrides
+from rigtool.thruster_profiles import profile_with_overrides
 
 PROTOCOL = """\
 rigtool_protocol: 1

@@ -21,8 +21,8 @@ from pydantic import ValidationError
 from rigtool.devices.base import Actuator
 from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
 from rigtool.errors import DeviceError
-from rigtool.sim.profiles import PROFILES
 from rigtool.sim.vesc_twin import VescTwin
+from rigtool.thruster_profiles import PROFILES
 
 from .helpers import drain, wait_for
 

@@ -18,10 +18,10 @@ from rigtool.models import Betm
 from rigtool.plan import expand, step_at
 from rigtool.protocol import Protocol
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import PROFILES, profile_with_overrides
 from rigtool.sim.scpi_supply_twin import ScpiSupplyTwin
 from rigtool.store import Store
 from rigtool.sweep import open_checked, resolve
+from rigtool.thruster_profiles import PROFILES, profile_with_overrides
 
 VOLTS = [12.0, 14.0, 16.0, 18.0, 20.0]
 PROTOCOL = """\

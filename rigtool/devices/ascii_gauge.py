@@ -28,12 +28,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, PositiveSeconds, Scale
-from rigtool.devices.base import ForceBlock
+from rigtool.devices.base import Device, ForceBlock
 from rigtool.devices.buffer import SampleBuffer
 from rigtool.devices.framing import LineFramer
-from rigtool.devices.netft import FORCE_UNITS_N, unit_factor
 from rigtool.errors import DeviceError
-from rigtool.units import FT_CHANNELS
+from rigtool.units import FORCE_UNITS_N, FT_CHANNELS, unit_factor
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +125,7 @@ class LineParser:
         return seq, cfg.sign * (value - cfg.offset) * cfg.scale * factor
 
 
-class AsciiGauge:
+class AsciiGauge(Device):
     """ForceSensor for a serial ASCII gauge: one axis, on `config.channel`, in N."""
 
     channels = FT_CHANNELS
@@ -146,7 +145,6 @@ class AsciiGauge:
         self._stats = dict.fromkeys(("lines", "readings", "unparseable", "timeouts", "queries"), 0)
         self._buffer = SampleBuffer(100_000)
         self._stop = threading.Event()
-        self._closed = False
         try:
             self._ser = serial.serial_for_url(cfg.url, baudrate=cfg.baudrate,
                                               timeout=_READ_TIMEOUT_S, write_timeout=cfg.timeout_s)
@@ -183,21 +181,13 @@ class AsciiGauge:
                              f"got {bias!r}")
         self._bias += float(value)
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
+    def _release(self) -> None:
+        """Stop the reader thread and release the port (on `close`)."""
         self._stop.set()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout=1.0)
         with contextlib.suppress(Exception):
             self._ser.close()
-
-    def __enter__(self) -> AsciiGauge:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     @property
     def stats(self) -> dict:

@@ -1,16 +1,62 @@
-"""The small interfaces the engine drives, and the sample block they exchange.
+"""The small interfaces the engine drives, the sample blocks they exchange, and `Device`,
+the base every driver builds on.
 
-Every driver, real or simulated, implements one of these. Units are SI with the
-unit in the name; commands are in the actuator's native unit (percent, PWM
-counts, pulse width in us, r/min or A).
+Every driver, real or simulated, implements one of the interfaces and subclasses `Device`.
+Units are SI with the unit in the name; commands are in the actuator's native unit
+(percent, PWM counts, pulse width in us, r/min or A).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from types import MappingProxyType
+from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
+
+
+class Device:
+    """What every driver shares (as python-can's BusABC does for buses): a `close` that is
+    idempotent and callable from any exit path, use as a context manager, and default
+    diagnostics.
+
+    A driver fills two hooks. `_safe_state` runs first, with the transport still open
+    (neutral, output off); `_release` runs once after it even when it failed (stop threads,
+    close the port), and the safe state's error is raised then. A driver that keeps
+    counters replaces `stats` (an attribute or a property).
+    """
+
+    name: str = "device"
+    stats: Mapping[str, int | float] = MappingProxyType({})  # counters since open
+    stats_gauges: tuple[str, ...] = ()  # keys of `stats` that are states, not counters
+    _closed: bool = False
+
+    def close(self) -> None:
+        """Leave the device safe and release its transport; a second call does nothing."""
+        if self._closed:
+            return
+        try:
+            self._safe_state()
+        finally:
+            self._closed = True
+            self._release()
+
+    def pop_warnings(self) -> list[str]:
+        """Warnings since the previous call, oldest first (none by default)."""
+        return []
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _safe_state(self) -> None:
+        """Put the device in its safe state while the transport is open (nothing by default)."""
+
+    def _release(self) -> None:
+        """Release threads and transport, once (nothing by default)."""
 
 
 @dataclass

@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, model_
 
 from rigtool.bounds import Baudrate, Scale
 from rigtool.config import FieldError
-from rigtool.devices.base import ActuatorInfo, FeedbackBlock
+from rigtool.devices.base import ActuatorInfo, Device, FeedbackBlock
 from rigtool.errors import DeviceError, UsageError
 
 if TYPE_CHECKING:  # the drivers import them when they open a bus
@@ -372,12 +372,13 @@ class FeedbackBuffer:
         return FeedbackBlock(np.array(t, dtype=float), **columns)
 
 
-class CanActuator:
+class CanActuator(Device):
     """What the CAN actuators share: a CanLink with its keep-alive, the command / neutral /
     close life cycle, silence detection and the wait for the first frame.
 
-    A driver sets `name`, `info` and `config` (CanBusFields with keepalive_s and timeout_s), calls `_open_link`, and supplies `_command_frame(value)`,
-    `_neutral_frame()` and `_on_frame(msg, t)`. `close` calls `_before_release` between
+    A driver sets `name`, `info` and `config` (CanBusFields with keepalive_s and timeout_s),
+    calls `_open_link`, and supplies `_command_frame(value)`, `_neutral_frame()` and
+    `_on_frame(msg, t)`. `close` (Device) sends neutral, then calls `_before_release` between
     stopping the link's threads and releasing the bus (e.g. to disable the drive).
     """
 
@@ -417,15 +418,15 @@ class CanActuator:
             return
         self._link.command(self._neutral_frame(), retry=True)
 
-    def close(self) -> None:
-        """Neutral, stop the keep-alive, release the bus. Idempotent."""
-        if self._closed:
-            return
+    def _safe_state(self) -> None:
+        """Neutral before `close` releases the bus; a failure is logged, not raised."""
         try:
             self.neutral()
         except DeviceError as exc:
             log.warning("%s: could not command neutral on close: %s", self.name, exc)
-        self._closed = True
+
+    def _release(self) -> None:
+        """Stop the keep-alive and the receiver, last sends, release the bus."""
         self._link.stop_threads()
         self._before_release()
         self._link.close()

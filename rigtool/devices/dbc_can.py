@@ -275,6 +275,8 @@ def actuator_info(config: DbcCanConfig) -> ActuatorInfo:
 class DbcCanDriver(CanActuator):
     """Actuator on a DBC-described CAN drive."""
 
+    info_for = staticmethod(actuator_info)  # the command space from a config alone (registry)
+
     def __init__(self, config: DbcCanConfig) -> None:
         self.config = c = resolve(config)
         self.dbc_path = Path(c.dbc) if c.dbc is not None else SHIPPED_DBC

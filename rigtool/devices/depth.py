@@ -5,10 +5,11 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 
+from rigtool.devices.base import Device
 from rigtool.errors import UsageError
 
 
-class PresetDepth:
+class PresetDepth(Device):
     """The rig's one fixed depth, as the protocol declares it; nothing moves or confirms it."""
 
     reached_by = "preset"
@@ -17,11 +18,8 @@ class PresetDepth:
         """Nothing to move; None, because nobody reported a depth reached."""
         return None
 
-    def close(self) -> None:
-        return None
 
-
-class ManualDepth:
+class ManualDepth(Device):
     """Prompts the operator at the terminal to set the truss and confirm."""
 
     reached_by = "operator"
@@ -46,6 +44,3 @@ class ManualDepth:
             return float(answer) / 100.0
         except ValueError:
             raise UsageError(f"expected a depth in cm or an empty answer, got {answer!r}") from None
-
-    def close(self) -> None:
-        return None

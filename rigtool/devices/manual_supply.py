@@ -5,10 +5,11 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 
+from rigtool.devices.base import Device
 from rigtool.errors import UsageError
 
 
-class ManualSupply:
+class ManualSupply(Device):
     """Prompts the operator at the terminal to set the supply voltage and confirm."""
 
     reached_by = "operator"
@@ -35,6 +36,3 @@ class ManualSupply:
 
     def safe(self) -> None:
         """Nothing to switch: the operator owns the supply."""
-
-    def close(self) -> None:
-        return None

@@ -64,10 +64,10 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from rigtool.bounds import MAX_SAMPLES_PER_POINT, PositiveScale, PositiveSeconds
 from rigtool.devices import mmsg
-from rigtool.devices.base import ForceBlock
+from rigtool.devices.base import Device, ForceBlock
 from rigtool.devices.buffer import SampleBuffer
 from rigtool.errors import DeviceError
-from rigtool.units import FT_CHANNELS
+from rigtool.units import FORCE_UNITS_N, FT_CHANNELS, TORQUE_UNITS_NM, unit_factor
 
 log = logging.getLogger(__name__)
 
@@ -98,35 +98,6 @@ _STAMP_SPACE = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE"
 MAX_DATAGRAM = 4096  # RDT sends 36-byte records; longer datagrams are counted as bad size
 _MSG_TRUNC = int(getattr(socket, "MSG_TRUNC", 0))  # a plain int: enum `&` costs 8 us a datagram
 _EMPTY, _FAILED = object(), object()  # what `_guarded` returns instead of datagrams
-
-# One unit of each, in N or N m. Keys are normalised by _unit_key (lower case, no separators).
-FORCE_UNITS_N = {
-    "n": 1.0, "kn": 1e3, "mn": 1e-3,
-    "lbf": 4.4482216152605, "lb": 4.4482216152605, "klbf": 4448.2216152605, "klb": 4448.2216152605,
-    "kgf": 9.80665, "kg": 9.80665, "gf": 0.00980665, "g": 0.00980665,
-    "ozf": 0.27801385095378125, "oz": 0.27801385095378125,
-}  # fmt: skip
-TORQUE_UNITS_NM = {
-    "nm": 1.0, "nmm": 1e-3, "knm": 1e3,
-    "lbfin": 0.1129848290276167, "lbin": 0.1129848290276167, "inlb": 0.1129848290276167,
-    "inlbf": 0.1129848290276167, "lbfft": 1.3558179483314004, "lbft": 1.3558179483314004,
-    "ftlb": 1.3558179483314004, "ftlbf": 1.3558179483314004,
-    "kgfcm": 0.0980665, "kgcm": 0.0980665, "kgfm": 9.80665, "gfcm": 0.0000980665,
-    "ozfin": 0.00706155181422604, "ozin": 0.00706155181422604,
-}  # fmt: skip
-
-
-def _unit_key(unit: str) -> str:
-    return "".join(c for c in unit.strip().lower() if c.isalnum())
-
-
-def unit_factor(unit: str, table: Mapping[str, float], kind: str) -> float:
-    """SI value of one `unit` (e.g. "lbf" -> 4.448); ValueError names the known units."""
-    try:
-        return table[_unit_key(unit)]
-    except KeyError:
-        raise ValueError(f"unknown {kind} unit {unit!r} (known: {', '.join(sorted(table))})") from None
-
 
 def pack_request(command: int, sample_count: int = 0) -> bytes:
     return REQUEST.pack(RDT_HEADER, command, sample_count)
@@ -438,7 +409,7 @@ class RdtSequence:
             self.stats.duplicates += 1
 
 
-class NetFTSensor:
+class NetFTSensor(Device):
     """ForceSensor for an ATI Net F/T box (or NetFTTwin) at `config.host:config.port`.
 
     `read(n, rate_hz)` returns the next `n` records at the box's own RDT rate: `rate_hz`
@@ -475,7 +446,6 @@ class NetFTSensor:
         self._buffer = SampleBuffer(cfg.buffer_samples)
         self._stop = threading.Event()
         self._first = threading.Event()
-        self._closed = False
         self._sock = self._open_socket()
         self._batched = self._kernel_stamps()
         self._batch_s = RECEIVE_BATCH_S
@@ -552,11 +522,8 @@ class NetFTSensor:
         else:
             self._bias = self._bias + b
 
-    def close(self) -> None:
-        """Stop streaming and release the socket (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
+    def _release(self) -> None:
+        """Stop streaming and release the socket (on `close`)."""
         with contextlib.suppress(OSError, DeviceError):
             self._send(CMD_STOP)
         self._stop.set()
@@ -564,12 +531,6 @@ class NetFTSensor:
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout=1.0)
         self._sock.close()
-
-    def __enter__(self) -> NetFTSensor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- diagnostics ----------------------------------------------------------------------
     @property

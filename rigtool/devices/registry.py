@@ -1,31 +1,57 @@
-"""Which driver implements which `driver:` name of a rig file, for each device role."""
+"""Which class implements each `driver:` name of a rig file, for each device role.
+
+A table of name -> (module, class), as python-can keeps for its interfaces: a driver's class
+is looked up, and its module imported, only when a rig opens it. Each section's config model
+is part of the rig schema (rig.py); `tests/test_device_base.py` checks that both list the
+same names.
+"""
 
 from __future__ import annotations
 
-from typing import Annotated, Union
+import importlib
+from typing import TYPE_CHECKING
 
-from pydantic import Field
+if TYPE_CHECKING:
+    from pydantic import BaseModel
 
-from rigtool.devices import dbc_can, stm32_bridge, vesc_can
-from rigtool.devices.ascii_gauge import AsciiGauge, AsciiGaugeConfig
-from rigtool.devices.dbc_can import DbcCanConfig, DbcCanDriver
-from rigtool.devices.netft import NetFTConfig, NetFTSensor
-from rigtool.devices.scpi_supply import ScpiSupply, ScpiSupplyConfig
-from rigtool.devices.serial_stage import SerialStage, SerialStageConfig
-from rigtool.devices.stm32_bridge import Stm32Bridge, Stm32BridgeConfig
-from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
+    from rigtool.devices.base import ActuatorInfo, Device
 
-ACTUATORS = {"stm32-bridge": Stm32Bridge, "vesc-can": VescCanDriver, "dbc-can": DbcCanDriver}
-# the command space of each actuator from its rig-file section alone: a dry run opens nothing
-ACTUATOR_INFO = {"stm32-bridge": stm32_bridge.actuator_info, "vesc-can": vesc_can.actuator_info,
-                 "dbc-can": dbc_can.actuator_info}
-SENSORS = {"ati-netft": NetFTSensor, "ascii-gauge": AsciiGauge}
-STAGES = {"serial-stage": SerialStage}
-SUPPLIES = {"scpi-supply": ScpiSupply}
+# role -> driver name -> (module, class)
+DRIVERS: dict[str, dict[str, tuple[str, str]]] = {
+    "actuator": {
+        "stm32-bridge": ("rigtool.devices.stm32_bridge", "Stm32Bridge"),
+        "vesc-can": ("rigtool.devices.vesc_can", "VescCanDriver"),
+        "dbc-can": ("rigtool.devices.dbc_can", "DbcCanDriver"),
+    },
+    "sensor": {
+        "ati-netft": ("rigtool.devices.netft", "NetFTSensor"),
+        "ascii-gauge": ("rigtool.devices.ascii_gauge", "AsciiGauge"),
+    },
+    "depth_stage": {
+        "serial-stage": ("rigtool.devices.serial_stage", "SerialStage"),
+    },
+    "supply": {
+        "scpi-supply": ("rigtool.devices.scpi_supply", "ScpiSupply"),
+    },
+}
 
-ActuatorConfig = Annotated[
-    Union[Stm32BridgeConfig, VescCanConfig, DbcCanConfig], Field(discriminator="driver")  # noqa: UP007
-]
-SensorConfig = Annotated[Union[NetFTConfig, AsciiGaugeConfig], Field(discriminator="driver")]  # noqa: UP007
-StageConfig = Annotated[Union[SerialStageConfig], Field(discriminator="driver")]  # noqa: UP007
-SupplyConfig = Annotated[Union[ScpiSupplyConfig], Field(discriminator="driver")]  # noqa: UP007
+
+def driver_class(role: str, name: str) -> type[Device]:
+    """The class of driver `name` in `role` (its module imported now); KeyError names the
+    drivers the role has."""
+    try:
+        module, cls = DRIVERS[role][name]
+    except KeyError:
+        known = ", ".join(DRIVERS.get(role, ()))
+        raise KeyError(f"no {role} driver {name!r} (known: {known})") from None
+    return getattr(importlib.import_module(module), cls)
+
+
+def open_device(role: str, config: BaseModel) -> Device:
+    """Open the driver that a rig-file section names in its `driver:` field."""
+    return driver_class(role, config.driver)(config)
+
+
+def actuator_info(config: BaseModel) -> ActuatorInfo:
+    """An actuator's command space from its rig-file section alone: a dry run opens nothing."""
+    return driver_class("actuator", config.driver).info_for(config)

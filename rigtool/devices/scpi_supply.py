@@ -31,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from rigtool.bounds import Baudrate, PositiveSeconds
 from rigtool.config import FieldError
+from rigtool.devices.base import Device
 from rigtool.devices.framing import LineFramer
 from rigtool.devices.visa_link import VisaLink, check_resource, looks_like_resource
 from rigtool.errors import DeviceError, UsageError
@@ -113,7 +114,7 @@ class SupplyProtection:
     watchdog: bool  # answers OUTP:PROT:WDOG?
 
 
-class ScpiSupply:
+class ScpiSupply(Device):
     """A supply the engine sets the bus voltage with; `measure()` reads it back."""
 
     reached_by = "supply"
@@ -123,7 +124,6 @@ class ScpiSupply:
         self.name = f"SCPI supply on {config.where}"
         self.stats = dict.fromkeys(("lines", "garbage", "timeouts", "errors"), 0)
         self._framer = LineFramer(_MAX_LINE)
-        self._closed = False
         self._lock = threading.RLock()  # the port, between the caller and the keep-alive
         self._keepalive_stop = threading.Event()
         self._keepalive: threading.Thread | None = None
@@ -212,22 +212,16 @@ class ScpiSupply:
             else:
                 self.output(False)
 
-    def close(self) -> None:
-        """Safe state if this session programmed the supply; the watchdog disarmed and the
-        over-voltage level found restored (a bench supply goes back to its next user as it
-        was); then the port released. Idempotent; a failed safe state is raised after the port
-        is released."""
-        if self._closed:
-            return
-        try:
-            if self._armed:  # a supply this session never programmed is left as it was found
-                self.safe()
-            if self._watchdog_armed:
-                self._set("OUTP:PROT:WDOG OFF", "OUTP:PROT:WDOG?", 0.0)
-            if self._ovp_set and self.found.ovp_v is not None and not self._output_on:
-                self._set(f"VOLT:PROT {self.found.ovp_v:.4f}", "VOLT:PROT?", self.found.ovp_v)
-        finally:
-            self._release()
+    def _safe_state(self) -> None:
+        """On `close`: safe state if this session programmed the supply; the watchdog disarmed
+        and the over-voltage level found restored (a bench supply goes back to its next user as
+        it was). A failure here is raised once `close` has released the port."""
+        if self._armed:  # a supply this session never programmed is left as it was found
+            self.safe()
+        if self._watchdog_armed:
+            self._set("OUTP:PROT:WDOG OFF", "OUTP:PROT:WDOG?", 0.0)
+        if self._ovp_set and self.found.ovp_v is not None and not self._output_on:
+            self._set(f"VOLT:PROT {self.found.ovp_v:.4f}", "VOLT:PROT?", self.found.ovp_v)
 
     # -- internals ----------------------------------------------------------------------------
     def _check_setpoint(self, volts: float) -> None:

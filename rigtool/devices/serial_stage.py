@@ -18,6 +18,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, DepthM, PositiveSeconds
+from rigtool.devices.base import Device
 from rigtool.devices.framing import LineFramer
 from rigtool.errors import DeviceError, UsageError
 
@@ -50,7 +51,7 @@ class SerialStageConfig(BaseModel):
         return self
 
 
-class SerialStage:
+class SerialStage(Device):
     """DepthStage driver: moves the truss and reports the depth actually reached."""
 
     reached_by = "stage"
@@ -62,7 +63,6 @@ class SerialStage:
         self.stats = dict.fromkeys(("lines", "garbage", "unexpected", "errors", "timeouts"), 0)
         self._framer = LineFramer(_MAX_LINE)
         self._pending: list[str] = []
-        self._closed = False
         try:
             self._ser = serial.serial_for_url(config.url, baudrate=config.baudrate, timeout=0.02,
                                               write_timeout=config.timeout_s)
@@ -88,12 +88,9 @@ class SerialStage:
         reached_mm = self._wait_done(budget, f"reach {target_mm:.3f} mm")
         return self.depth_m(reached_mm)
 
-    def close(self) -> None:
-        """Release the port. Idempotent."""
+    def _release(self) -> None:
+        """Release the port (on `close`)."""
         import serial
-        if self._closed:
-            return
-        self._closed = True
         with contextlib.suppress(serial.SerialException, OSError):
             self._ser.close()
 

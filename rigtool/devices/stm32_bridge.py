@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import MAX_CLOCK_HZ, MAX_DURATION_S, Baudrate, Command, PositiveSeconds, Seconds
-from rigtool.devices.base import ActuatorInfo, FeedbackBlock
+from rigtool.devices.base import ActuatorInfo, Device, FeedbackBlock
 from rigtool.devices.framing import LineFramer
 from rigtool.errors import DeviceError, UsageError
 
@@ -132,8 +132,10 @@ class _WriteFailed(DeviceError):
     """Nothing reached the port (as opposed to a missing or refused reply)."""
 
 
-class Stm32Bridge:
+class Stm32Bridge(Device):
     """Actuator driver for the STM32 PWM bridge over any pyserial URL."""
+
+    info_for = staticmethod(actuator_info)  # the command space from a config alone (registry)
 
     def __init__(self, config: Stm32BridgeConfig) -> None:
         import serial
@@ -153,7 +155,6 @@ class Stm32Bridge:
         self._tx_lock = threading.Lock()
         self._stop = threading.Event()
         self._lost: str | None = None
-        self._closed = False
         try:
             self._ser = serial.serial_for_url(config.url, baudrate=config.baudrate,
                                               timeout=_READ_TIMEOUT_S, write_timeout=config.timeout_s)
@@ -167,7 +168,7 @@ class Stm32Bridge:
                 self.version = self._transact(config.ping_format.format(channel=config.channel,
                                                                         value=0))
         except DeviceError:
-            self._shutdown()
+            self._release()  # nothing was commanded yet: no neutral to send
             raise
         if config.heartbeat_s > 0 and config.heartbeat_format:
             self._heart = threading.Thread(target=self._heartbeat_loop, name="stm32-bridge-hb",
@@ -214,16 +215,12 @@ class Stm32Bridge:
                   for g in self.info.feedback}
         return FeedbackBlock(t, **fields)
 
-    def close(self) -> None:
-        """Neutral, stop the heartbeat, release the port. Idempotent."""
-        if self._closed:
-            return
+    def _safe_state(self) -> None:
+        """Neutral before `close` releases the port; a failure is logged, not raised."""
         try:
             self.neutral()
         except DeviceError as exc:
             log.warning("could not command neutral on close of %s: %s", self.name, exc)
-        finally:
-            self._shutdown()
 
     # -- extras ---------------------------------------------------------------------------
     def read_back(self) -> int:
@@ -333,9 +330,9 @@ class Stm32Bridge:
         else:
             self.stats["garbage"] += 1
 
-    def _shutdown(self) -> None:
+    def _release(self) -> None:
+        """Stop the heartbeat and the reader, close the port."""
         import serial
-        self._closed = True
         self._stop.set()
         for thread in (self._heart, self._reader):
             if thread is not None and thread is not threading.current_thread():

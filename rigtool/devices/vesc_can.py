@@ -160,6 +160,8 @@ def actuator_info(config: VescCanConfig) -> ActuatorInfo:
 class VescCanDriver(CanActuator):
     """Actuator on a VESC: commands in percent, r/min or A; feedback from its status frames."""
 
+    info_for = staticmethod(actuator_info)  # the command space from a config alone (registry)
+
     def __init__(self, config: VescCanConfig) -> None:
         self.config = c = config
         self.name = f"VESC {c.controller_id}"

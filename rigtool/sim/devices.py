@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from rigtool.devices.base import ActuatorInfo, Clock, FeedbackBlock, ForceBlock
+from rigtool.devices.base import ActuatorInfo, Clock, Device, FeedbackBlock, ForceBlock
 from rigtool.sim.physics import ThrusterTwin
 
 STAGE_SPEED_M_S = 0.05
@@ -36,7 +36,7 @@ class SimWorld:
             self.clock.sleep(delay)
 
 
-class SimActuator:
+class SimActuator(Device):
     """The twin's motor driver: commands in the profile's unit, feedback as the profile allows."""
 
     def __init__(self, world: SimWorld) -> None:
@@ -73,11 +73,8 @@ class SimActuator:
             )
         return FeedbackBlock(t, **fields)
 
-    def close(self) -> None:
-        return None
 
-
-class SimForceSensor:
+class SimForceSensor(Device):
     """The twin's force sensor: six channels at the requested rate, with bias and noise."""
 
     channels = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -103,11 +100,8 @@ class SimForceSensor:
     def set_bias(self, bias: np.ndarray) -> None:
         self._bias = self._bias + np.asarray(bias, dtype=float)
 
-    def close(self) -> None:
-        return None
 
-
-class SimDepthStage:
+class SimDepthStage(Device):
     """A motorised truss on the twin: takes time to move, then the twin sees the new depth."""
 
     reached_by = "simulator"
@@ -122,11 +116,8 @@ class SimDepthStage:
         self.world.twin.set_depth(self.world.clock.now(), depth_m)
         return depth_m
 
-    def close(self) -> None:
-        return None
 
-
-class SimSupply:
+class SimSupply(Device):
     """The twin's programmable supply: ramps at `slew_v_per_s` in the world's time, then the
     twin runs on the new voltage; `safe()` switches the output off (0 V)."""
 
@@ -160,5 +151,6 @@ class SimSupply:
         twin = self.world.twin
         twin.set_supply_voltage(max(self.world.clock.now(), twin.t_s), 0.0)
 
-    def close(self) -> None:
+    def _safe_state(self) -> None:
+        """Output off on `close`."""
         self.safe()

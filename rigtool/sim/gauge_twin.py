@@ -22,9 +22,9 @@ import threading
 import time
 from typing import Literal
 
-from rigtool.devices.netft import FORCE_UNITS_N, unit_factor
 from rigtool.sim.line_server import open_pty
 from rigtool.sim.live import LiveTwin
+from rigtool.units import FORCE_UNITS_N, unit_factor
 
 _JUNK = b"#$%&*@!?ABCDEFGHJKxyz \xff\x80\xfe"  # no digits: a garbled line never parses
 

@@ -26,14 +26,12 @@ from rigtool.devices.netft import (
     CMD_BIAS,
     CMD_START_REALTIME,
     CMD_STOP,
-    FORCE_UNITS_N,
     RDT_HEADER,
     RECORD,
     REQUEST,
-    TORQUE_UNITS_NM,
-    unit_factor,
 )
 from rigtool.sim.live import LiveTwin
+from rigtool.units import FORCE_UNITS_N, TORQUE_UNITS_NM, unit_factor
 
 _INT32 = (-(1 << 31), (1 << 31) - 1)
 _GARBAGE_LENGTHS = [k for k in range(1, 100) if k % RECORD.size]

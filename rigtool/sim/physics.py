@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rigtool.models import laws
-from rigtool.sim.profiles import ThrusterProfile
+from rigtool.thruster_profiles import ThrusterProfile
 
 _TIME_SLACK_S = 1e-9  # tolerated round-off when a caller's time lies just before the last one
 _SETTLED_FRAC = 1e-5  # speed within this fraction of max of its target counts as settled

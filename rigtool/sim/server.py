@@ -17,7 +17,7 @@ from rigtool.devices import udp_loopback
 from rigtool.errors import UsageError
 from rigtool.sim.live import LiveTwin
 from rigtool.sim.physics import ThrusterTwin
-from rigtool.sim.profiles import profile_with_overrides
+from rigtool.thruster_profiles import profile_with_overrides
 
 SENSORS = ("netft", "mark10", "hx711")
 LOOPBACK = "127.0.0.1"

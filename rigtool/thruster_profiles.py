@@ -4,6 +4,9 @@ Units are SI with the unit in the name, except propeller speed in r/min (as the 
 report it) and commands in the actuator's native unit. Thrust is f = C_p |n| n with
 C_p = cp_forward for n > 0 and cp_reverse for n < 0; current is I = cn (U0/U) |n|^3 + idle
 at supply voltage U (nominal U0 = supply_voltage_v): the shaft power C |n|^3 drawn at U.
+
+Plain data, outside rigtool/sim: protocol and rig files name a profile and override its
+parameters, and are validated here without importing the simulator that runs it.
 """
 
 from __future__ import annotations
