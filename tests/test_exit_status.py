@@ -1,4 +1,4 @@
-"""Exit statuses of `rigtool sweep` come from how the run ended (README, "Exit status"):
+"""Exit statuses of `rigtool sweep` come from how the run ended (docs/cli.md, "Exit status"):
 0 completed, 1 failed or tripped, 2 usage, 3 the actuator may not be at neutral, 130 Ctrl-C."""
 
 from __future__ import annotations
