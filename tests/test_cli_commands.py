@@ -5,7 +5,9 @@ carries; `calibrate` renders its own table."""
 from __future__ import annotations
 
 import argparse
+import os
 import re
+import signal
 import subprocess
 import sys
 
@@ -133,6 +135,21 @@ def test_a_sweep_exits_with_the_status_its_outcome_carries(write_yaml, db_path, 
     assert outcomes[-1].exit_status == EXIT_FAILED and outcomes[-1].status == "aborted"
     monkeypatch.setattr(Outcome, "exit_status", property(lambda self: 42))
     assert main(["sweep", str(tripping), "--sim", "--db", str(db_path)]) == 42
+
+
+def test_sigterm_during_check_exits_1_not_ctrl_c_s_130(monkeypatch, capsys):
+    """SIGTERM stops `check` (devices closed) with 1 and says so, as it does a sweep."""
+    from rigtool import check
+
+    measure = check.run_check
+
+    def terminated(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return measure(*args, **kwargs)
+
+    monkeypatch.setattr(check, "run_check", terminated)
+    assert main(["check", str(ROOT / "protocols/rigs/sim-can-bldc.yaml"), "--seconds", "0.5"]) == 1
+    assert "rigtool: stopped by SIGTERM" in capsys.readouterr().err
 
 
 def test_docs_list_every_command_and_exit_status():

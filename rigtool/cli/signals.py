@@ -41,9 +41,10 @@ def closing_signals(reporter: object):
 
 @contextlib.contextmanager
 def stop_on_signals():
-    """Turn SIGTERM/SIGHUP into KeyboardInterrupt so `finally` blocks (neutral) still run."""
+    """Turn SIGTERM/SIGHUP into KeyboardInterrupt (`Stopped`, which names the signal, so the
+    command exits 1 as for a sweep, not Ctrl-C's 130) so `finally` blocks (neutral) still run."""
     def _raise(signum, frame):
-        raise KeyboardInterrupt(signal.Signals(signum).name)
+        raise Stopped(signum)
 
     old = {sig: signal.signal(sig, _raise) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:
