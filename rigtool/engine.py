@@ -17,7 +17,15 @@ from types import FrameType
 import numpy as np
 
 from rigtool.devices.base import FeedbackBlock
-from rigtool.errors import DeviceError, SafetyTrip, StoreError
+from rigtool.errors import (
+    EXIT_COMPLETED,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_NOT_AT_NEUTRAL,
+    DeviceError,
+    SafetyTrip,
+    StoreError,
+)
 from rigtool.plan import PlanStep
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
@@ -45,7 +53,7 @@ class StopNow(BaseException):
 class NeutralNotConfirmed(DeviceError):
     """A run failed and its final neutral command was not confirmed: the thruster may run."""
 
-    exit_status = 3
+    exit_status = EXIT_NOT_AT_NEUTRAL
 
 
 @dataclass
@@ -58,6 +66,17 @@ class Outcome:
     steps_done: int
     neutral_ok: bool = True  # False: the final neutral command could not be confirmed sent
     interrupted: bool = False  # the operator's Ctrl-C (SIGINT) stopped the run
+
+    @property
+    def exit_status(self) -> int:
+        """The command's exit status for this ending (docs/cli.md): 3 the actuator may not be
+        at neutral, whatever else stopped the run; 0 completed; 130 the operator's Ctrl-C; 1
+        otherwise (a limit trip, a device fault, SIGTERM or SIGHUP)."""
+        if not self.neutral_ok:
+            return EXIT_NOT_AT_NEUTRAL
+        if self.status == "completed":
+            return EXIT_COMPLETED
+        return EXIT_INTERRUPTED if self.interrupted else EXIT_FAILED
 
 
 class _Signals:

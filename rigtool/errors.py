@@ -2,17 +2,24 @@
 
 from __future__ import annotations
 
+# Exit statuses of rigtool commands (docs/cli.md).
+EXIT_COMPLETED = 0
+EXIT_FAILED = 1  # an error, a limit trip, a device fault, SIGTERM or SIGHUP
+EXIT_USAGE = 2  # bad arguments or configuration; damaged or crafted data
+EXIT_NOT_AT_NEUTRAL = 3  # the final neutral command was not confirmed: the thruster may run
+EXIT_INTERRUPTED = 130  # 128 + SIGINT: the operator's Ctrl-C stopped the command
+
 
 class RigtoolError(Exception):
     """Base for errors that are the user's or the environment's, not a bug."""
 
-    exit_status = 1
+    exit_status = EXIT_FAILED
 
 
 class UsageError(RigtoolError):
     """Bad arguments or configuration (exit status 2)."""
 
-    exit_status = 2
+    exit_status = EXIT_USAGE
 
 
 class ConfigError(UsageError):
@@ -31,7 +38,7 @@ class DataError(StoreError):
     """Stored or read-back data is damaged or crafted; the message names the database or
     file, the run and the field (exit status 2)."""
 
-    exit_status = 2
+    exit_status = EXIT_USAGE
 
 
 class DeviceError(RigtoolError):

@@ -155,15 +155,6 @@ def test_can_run_curve_quality_and_windows(can_cal):
     assert np.all(p.kept_fraction >= 0.5)
 
 
-def test_summary_rows(can_cal):
-    rows = can_cal.summary_rows()
-    names = [r[0] for r in rows]
-    assert "C_p_fwd @ 0.5 m" in names and "tare_drift" in names
-    assert all(len(r) == 6 and isinstance(r[4], str) for r in rows)
-    cp = rows[names.index("C_p_fwd @ 1 m")]
-    assert cp[2] < cp[1] < cp[3] and cp[4] == "N/(r/min)^2"
-
-
 def test_stm32_run(stm32_cal):
     (sec,) = stm32_cal.sections
     assert sec.depth_m is None and sec.fits == {}

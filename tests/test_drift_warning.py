@@ -136,9 +136,9 @@ def test_resumed_run_with_two_tares_has_no_nan_interval(tmp_path, capsys, monkey
     path = tmp_path / "two-tares.yaml"
     path.write_text(TWIN.format(seed=35, drift=30.0, tare="at_start"))
     db = str(tmp_path / "db.sqlite")
-    monkeypatch.setattr("rigtool.cli.default_reporter", lambda: CtrlCAfterPoint(8))
+    monkeypatch.setattr("rigtool.cli.sweep.default_reporter", lambda: CtrlCAfterPoint(8))
     assert main(["sweep", str(path), "--sim", "--db", db]) == 130
-    monkeypatch.setattr("rigtool.cli.default_reporter", SilentReporter)
+    monkeypatch.setattr("rigtool.cli.sweep.default_reporter", SilentReporter)
     assert main(["sweep", "--resume", "last", "--db", db]) == 0
     capsys.readouterr()
     assert main(["calibrate", "last", "--db", db, "--out", str(tmp_path / "out")]) == 0

@@ -1,4 +1,4 @@
-"""Exit statuses of `rigtool sweep` come from how the run ended (README, "Exit status"):
+"""Exit statuses of `rigtool sweep` come from how the run ended (docs/cli.md, "Exit status"):
 0 completed, 1 failed or tripped, 2 usage, 3 the actuator may not be at neutral, 130 Ctrl-C."""
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def test_bad_protocol_exits_2(write_yaml, db_path):
 
 
 def test_ctrl_c_exits_130_from_the_outcome(write_yaml, db_path, monkeypatch, capsys):
-    monkeypatch.setattr("rigtool.cli.default_reporter", CtrlCAfterFirstPoint)
+    monkeypatch.setattr("rigtool.cli.sweep.default_reporter", CtrlCAfterFirstPoint)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 130
     assert "--resume" in capsys.readouterr().err
     store = Store(db_path)
@@ -83,7 +83,7 @@ def test_the_signal_that_stopped_the_run_sets_the_exit_status(write_yaml, db_pat
                                                                reporter, code, reason):
     """A SIGTERM after a Ctrl-C stops the run at once: the run says SIGTERM, and so does the
     exit status (1, as for SIGTERM alone), not the Ctrl-C's 130."""
-    monkeypatch.setattr("rigtool.cli.default_reporter", reporter)
+    monkeypatch.setattr("rigtool.cli.sweep.default_reporter", reporter)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == code
     store = Store(db_path)
     run = store.run(store.resolve_run_id("last"))
@@ -120,7 +120,7 @@ def test_unconfirmed_neutral_at_the_end_exits_3(write_yaml, db_path, capsys):
 @pytest.mark.usefixtures("deaf_neutral")
 def test_unconfirmed_neutral_after_a_trip_or_ctrl_c_exits_3(write_yaml, db_path, monkeypatch):
     assert _sweep(write_yaml, db_path, TRIPPING) == 3
-    monkeypatch.setattr("rigtool.cli.default_reporter", CtrlCAfterFirstPoint)
+    monkeypatch.setattr("rigtool.cli.sweep.default_reporter", CtrlCAfterFirstPoint)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 3
 
 
@@ -142,15 +142,15 @@ def test_a_signal_after_the_run_ended_leaves_the_exit_status_the_runs(write_yaml
                                                                      monkeypatch, capsys, sig):
     """After an attack: a second signal while the rig closed and the outcome printed killed
     the process (-15, -2). It is noted, and the status stays the run's (0 here)."""
-    from rigtool import cli
+    from rigtool.cli import sweep
 
-    report = cli._report_outcome
+    report = sweep._report_outcome
 
     def signalled(*args, **kwargs):
         os.kill(os.getpid(), sig)
         return report(*args, **kwargs)
 
-    monkeypatch.setattr(cli, "_report_outcome", signalled)
+    monkeypatch.setattr(sweep, "_report_outcome", signalled)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 0
     assert "while closing" in capsys.readouterr().err
 

@@ -16,9 +16,9 @@ import pytest
 import yaml
 
 import rigtool
-from rigtool import cli
 from rigtool.artefacts.formats import FORMATS, MODULES
 from rigtool.cli import main
+from rigtool.cli.calibrate import VEHICLE_FORMATS
 
 from .conftest import PROTOCOLS
 
@@ -56,7 +56,7 @@ STEPS = ("rigtool_protocol: 1\nname: steps\nsimulator: {profile: can-bldc, seed:
 
 
 def test_cli_offers_every_registered_format():
-    assert tuple(cli.VEHICLE_FORMATS) == tuple(MODULES)
+    assert tuple(VEHICLE_FORMATS) == tuple(MODULES)
 
 
 @pytest.fixture(scope="module")

@@ -71,14 +71,14 @@ def _sweep(tmp: Path, text: str, seed: int, stop_after: int | None = None,
     path = tmp / "protocol.yaml"
     path.write_text(text)
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr("rigtool.cli.default_reporter",
+        mp.setattr("rigtool.cli.sweep.default_reporter",
                    SilentReporter if stop_after is None else _ctrl_c_after(stop_after))
         code = main(["sweep", str(path), "--sim", "--db", str(db), "--seed", str(seed)])
         assert code == (0 if stop_after is None else 130)
         store = Store(db)
         run_id = store.resolve_run_id("last")
         if stop_after is not None:
-            mp.setattr("rigtool.cli.default_reporter", SilentReporter)
+            mp.setattr("rigtool.cli.sweep.default_reporter", SilentReporter)
             if continuing:
                 t_used = max(s["t_end_s"] for s in store.steps(run_id))
                 mp.setattr(_Continuing, "SHIFT_S", t_used + 1.0)

@@ -14,9 +14,9 @@ import pytest
 import yaml
 
 import rigtool
-from rigtool import cli
 from rigtool.artefacts.formats import FORMATS
 from rigtool.cli import main
+from rigtool.cli.calibrate import VEHICLE_FORMATS
 
 CC = shutil.which("cc") or shutil.which("gcc")
 PROTOCOL = """\
@@ -50,7 +50,7 @@ def exported(request, tmp_path_factory):
 
 
 def test_cli_and_module_agree_on_the_formats():
-    assert tuple(cli.VEHICLE_FORMATS) == tuple(FORMATS)
+    assert tuple(VEHICLE_FORMATS) == tuple(FORMATS)
 
 
 @pytest.mark.skipif(CC is None, reason="no C compiler on this machine")

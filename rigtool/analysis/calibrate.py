@@ -42,7 +42,6 @@ from rigtool.analysis.steady import PointTable, SettlingCriterion, SteadyWindows
 from rigtool.analysis.voltage import VoltageLaw, fit_voltage_law, voltage_point
 from rigtool.store import Store
 
-SummaryRow = tuple[str, float, float, float, str, str]
 NAN = math.nan
 DEEP_DEPTH_M = 0.6  # shallower than this, ventilation is possible ([Luo2020], docs/references.md)
 # One coefficient per fit is checked for quality (the others share its R2 and n).
@@ -110,53 +109,6 @@ class Calibration:
     warnings: list[str]
     voltage_laws: list[VoltageLaw] = field(default_factory=list)  # per depth, voltage sweeps
     dynamics: Dynamics | None = None  # step-response runs
-
-    def summary_rows(self) -> list[SummaryRow]:
-        """(name, value, lo, hi, unit, note) rows for a CLI table; NaN where not applicable."""
-        rows: list[SummaryRow] = []
-        multi = len(self.sections) > 1
-        for sec in self.sections:
-            suffix = f" @ {sec.label}" if multi else ""
-            for c in sec.fits.values():
-                note = c.note if math.isnan(c.r2) else f"R2={c.r2:.4f}, n={c.n}"
-                rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, note))
-            if sec.zero is not None and "zero_drift" not in sec.fits:
-                rows.append(("zero_drift" + suffix, sec.zero.drift_n_per_s * 3600, NAN, NAN,
-                             "N/h", f"sensor zero read from the {sec.zero.source}"))
-            if sec.curve is not None:
-                u = self.command_unit
-                rows += [("dead_zone" + suffix, NAN, lo, hi, u, "") for lo, hi in
-                         sec.curve.dead_zones]
-                rows += [("saturated" + suffix, NAN, lo, hi, u, "") for lo, hi in
-                         sec.curve.saturated]
-                rows += [("break_away" + suffix, c, NAN, NAN, u, "") for c in
-                         sec.curve.break_aways]
-            if sec.hysteresis is not None:
-                rows.append(("hysteresis_max" + suffix, sec.hysteresis.max_abs_n, NAN, NAN, "N",
-                             f"at {sec.hysteresis.at_command:g} {self.command_unit}"))
-            if sec.repeatability is not None:
-                rows.append(("repeatability_max_std" + suffix, sec.repeatability.max_std_n, NAN,
-                             NAN, "N", f"median {sec.repeatability.median_std_n:.4g} N"))
-        if self.drift is not None:
-            s = self.drift.slope
-            rows.append((s.name, s.value, s.lo, s.hi, s.unit, f"{s.n} tares"))
-        for law in self.voltage_laws:
-            suffix = "" if law.depth_m is None else f" @ {law.depth_m:g} m"
-            for c in (law.k_inverse, law.k, law.b):
-                rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, c.note))
-        if self.dynamics is not None:
-            rows += _dynamics_rows(self.dynamics)
-        return rows
-
-
-def _dynamics_rows(d: Dynamics) -> list[SummaryRow]:
-    """The selected model's parameters, or one row saying no dynamics were identified."""
-    if not d.identified:
-        return [("dynamics", NAN, NAN, NAN, "", f"no dynamics identified: {d.reason}")]
-    m = d.model
-    return [(c.name, c.value, c.lo, c.hi, c.unit, f"{m.name} model (selected by held-out steps)")
-            for c in (m.tau_n_s, m.alpha, m.tau_a_s, m.gain, m.delay_s, m.reverse_ratio)
-            if c is not None]
 
 
 def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None) -> Calibration:

@@ -1,0 +1,45 @@
+"""Command line: parses arguments, calls the application layer, prints. One module per command
+(or small group), each with its parser beside its handler; the exit status is the outcome's."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+from collections.abc import Sequence
+
+from rigtool import __version__
+from rigtool.cli import calibrate, check, compare, export, importing, merge, runs, sim, sweep, watch
+from rigtool.cli.console import err
+from rigtool.errors import EXIT_FAILED, EXIT_INTERRUPTED, RigtoolError
+
+# In the order `rigtool --help` lists them.
+COMMANDS = (sweep, watch, runs, calibrate, check, sim, export, merge, importing, compare)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The `rigtool` parser: each command module adds its own subcommand(s)."""
+    parser = argparse.ArgumentParser(
+        prog="rigtool", description="Sweep, calibrate and report on underwater thrusters.")
+    parser.add_argument("--version", action="version", version=f"rigtool {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in COMMANDS:
+        command.add_parsers(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `rigtool` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except RigtoolError as exc:
+        err.print(f"rigtool: error: {exc}")
+        return exc.exit_status
+    except OSError as exc:  # a path or port the user gave that the system refuses
+        err.print(f"rigtool: error: {exc}")
+        return EXIT_FAILED
+    except KeyboardInterrupt as exc:
+        stopped_by = getattr(exc, "signum", signal.SIGINT)
+        err.print("rigtool: interrupted" if stopped_by == signal.SIGINT
+                  else f"rigtool: stopped by {signal.Signals(stopped_by).name}")
+        return EXIT_INTERRUPTED if stopped_by == signal.SIGINT else EXIT_FAILED

@@ -1,0 +1,46 @@
+"""`rigtool export`: a run's points, samples and events as CSV or Parquet, or every run as a
+Parquet dataset."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from rigtool.cli.console import out
+from rigtool.cli.options import DB, RUN_HELP, out_folder
+from rigtool.errors import UsageError
+from rigtool.progress import stage
+from rigtool.store import Store, resolve_db_path
+
+
+def add_parsers(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="write a run's points, samples and events as CSV or "
+                       "Parquet, or every run as a Parquet dataset (--all)",
+                       parents=[out_folder("exports", "output folder (default: ./exports)"), DB])
+    p.add_argument("run", nargs="?", help=RUN_HELP)
+    p.add_argument("--format", choices=("csv", "parquet"),
+                   help="file format (default: csv; parquet with --all)")
+    p.add_argument("--all", metavar="DIR", help="write every run as a Parquet dataset in DIR: "
+                   "runs, calibrations, and points/samples/events per run (docs/sql.md)")
+    p.set_defaults(func=cmd_export)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from rigtool.export import export_all, export_run
+
+    if (args.run is None) == (args.all is None):
+        raise UsageError("give a run to export, or --all DIR for every run")
+    with Store(resolve_db_path(args.db), read_only=True) as store:
+        if args.all is not None:
+            if args.format == "csv":
+                raise UsageError("--all writes a Parquet dataset: drop --format csv")
+            with stage(f"exporting every run of {store.path} to {args.all}"):
+                paths = export_all(store, Path(args.all))
+            out.print(f"{len(paths)} files in {args.all} (docs/sql.md shows how to query them)")
+            return 0
+        run_id = store.resolve_run_id(args.run)
+        with stage(f"exporting run {run_id}"):
+            paths = export_run(store, run_id, Path(args.out), args.format or "csv")
+        for path in paths:
+            out.print(str(path))
+    return 0

@@ -1,0 +1,54 @@
+"""Signals around a command: a stop outside a run, and the quiet close after a run ended."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+
+from rigtool.cli.console import err
+
+
+class Stopped(KeyboardInterrupt):
+    """A signal stopped the command outside a run (opening devices): SIGINT exits 130, others
+    1, as a run stopped by them does."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def closing_signals(reporter: object):
+    """Around a sweep: a signal before the run starts stops the command (devices closed); once
+    the run has ended (the actuator sent to neutral), a further signal while the rig closes and
+    the outcome prints is only noted, so the exit status stays the run's."""
+    def _on_signal(signum: int, frame: object) -> None:
+        if getattr(reporter, "finished", False):
+            err.print(f"rigtool: {signal.Signals(signum).name} while closing: the run has "
+                      "ended; finishing")
+            return
+        raise Stopped(signum)
+
+    sigs = [s for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+            if signal.getsignal(s) is not signal.SIG_IGN]
+    old = {sig: signal.signal(sig, _on_signal) for sig in sigs}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """Turn SIGTERM/SIGHUP into KeyboardInterrupt (`Stopped`, which names the signal, so the
+    command exits 1 as for a sweep, not Ctrl-C's 130) so `finally` blocks (neutral) still run."""
+    def _raise(signum, frame):
+        raise Stopped(signum)
+
+    old = {sig: signal.signal(sig, _raise) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
