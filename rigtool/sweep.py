@@ -193,6 +193,14 @@ def _rig_kind(rig: Rig) -> tuple:
             rig.thrust, rig.mount)
 
 
+def mark_interrupted(store: Store, run_ref: str) -> None:
+    """`sweep --resume RUN --force`: a run still marked running (its process is known gone to
+    the operator) is marked interrupted, so it resumes."""
+    run_id = store.resolve_run_id(run_ref)
+    if store.run(run_id)["status"] == "running":
+        store.finish_run(run_id, "interrupted", "marked interrupted by --force")
+
+
 def resolve_resume(store: Store, run_ref: str,
                    rig: Rig | None = None) -> tuple[str, SweepSetup, int, float]:
     """Rebuild the setup of a stored run; return (run id, setup, first unfinished step, run time used).

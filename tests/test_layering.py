@@ -130,3 +130,165 @@ def test_model_runtime_imports_numpy_and_the_standard_library_only():
             "and not m.startswith('_')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "['numpy', 'rigtool']"
+
+
+# The ranks of docs/design.md, lowest first: a module may import its own rank and those below,
+# never one above. Every module has a rank (a new top-level module must be placed here).
+RANKS = {
+    "foundation": ("rigtool.errors", "rigtool.units", "rigtool.bounds", "rigtool.clock",
+                   "rigtool.files", "rigtool.outpaths", "rigtool.readback", "rigtool.spool",
+                   "rigtool.ids", "rigtool.dbpath", "rigtool.counters",
+                   "rigtool.thruster_profiles", "rigtool.models"),
+    "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan"),
+    "devices": ("rigtool.devices", "rigtool.sim", "rigtool.rig"),
+    "store": ("rigtool.store",),
+    "analysis": ("rigtool.analysis", "rigtool.run_warnings"),
+    "artefacts": ("rigtool.artefacts",),
+    "report": ("rigtool.report",),
+    "workflows": ("rigtool.workflows", "rigtool.engine", "rigtool.safety", "rigtool.sweep",
+                  "rigtool.progress", "rigtool.check", "rigtool.importers"),
+    "interfaces": ("rigtool", "rigtool.__main__", "rigtool.cli", "rigtool.api",
+                   "rigtool.watch", "rigtool.export"),
+}
+ORDER = list(RANKS)
+
+
+def _rank(module: str) -> int | None:
+    """The rank of `module`: that of the longest prefix named in RANKS (the root package
+    itself, `rigtool`, names only itself)."""
+    best = None
+    for i, layer in enumerate(ORDER):
+        for prefix in RANKS[layer]:
+            if (module == prefix or module.startswith(prefix + ".") and prefix != "rigtool") and (
+                    best is None or len(prefix) > len(best[1])):
+                best = (i, prefix)
+    return None if best is None else best[0]
+
+
+def _all_imports(module: str, path: Path) -> set[str]:
+    """Every rigtool module `module` imports: absolute, relative (`from . import x`), the
+    root package (`import rigtool`, `from rigtool import x`), and string names handed to
+    importlib or kept in a lazy table (`"rigtool.devices.netft"`, `"rigtool.x:Class"`)."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+
+    def add(name: str) -> None:
+        while name and name not in MODULES:
+            name = name.rpartition(".")[0]
+        if name:
+            found.add(name)
+
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[:len(parts) - node.level + 1] + ([base] if base else []))
+            if base.split(".")[0] == "rigtool":
+                for alias in node.names:
+                    add(f"{base}.{alias.name}") if f"{base}.{alias.name}" in MODULES else add(base)
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "rigtool":
+                    add(alias.name)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            name = node.value.partition(":")[0]
+            if re.fullmatch(r"rigtool(\.\w+)+", name) and name in MODULES:
+                add(name)
+    return found - {module}
+
+
+FULL = {m: _all_imports(m, p) for m, p in MODULES.items()}
+
+
+def test_every_module_has_a_rank():
+    assert sorted(m for m in MODULES if _rank(m) is None) == []
+
+
+def test_no_module_imports_a_higher_rank():
+    """foundation < config < devices/sim < store < analysis < artefacts < report < workflows
+    < interfaces (CLI, API, watch, export)."""
+    bad = sorted(f"{m} ({ORDER[_rank(m)]}) -> {t} ({ORDER[_rank(t)]})"
+                 for m, targets in FULL.items() for t in targets
+                 if _rank(m) is not None and _rank(t) is not None and _rank(t) > _rank(m))
+    assert bad == []
+
+
+def test_the_import_finder_sees_relative_root_and_importlib_imports():
+    import textwrap
+
+    src = textwrap.dedent("""
+        import importlib
+        import rigtool
+        from rigtool import errors
+        from . import base
+        from .. import units
+        TABLE = {"x": "rigtool.engine:Engine"}
+        importlib.import_module("rigtool.store")
+    """)
+    path = Path(__file__).parent / "_layering_probe.py"
+    path.write_text(src)
+    try:
+        got = _all_imports("rigtool.devices.probe", path)
+    finally:
+        path.unlink()
+    assert {"rigtool", "rigtool.errors", "rigtool.devices.base", "rigtool.units",
+            "rigtool.engine", "rigtool.store"} <= got
+
+
+def test_devices_import_no_store_engine_or_analysis_and_config_no_simulator():
+    bad = sorted((m, t) for m, targets in FULL.items() for t in targets
+                 if (m.startswith("rigtool.devices") and t.startswith(
+                     ("rigtool.store", "rigtool.engine", "rigtool.analysis", "rigtool.sweep")))
+                 or (_rank(m) == ORDER.index("config") and t.startswith("rigtool.sim")))
+    assert bad == []
+
+
+DRIVERS = ("stm32_bridge", "vesc_can", "dbc_can", "netft", "ascii_gauge", "serial_stage",
+           "scpi_supply", "manual_supply")
+
+
+def test_a_driver_imports_no_other_driver():
+    """Shared pieces (units, framing, the CAN link, the base) live in shared modules, not in
+    one driver that the others import."""
+    bad = sorted((m, t) for m, targets in FULL.items() for t in targets
+                 if m.rpartition(".")[2] in DRIVERS and m.startswith("rigtool.devices.")
+                 and t.rpartition(".")[2] in DRIVERS and t.startswith("rigtool.devices."))
+    assert bad == []
+
+
+# Who may call what (docs/design.md): runs are written by the run layer (the engine during a
+# sweep, sweep.py when it creates, resumes or closes one), the importers and the post-run
+# workflows; devices are driven by the engine and by `rigtool check`'s pre-flight read.
+RUN_WRITERS = {"create_run", "add_step", "add_points", "finish_run", "reopen_run", "add_event",
+               "add_events", "add_calibration", "replace_events"}
+MAY_WRITE_RUNS = ("rigtool.engine", "rigtool.sweep", "rigtool.importers", "rigtool.workflows",
+                  "rigtool.store")
+DRIVING = {"set_command", "set_voltage", "move_to", "set_bias"}
+MAY_DRIVE = ("rigtool.engine", "rigtool.check", "rigtool.devices", "rigtool.sim")
+
+
+def _calls(names: set[str], allowed: tuple[str, ...]) -> list[str]:
+    out = []
+    for m, path in MODULES.items():
+        if m.startswith(allowed):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                    and node.func.attr in names):
+                out.append(f"{m}: {node.func.attr}")
+    return sorted(out)
+
+
+def test_runs_are_written_only_by_the_run_layer_importers_and_workflows():
+    assert _calls(RUN_WRITERS, MAY_WRITE_RUNS) == []
+
+
+def test_devices_are_driven_only_by_the_engine_and_check():
+    assert _calls(DRIVING, MAY_DRIVE) == []
+
+
+def test_the_design_document_states_these_ranks():
+    text = (PACKAGE.parent / "docs" / "design.md").read_text()
+    assert ("foundation < config < devices/sim < store < analysis < artefacts < report < "
+            "workflows < interfaces") in " ".join(text.split())

@@ -46,6 +46,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 def cmd_sweep(args: argparse.Namespace) -> int:
     from rigtool.sweep import (
         check_dry_run,
+        mark_interrupted,
         open_store,
         resolve,
         resume_sweep,
@@ -64,9 +65,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         store = open_store(args.db, rig, Path(args.rig) if args.rig else None, create=False)
         try:
             if args.force:
-                run_id = store.resolve_run_id(args.resume)
-                if store.run(run_id)["status"] == "running":
-                    store.finish_run(run_id, "interrupted", "marked interrupted by --force")
+                mark_interrupted(store, args.resume)
             reporter = default_reporter()
             with closing_signals(reporter), watching(args.watch, store.path, args.bind):
                 outcome, n_plan = resume_sweep(store, args.resume, reporter,
