@@ -33,6 +33,22 @@ FOLD_SAMPLES = 1_000_000  # settle, rest and tare readings beyond this are summe
 FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
 
 
+def torque_channel(choice: str, thrust_channel: int) -> int:
+    """Index of the torque channel a torque limit watches: `axis` is the torque about the
+    thrust axis (tx for thrust on fx, ty for fy, tz for fz)."""
+    if choice == "axis":
+        return 3 + thrust_channel % 3
+    return FT_CHANNELS.index(choice)
+
+
+def feedback_limits(fb: FeedbackBlock) -> dict[str, np.ndarray | None]:
+    """The limited quantities in a block of actuator feedback, one reading per frame."""
+    power = (fb.voltage_v * fb.current_a
+             if fb.voltage_v is not None and fb.current_a is not None else None)
+    return {"current_a": fb.current_a, "speed_rpm": fb.speed_rpm, "bus_v": fb.voltage_v,
+            "power_w": power, "temperature_c": fb.temperature_c}
+
+
 class StopNow(BaseException):
     """Raised from a signal handler to stop immediately (second Ctrl-C, SIGTERM, SIGHUP);
     `by_operator` for the Ctrl-C, so the exit status says which stopped the run."""
@@ -114,6 +130,7 @@ class Engine:
                                     getattr(rig.actuator, "expected_speed_rpm", None))
         self.bus = BusVoltageMonitor(protocol.voltage.tolerance_frac if protocol.voltage else 0.25)
         self.unit = rig.actuator.info.command_unit
+        self._torque_idx = torque_channel(protocol.limits.torque_channel, rig.thrust_channel)
         self._command = rig.actuator.info.neutral
         self._t0 = 0.0
         self._depth: float | None = None
@@ -383,8 +400,9 @@ class Engine:
         out["seq"] = block.seq if block.seq is not None else np.full(len(block), np.nan)
         # feedback limits count feedback frames as received, not the force samples they are
         # held over: one bad 50 Hz frame would otherwise count as 20 samples at 1 kHz
-        self.limits.check({"thrust_n": out["thrust_n"], "current_a": feedback.current_a,
-                           "speed_rpm": feedback.speed_rpm})
+        self.limits.check({"thrust_n": out["thrust_n"], "torque_nm": ft[:, self._torque_idx]})
+        self.limits.check({"temperature_c": block.temperature_c}, "sensor")
+        self.limits.check(feedback_limits(feedback), "actuator")
         self.follow.check(feedback)
         self._check_bus(step, feedback)
         if step is not None and self.reporter.wants_live:
@@ -409,6 +427,8 @@ class Engine:
         if measure is None:
             return
         measured_v, amps = measure()
+        self.limits.check({"bus_v": np.array([measured_v]),
+                           "power_w": np.array([measured_v * amps])}, "supply")
         self.bus.check_supply(set_v, measured_v, supply.reached_by, amps,
                               getattr(supply, "current_limit_a", None))
 
@@ -514,7 +534,8 @@ class Engine:
             if feedback.fault:
                 raise SafetyTrip(f"driver fault: {feedback.fault}")
             # feedback limits hold at neutral too; thrust is not checked: the bias is not removed yet
-            self.limits.check({"current_a": feedback.current_a, "speed_rpm": feedback.speed_rpm})
+            self.limits.check({"temperature_c": block.temperature_c}, "sensor")
+            self.limits.check(feedback_limits(feedback), "actuator")
             parts.append(block.ft.mean(axis=0) if n <= FOLD_SAMPLES else block.ft.sum(axis=0))
         offset = parts[0] if n <= FOLD_SAMPLES else np.sum(parts, axis=0) / n
         self.rig.sensor.set_bias(offset)

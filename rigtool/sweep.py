@@ -20,6 +20,7 @@ from rigtool.devices.base import ActuatorInfo
 from rigtool.engine import Engine, Outcome
 from rigtool.errors import ConfigError, StoreError, UsageError
 from rigtool.files import UnreadableFile
+from rigtool.limit_sources import source_problems
 from rigtool.plan import PlanStep, estimate_duration_s, expand, step_at
 from rigtool.protocol import Protocol, load_protocol
 from rigtool.rig import Rig, RigSet, load_rig, open_rig, rig_actuator_info, sim_rig
@@ -111,6 +112,7 @@ def check_compatible(setup: SweepSetup, info: ActuatorInfo) -> None:
         problems.append(f"{locate(path, ('command', source))}: command.{source}: values "
                         f"{lo:g}..{hi:g} leave the actuator's range {info.command_min:g}.."
                         f"{info.command_max:g} {info.command_unit}")
+    problems += source_problems(setup.protocol, path, setup.rig, info)
     duration = estimate_duration_s(setup.protocol, info.neutral)
     if not problems and duration > MAX_RUN_S:
         problems.append(f"{locate(path, ('limits', 'slew_per_s'))}: limits.slew_per_s: the run "
