@@ -18,7 +18,7 @@ import numpy as np
 
 from rigtool.devices.base import FeedbackBlock
 from rigtool.errors import DeviceError, SafetyTrip, StoreError
-from rigtool.plan import PlanStep
+from rigtool.plan import PlanStep, sensor_timing
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
 from rigtool.rig import RigSet, counter_delta
@@ -39,6 +39,15 @@ def torque_channel(choice: str, thrust_channel: int) -> int:
     if choice == "axis":
         return 3 + thrust_channel % 3
     return FT_CHANNELS.index(choice)
+
+
+def decimated(block: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:
+    """Each `k` consecutive samples of a block as one: their mean (the sequence number of the
+    last); a block whose length is not a multiple of k keeps its whole groups only."""
+    n = len(block["t_s"]) // k * k
+    out = {name: v[:n].reshape(-1, k).mean(axis=1) for name, v in block.items() if name != "seq"}
+    out["seq"] = block["seq"][k - 1:n:k]
+    return out
 
 
 def feedback_limits(fb: FeedbackBlock) -> dict[str, np.ndarray | None]:
@@ -130,6 +139,7 @@ class Engine:
                                     getattr(rig.actuator, "expected_speed_rpm", None))
         self.bus = BusVoltageMonitor(protocol.voltage.tolerance_frac if protocol.voltage else 0.25)
         self.unit = rig.actuator.info.command_unit
+        self.timing = sensor_timing(protocol, rig.sensor_rate_hz)
         self._torque_idx = torque_channel(protocol.limits.torque_channel, rig.thrust_channel)
         self._command = rig.actuator.info.neutral
         self._t0 = 0.0
@@ -204,6 +214,14 @@ class Engine:
         self._command = self.rig.actuator.info.neutral
         self._t0 = self.clock.now() - t_offset_s
         self._event("run_start", {"rig": self.rig.description, "n_steps": len(self.plan)})
+        if self.timing.how != "as planned":
+            t = self.timing
+            self.reporter.note(f"sensor rate: {t.describe()}")
+            self._event("sensor_rate", {"how": t.how, "sensor_rate_hz": t.sensor_rate_hz,
+                                        "protocol_rate_hz": t.protocol_rate_hz,
+                                        "stored_rate_hz": t.stored_rate_hz,
+                                        "decimate": t.decimate, "n_stored": t.n_stored,
+                                        "acquire_s": t.acquire_s, "message": t.describe()})
         if self.protocol.timing.tare == "at_start":
             self._tare("at_start")
 
@@ -238,7 +256,7 @@ class Engine:
                                 "by": supply.reached_by}, step.idx)
         settle = self.protocol.voltage.settle_s if self.protocol.voltage else 0.0
         if settle > 0:
-            self._read_for(settle, self.protocol.timing.acquire.rate_hz, step)
+            self._read_for(settle, self.timing.sensor_rate_hz, step)
         self._voltage = step.voltage_v  # judged from here on: settled, before anything is labelled
         self._check_supply(step.voltage_v)
 
@@ -273,7 +291,7 @@ class Engine:
 
     def _run_step(self, step: PlanStep) -> None:
         timing = self.protocol.timing
-        rate = timing.acquire.rate_hz
+        rate = self.timing.sensor_rate_hz
         t_start = self._now()
         counters = self.rig.counters()
         self.follow.start_point()
@@ -285,7 +303,7 @@ class Engine:
         self.follow.hold(step.command, self.clock.now())
         settle_s, settled = self._settle(step, rate)
         t_acq = self._now()
-        samples = self._acquire(step, timing.acquire.n_samples, rate)
+        samples = self._acquire(step, self.timing.n_read, rate)
         try:
             if step.voltage_v is not None:  # the bus as the point ends, before it is labelled
                 self._check_supply(step.voltage_v)
@@ -295,7 +313,8 @@ class Engine:
             record = StepRecord(
                 idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
                 repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
-                t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
+                t_end_s=self._now(), settle_s=settle_s, settled=settled,
+                rate_hz=self.timing.stored_rate_hz,
                 counters=counter_delta(counters, self.rig.counters()), voltage_v=step.voltage_v,
             )
             self.store.add_step(self.run_id, record, samples)
@@ -365,7 +384,7 @@ class Engine:
         act = self.rig.actuator
         if slew is not None:
             max_step = slew * RAMP_DT_S
-            rate = self.protocol.timing.acquire.rate_hz
+            rate = self.timing.sensor_rate_hz
             n = max(1, round(RAMP_DT_S * rate))
             while abs(target - self._command) > max_step:
                 self._command += max_step if target > self._command else -max_step
@@ -506,14 +525,18 @@ class Engine:
             previous = current
 
     def _acquire(self, step: PlanStep, n_total: int, rate: float) -> SampleSpool:
-        """Read the point's samples into a spool: memory stays bounded by the block size."""
+        """Read the point's samples into a spool: memory stays bounded by the block size.
+        A sensor at a multiple of the protocol's rate is averaged down to it as it is read."""
+        k = self.timing.decimate
         chunk = max(1, round(CHUNK_S * rate))
+        chunk += -chunk % k  # whole groups of k in every block
         spool = SampleSpool(SAMPLE_COLUMNS[1:], STAT_FIELDS, spill_dir=self.store.path.parent)
         remaining = n_total
         try:
             while remaining > 0:
                 n = min(chunk, remaining)
-                spool.add(self._read(n, rate, step))
+                block = self._read(n, rate, step)
+                spool.add(block if k == 1 else decimated(block, k))
                 remaining -= n
         except BaseException:
             spool.close()
@@ -523,7 +546,7 @@ class Engine:
     def _tare(self, why: str, step_idx: int | None = None) -> None:
         """Re-zero the sensor at neutral from `tare_s` seconds of readings."""
         self._ramp_to(self.rig.actuator.info.neutral)
-        rate = self.protocol.timing.acquire.rate_hz
+        rate = self.timing.sensor_rate_hz
         n = max(1, round(self.protocol.timing.tare_s * rate))
         parts, remaining = [], n
         while remaining > 0:  # one read as before; in blocks only beyond FOLD_SAMPLES

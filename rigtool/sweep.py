@@ -24,6 +24,7 @@ from rigtool.limit_sources import source_problems
 from rigtool.plan import PlanStep, estimate_duration_s, expand, step_at
 from rigtool.protocol import Protocol, load_protocol
 from rigtool.rig import Rig, RigSet, load_rig, open_rig, rig_actuator_info, sim_rig
+from rigtool.sensor_rate import check_sensor_rate
 from rigtool.store import DB_ENV, Store, resolve_db_path
 
 
@@ -168,6 +169,7 @@ def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
                       current_limit_a=setup.protocol.limits.max_current_a)
     try:
         check_compatible(setup, rigset.actuator.info)
+        check_sensor_rate(setup.protocol, setup.protocol_path, rigset)
     except BaseException:
         rigset.close()
         raise

@@ -81,6 +81,7 @@ class SimForceSensor:
     """The twin's force sensor: six channels at the requested rate, with bias and noise."""
 
     channels = ("fx", "fy", "fz", "tx", "ty", "tz")
+    follows_rate = True  # samples at whatever rate the engine asks (rigtool/sensor_rate.py)
 
     def __init__(self, world: SimWorld) -> None:
         self.world = world
