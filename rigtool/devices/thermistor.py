@@ -17,6 +17,7 @@ from rigtool.bounds import MAX_SCALE
 
 KELVIN = 273.15
 PositiveOhm = Annotated[float, Field(gt=0, le=MAX_SCALE, allow_inf_nan=False)]
+Coefficient = Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)]  # 1/K per ln(ohm)^k
 
 
 class Thermistor(BaseModel):
@@ -29,7 +30,7 @@ class Thermistor(BaseModel):
     beta_k: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] | None = None
     r0_ohm: PositiveOhm = 10_000.0  # resistance at t0_c (Beta model)
     t0_c: Annotated[float, Field(gt=-KELVIN, le=1_000, allow_inf_nan=False)] = 25.0
-    steinhart_hart: tuple[float, float, float] | None = None  # a, b, c
+    steinhart_hart: tuple[Coefficient, Coefficient, Coefficient] | None = None  # a, b, c
 
     @model_validator(mode="after")
     def _one_model(self) -> Thermistor:
