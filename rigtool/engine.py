@@ -50,10 +50,11 @@ def decimated(block: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:
     return out
 
 
-def feedback_limits(fb: FeedbackBlock) -> dict[str, np.ndarray | None]:
-    """The limited quantities in a block of actuator feedback, one reading per frame."""
+def feedback_limits(fb: FeedbackBlock, power: bool) -> dict[str, np.ndarray | None]:
+    """The limited quantities in a block of actuator feedback, one reading per frame; the
+    power only when it is limited (`power`), so a run without that limit computes nothing."""
     power = (fb.voltage_v * fb.current_a
-             if fb.voltage_v is not None and fb.current_a is not None else None)
+             if power and fb.voltage_v is not None and fb.current_a is not None else None)
     return {"current_a": fb.current_a, "speed_rpm": fb.speed_rpm, "bus_v": fb.voltage_v,
             "power_w": power, "temperature_c": fb.temperature_c}
 
@@ -140,6 +141,7 @@ class Engine:
         self.bus = BusVoltageMonitor(protocol.voltage.tolerance_frac if protocol.voltage else 0.25)
         self.unit = rig.actuator.info.command_unit
         self.timing = sensor_timing(protocol, rig.sensor_rate_hz)
+        self._power_limited = "power_w" in self.limits.checks
         self._torque_idx = torque_channel(protocol.limits.torque_channel, rig.thrust_channel)
         self._command = rig.actuator.info.neutral
         self._t0 = 0.0
@@ -421,7 +423,7 @@ class Engine:
         # held over: one bad 50 Hz frame would otherwise count as 20 samples at 1 kHz
         self.limits.check({"thrust_n": out["thrust_n"], "torque_nm": ft[:, self._torque_idx]})
         self.limits.check({"temperature_c": block.temperature_c}, "sensor")
-        self.limits.check(feedback_limits(feedback), "actuator")
+        self.limits.check(feedback_limits(feedback, self._power_limited), "actuator")
         self.follow.check(feedback)
         self._check_bus(step, feedback)
         if step is not None and self.reporter.wants_live:
@@ -558,7 +560,7 @@ class Engine:
                 raise SafetyTrip(f"driver fault: {feedback.fault}")
             # feedback limits hold at neutral too; thrust is not checked: the bias is not removed yet
             self.limits.check({"temperature_c": block.temperature_c}, "sensor")
-            self.limits.check(feedback_limits(feedback), "actuator")
+            self.limits.check(feedback_limits(feedback, self._power_limited), "actuator")
             parts.append(block.ft.mean(axis=0) if n <= FOLD_SAMPLES else block.ft.sum(axis=0))
         offset = parts[0] if n <= FOLD_SAMPLES else np.sum(parts, axis=0) / n
         self.rig.sensor.set_bias(offset)

@@ -11,7 +11,16 @@ import random
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    ValidationInfo,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from rigtool.bounds import (
     MAX_COMMAND,
@@ -235,6 +244,10 @@ class Timing(_Strict):
         return self.settle.max_seconds() + self.acquire.n_samples / self.acquire.rate_hz + self.rest_s
 
 
+NEWER_LIMITS = ("min_bus_v", "max_bus_v", "max_power_w", "max_torque_nm", "torque_channel",
+                "max_temperature_c")
+
+
 class Limits(_Strict):
     """Safety limits checked on every sample block; a trip sends the actuator to neutral.
 
@@ -259,6 +272,16 @@ class Limits(_Strict):
     slew_per_s: Annotated[float, Field(gt=0, le=MAX_SCALE, allow_inf_nan=False)] | None = None  # see Protocol
     debounce_samples: Annotated[int, Field(ge=1, le=MAX_DEBOUNCE_SAMPLES)] = 5
     on_trip: Literal["abort", "pause"] = "abort"  # pause: neutral, ask the operator, retry the point
+
+    @model_serializer(mode="wrap")
+    def _without_unset_new_limits(self, handler: SerializerFunctionWrapHandler) -> dict:
+        """The limits added later are left out of the stored protocol while unset, so a run's
+        stored protocol reads as it did before they existed."""
+        data = handler(self)
+        for name in NEWER_LIMITS:
+            if data.get(name) == Limits.model_fields[name].default:
+                del data[name]
+        return data
 
     @model_validator(mode="after")
     def _bus_band(self) -> Limits:

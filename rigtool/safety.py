@@ -63,12 +63,16 @@ def protocol_limits(limits: Limits) -> list[_Limit]:
             if getattr(limits, f) is not None]
 
 
+SUPPLY_DEBOUNCE = 2  # a supply is read at most every BUS_CHECK_S: two readings in a row trip
+
+
 class LimitMonitor:
     """Trips (raises SafetyTrip) when a quantity is beyond its limit for `debounce` readings in a row.
 
     Each quantity is counted in its own readings, per source: force samples for thrust and
     torque, feedback frames for current, speed, bus voltage, power and temperature, and one
-    reading per supply measurement (source "supply").
+    reading per supply measurement (source "supply"; those are at least `BUS_CHECK_S` apart,
+    so `SUPPLY_DEBOUNCE` of them in a row trip, or `debounce` if smaller).
     """
 
     def __init__(self, limits: Limits) -> None:
@@ -90,7 +94,8 @@ class LimitMonitor:
                 self._carry[key] = 0
                 continue
             longest, self._carry[key] = _run_lengths(mask, self._carry.get(key, 0))
-            if longest >= self.debounce:
+            if longest >= (min(self.debounce, SUPPLY_DEBOUNCE) if source == "supply"
+                           else self.debounce):
                 self._trip(lim, v, longest, source)
 
     @staticmethod
