@@ -28,6 +28,9 @@ MAX_CLOCK_HZ = 1e10  # timer input clocks
 MAX_THRUST_N = 1e6  # protocol limits
 MAX_CURRENT_A = 1e5
 MAX_SPEED_RPM = 1e7
+MAX_POWER_W = 1e7
+MAX_TORQUE_NM = 1e6
+MAX_TEMPERATURE_C = 1_000.0
 MAX_SUPPLY_V = 1_000.0  # supply voltages a protocol may sweep
 MAX_VOLTAGES = 1_000  # voltages in one sweep
 

@@ -26,7 +26,7 @@ from rigtool.errors import (
     SafetyTrip,
     StoreError,
 )
-from rigtool.plan import PlanStep
+from rigtool.plan import PlanStep, sensor_timing
 from rigtool.progress import SilentReporter
 from rigtool.protocol import Protocol
 from rigtool.rig import RigSet, counter_delta
@@ -39,6 +39,32 @@ CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this
 RAMP_DT_S = 0.05  # command update period while slewing
 FOLD_SAMPLES = 1_000_000  # settle, rest and tare readings beyond this are summed as they come
 FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
+
+
+def torque_channel(choice: str, thrust_channel: int) -> int:
+    """Index of the torque channel a torque limit watches: `axis` is the torque about the
+    thrust axis (tx for thrust on fx, ty for fy, tz for fz)."""
+    if choice == "axis":
+        return 3 + thrust_channel % 3
+    return FT_CHANNELS.index(choice)
+
+
+def decimated(block: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:
+    """Each `k` consecutive samples of a block as one: their mean (the sequence number of the
+    last); a block whose length is not a multiple of k keeps its whole groups only."""
+    n = len(block["t_s"]) // k * k
+    out = {name: v[:n].reshape(-1, k).mean(axis=1) for name, v in block.items() if name != "seq"}
+    out["seq"] = block["seq"][k - 1:n:k]
+    return out
+
+
+def feedback_limits(fb: FeedbackBlock, power: bool) -> dict[str, np.ndarray | None]:
+    """The limited quantities in a block of actuator feedback, one reading per frame; the
+    power only when it is limited (`power`), so a run without that limit computes nothing."""
+    power = (fb.voltage_v * fb.current_a
+             if power and fb.voltage_v is not None and fb.current_a is not None else None)
+    return {"current_a": fb.current_a, "speed_rpm": fb.speed_rpm, "bus_v": fb.voltage_v,
+            "power_w": power, "temperature_c": fb.temperature_c}
 
 
 class StopNow(BaseException):
@@ -133,6 +159,9 @@ class Engine:
                                     getattr(rig.actuator, "expected_speed_rpm", None))
         self.bus = BusVoltageMonitor(protocol.voltage.tolerance_frac if protocol.voltage else 0.25)
         self.unit = rig.actuator.info.command_unit
+        self.timing = sensor_timing(protocol, rig.sensor_rate_hz)
+        self._power_limited = "power_w" in self.limits.checks
+        self._torque_idx = torque_channel(protocol.limits.torque_channel, rig.thrust_channel)
         self._command = rig.actuator.info.neutral
         self._t0 = 0.0
         self._depth: float | None = None
@@ -206,6 +235,14 @@ class Engine:
         self._command = self.rig.actuator.info.neutral
         self._t0 = self.clock.now() - t_offset_s
         self._event("run_start", {"rig": self.rig.description, "n_steps": len(self.plan)})
+        if self.timing.how != "as planned":
+            t = self.timing
+            self.reporter.note(f"sensor rate: {t.describe()}")
+            self._event("sensor_rate", {"how": t.how, "sensor_rate_hz": t.sensor_rate_hz,
+                                        "protocol_rate_hz": t.protocol_rate_hz,
+                                        "stored_rate_hz": t.stored_rate_hz,
+                                        "decimate": t.decimate, "n_stored": t.n_stored,
+                                        "acquire_s": t.acquire_s, "message": t.describe()})
         if self.protocol.timing.tare == "at_start":
             self._tare("at_start")
 
@@ -240,7 +277,7 @@ class Engine:
                                 "by": supply.reached_by}, step.idx)
         settle = self.protocol.voltage.settle_s if self.protocol.voltage else 0.0
         if settle > 0:
-            self._read_for(settle, self.protocol.timing.acquire.rate_hz, step)
+            self._read_for(settle, self.timing.sensor_rate_hz, step)
         self._voltage = step.voltage_v  # judged from here on: settled, before anything is labelled
         self._check_supply(step.voltage_v)
 
@@ -275,7 +312,7 @@ class Engine:
 
     def _run_step(self, step: PlanStep) -> None:
         timing = self.protocol.timing
-        rate = timing.acquire.rate_hz
+        rate = self.timing.sensor_rate_hz
         t_start = self._now()
         counters = self.rig.counters()
         self.follow.start_point()
@@ -287,7 +324,7 @@ class Engine:
         self.follow.hold(step.command, self.clock.now())
         settle_s, settled = self._settle(step, rate)
         t_acq = self._now()
-        samples = self._acquire(step, timing.acquire.n_samples, rate)
+        samples = self._acquire(step, self.timing.n_read, rate)
         try:
             if step.voltage_v is not None:  # the bus as the point ends, before it is labelled
                 self._check_supply(step.voltage_v)
@@ -297,7 +334,8 @@ class Engine:
             record = StepRecord(
                 idx=step.idx, command=step.command, command_unit=self.unit, depth_m=step.depth_m,
                 repeat=step.repeat, direction=step.direction, t_start_s=t_start, t_acquire_s=t_acq,
-                t_end_s=self._now(), settle_s=settle_s, settled=settled, rate_hz=rate,
+                t_end_s=self._now(), settle_s=settle_s, settled=settled,
+                rate_hz=self.timing.stored_rate_hz,
                 counters=counter_delta(counters, self.rig.counters()), voltage_v=step.voltage_v,
             )
             self.store.add_step(self.run_id, record, samples)
@@ -367,7 +405,7 @@ class Engine:
         act = self.rig.actuator
         if slew is not None:
             max_step = slew * RAMP_DT_S
-            rate = self.protocol.timing.acquire.rate_hz
+            rate = self.timing.sensor_rate_hz
             n = max(1, round(RAMP_DT_S * rate))
             while abs(target - self._command) > max_step:
                 self._command += max_step if target > self._command else -max_step
@@ -402,8 +440,9 @@ class Engine:
         out["seq"] = block.seq if block.seq is not None else np.full(len(block), np.nan)
         # feedback limits count feedback frames as received, not the force samples they are
         # held over: one bad 50 Hz frame would otherwise count as 20 samples at 1 kHz
-        self.limits.check({"thrust_n": out["thrust_n"], "current_a": feedback.current_a,
-                           "speed_rpm": feedback.speed_rpm})
+        self.limits.check({"thrust_n": out["thrust_n"], "torque_nm": ft[:, self._torque_idx]})
+        self.limits.check({"temperature_c": block.temperature_c}, "sensor")
+        self.limits.check(feedback_limits(feedback, self._power_limited), "actuator")
         self.follow.check(feedback)
         self._check_bus(step, feedback)
         if step is not None and self.reporter.wants_live:
@@ -428,6 +467,8 @@ class Engine:
         if measure is None:
             return
         measured_v, amps = measure()
+        self.limits.check({"bus_v": np.array([measured_v]),
+                           "power_w": np.array([measured_v * amps])}, "supply")
         self.bus.check_supply(set_v, measured_v, supply.reached_by, amps,
                               getattr(supply, "current_limit_a", None))
 
@@ -505,14 +546,18 @@ class Engine:
             previous = current
 
     def _acquire(self, step: PlanStep, n_total: int, rate: float) -> SampleSpool:
-        """Read the point's samples into a spool: memory stays bounded by the block size."""
+        """Read the point's samples into a spool: memory stays bounded by the block size.
+        A sensor at a multiple of the protocol's rate is averaged down to it as it is read."""
+        k = self.timing.decimate
         chunk = max(1, round(CHUNK_S * rate))
+        chunk += -chunk % k  # whole groups of k in every block
         spool = SampleSpool(SAMPLE_COLUMNS[1:], STAT_FIELDS, spill_dir=self.store.path.parent)
         remaining = n_total
         try:
             while remaining > 0:
                 n = min(chunk, remaining)
-                spool.add(self._read(n, rate, step))
+                block = self._read(n, rate, step)
+                spool.add(block if k == 1 else decimated(block, k))
                 remaining -= n
         except BaseException:
             spool.close()
@@ -522,7 +567,7 @@ class Engine:
     def _tare(self, why: str, step_idx: int | None = None) -> None:
         """Re-zero the sensor at neutral from `tare_s` seconds of readings."""
         self._ramp_to(self.rig.actuator.info.neutral)
-        rate = self.protocol.timing.acquire.rate_hz
+        rate = self.timing.sensor_rate_hz
         n = max(1, round(self.protocol.timing.tare_s * rate))
         parts, remaining = [], n
         while remaining > 0:  # one read as before; in blocks only beyond FOLD_SAMPLES
@@ -533,7 +578,8 @@ class Engine:
             if feedback.fault:
                 raise SafetyTrip(f"driver fault: {feedback.fault}")
             # feedback limits hold at neutral too; thrust is not checked: the bias is not removed yet
-            self.limits.check({"current_a": feedback.current_a, "speed_rpm": feedback.speed_rpm})
+            self.limits.check({"temperature_c": block.temperature_c}, "sensor")
+            self.limits.check(feedback_limits(feedback, self._power_limited), "actuator")
             parts.append(block.ft.mean(axis=0) if n <= FOLD_SAMPLES else block.ft.sum(axis=0))
         offset = parts[0] if n <= FOLD_SAMPLES else np.sum(parts, axis=0) / n
         self.rig.sensor.set_bias(offset)

@@ -137,3 +137,88 @@ def estimate_duration_s(protocol: Protocol, neutral: float | None = None) -> flo
     elif timing.tare == "at_start":
         total += timing.tare_s
     return total
+
+
+# a sensor this close to the protocol's rate (or a multiple of it) is taken to run at exactly
+# that rate: a rate measured from arrival times jitters by about 1 %
+RATE_MATCH_FRAC = 0.02
+MIN_POINT_SAMPLES = 10  # fewer samples per point at the sensor's rate: refused
+MIN_WINDOW_SAMPLES = 2  # fewer samples per settling window at the sensor's rate: refused
+
+
+class TimingRefused(ValueError):
+    """The sensor's rate cannot meet the protocol's timing; `field` is the protocol field."""
+
+    def __init__(self, field: tuple[str, ...], message: str) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+@dataclass(frozen=True)
+class SensorTiming:
+    """The acquisition a sweep actually makes with its sensor (docs/protocols.md, "Sensor rate").
+
+    `how`: "as planned" (the sensor samples at the protocol's rate), "decimated" (a sensor at
+    an integer multiple of it: each `decimate` samples are averaged into one stored sample),
+    or "duration" (any other rate: the protocol's acquisition time at the sensor's rate).
+    """
+
+    protocol_rate_hz: float
+    sensor_rate_hz: float  # the rate samples are read at; every duration is counted in it
+    decimate: int  # sensor samples per stored sample
+    n_read: int  # sensor samples read per point
+    how: str
+
+    @property
+    def stored_rate_hz(self) -> float:
+        """The rate of the stored samples (each point's `rate_hz`)."""
+        return self.sensor_rate_hz / self.decimate
+
+    @property
+    def n_stored(self) -> int:
+        return self.n_read // self.decimate
+
+    @property
+    def acquire_s(self) -> float:
+        return self.n_read / self.sensor_rate_hz
+
+    def samples_for(self, seconds: float) -> int:
+        """Sensor samples in `seconds` (at least one)."""
+        return max(1, round(seconds * self.sensor_rate_hz))
+
+    def describe(self) -> str:
+        """One line for --dry-run and the run's events."""
+        plan = (f"{self.n_stored} samples at {self.stored_rate_hz:g} Hz "
+                f"({self.n_stored / self.stored_rate_hz:g} s) per point")
+        if self.how == "as planned":
+            return plan
+        if self.how == "decimated":
+            return (f"{plan}: the sensor's {self.sensor_rate_hz:g} Hz averaged {self.decimate} "
+                    "to 1")
+        return (f"{plan}: the protocol's {self.protocol_rate_hz:g} Hz is not the sensor's, "
+                "so the protocol's duration is acquired at the sensor's rate")
+
+
+def sensor_timing(protocol: Protocol, sensor_rate_hz: float | None) -> SensorTiming:
+    """How a point is acquired from a sensor at `sensor_rate_hz` (None: it samples at the rate
+    asked, like the twin); TimingRefused when that rate cannot meet the protocol."""
+    acquire = protocol.timing.acquire
+    proto, n = acquire.rate_hz, acquire.n_samples
+    if sensor_rate_hz is None or abs(sensor_rate_hz / proto - 1) <= RATE_MATCH_FRAC:
+        return SensorTiming(proto, proto, 1, n, "as planned")
+    ratio = sensor_rate_hz / proto
+    k = round(ratio)
+    if k >= 2 and abs(ratio / k - 1) <= RATE_MATCH_FRAC:
+        return SensorTiming(proto, k * proto, k, n * k, "decimated")
+    n_read = max(1, round(n / proto * sensor_rate_hz))
+    if n_read < MIN_POINT_SAMPLES:
+        raise TimingRefused(("timing", "acquire", "rate_hz"), (
+            f"the rig's sensor streams at {sensor_rate_hz:g} Hz: the protocol's "
+            f"{n / proto:g} s acquisition gives only {n_read} sample(s) per point (at least "
+            f"{MIN_POINT_SAMPLES}); acquire longer, or use a faster sensor"))
+    steady = protocol.timing.settle.until_steady
+    if steady is not None and steady.window_s * sensor_rate_hz < MIN_WINDOW_SAMPLES:
+        raise TimingRefused(("timing", "settle", "until_steady", "window_s"), (
+            f"the rig's sensor streams at {sensor_rate_hz:g} Hz: a {steady.window_s:g} s "
+            f"settling window holds fewer than {MIN_WINDOW_SAMPLES} samples"))
+    return SensorTiming(proto, sensor_rate_hz, 1, n_read, "duration")

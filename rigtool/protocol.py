@@ -11,7 +11,16 @@ import random
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    ValidationInfo,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from rigtool.bounds import (
     MAX_COMMAND,
@@ -21,13 +30,16 @@ from rigtool.bounds import (
     MAX_DEPTH_M,
     MAX_DURATION_S,
     MAX_POINTS,
+    MAX_POWER_W,
     MAX_RATE_HZ,
     MAX_RUN_S,
     MAX_SAMPLES_PER_POINT,
     MAX_SCALE,
     MAX_SPEED_RPM,
     MAX_SUPPLY_V,
+    MAX_TEMPERATURE_C,
     MAX_THRUST_N,
+    MAX_TORQUE_NM,
     MAX_VOLTAGES,
     MIN_RATE_HZ,
     MIN_WINDOW_S,
@@ -232,16 +244,52 @@ class Timing(_Strict):
         return self.settle.max_seconds() + self.acquire.n_samples / self.acquire.rate_hz + self.rest_s
 
 
+NEWER_LIMITS = ("min_bus_v", "max_bus_v", "max_power_w", "max_torque_nm", "torque_channel",
+                "max_temperature_c")
+
+
 class Limits(_Strict):
-    """Safety limits checked on every sample block; a trip sends the actuator to neutral."""
+    """Safety limits checked on every sample block; a trip sends the actuator to neutral.
+
+    Each limit counts its own readings for `debounce_samples`: force samples for thrust and
+    torque, feedback frames for current, speed, bus voltage, power and temperature (and one
+    reading of a measuring supply counts as one frame of the bus and power limits)."""
 
     max_thrust_n: Annotated[float, Field(gt=0, le=MAX_THRUST_N, allow_inf_nan=False)] | None = None
     max_current_a: Annotated[float, Field(gt=0, le=MAX_CURRENT_A, allow_inf_nan=False)] | None = None
     max_speed_rpm: Annotated[float, Field(gt=0, le=MAX_SPEED_RPM, allow_inf_nan=False)] | None = None
+    # bus voltage (actuator feedback and/or the supply's terminals); power = voltage x current
+    min_bus_v: Annotated[float, Field(ge=0, le=MAX_SUPPLY_V, allow_inf_nan=False)] | None = None
+    max_bus_v: Annotated[float, Field(gt=0, le=MAX_SUPPLY_V, allow_inf_nan=False)] | None = None
+    max_power_w: Annotated[float, Field(gt=0, le=MAX_POWER_W, allow_inf_nan=False)] | None = None
+    # torque about the thruster axis (tx for thrust on fx...), or the channel named
+    max_torque_nm: Annotated[float, Field(gt=0, le=MAX_TORQUE_NM, allow_inf_nan=False)] | None = None
+    torque_channel: Literal["axis", "tx", "ty", "tz"] = "axis"
+    # an auxiliary temperature channel (gauge line, bridge telemetry or thermistor)
+    max_temperature_c: Annotated[float, Field(gt=-273.15, le=MAX_TEMPERATURE_C,
+                                              allow_inf_nan=False)] | None = None
     max_staleness_s: PositiveSeconds = 1.0
     slew_per_s: Annotated[float, Field(gt=0, le=MAX_SCALE, allow_inf_nan=False)] | None = None  # see Protocol
     debounce_samples: Annotated[int, Field(ge=1, le=MAX_DEBOUNCE_SAMPLES)] = 5
     on_trip: Literal["abort", "pause"] = "abort"  # pause: neutral, ask the operator, retry the point
+
+    @model_serializer(mode="wrap")
+    def _without_unset_new_limits(self, handler: SerializerFunctionWrapHandler) -> dict:
+        """The limits added later are left out of the stored protocol while unset, so a run's
+        stored protocol reads as it did before they existed."""
+        data = handler(self)
+        for name in NEWER_LIMITS:
+            if data.get(name) == Limits.model_fields[name].default:
+                del data[name]
+        return data
+
+    @model_validator(mode="after")
+    def _bus_band(self) -> Limits:
+        if self.min_bus_v is not None and self.max_bus_v is not None and \
+                self.min_bus_v >= self.max_bus_v:
+            raise FieldError(("min_bus_v",), f"min_bus_v ({self.min_bus_v:g} V) must be below "
+                                             f"max_bus_v ({self.max_bus_v:g} V)")
+        return self
 
 
 class Metadata(_Strict):
@@ -309,6 +357,7 @@ class Protocol(_Strict):
                 f"{self.command.repeats} repeat(s) x {self.command.per_repeat():,} command(s)); "
                 f"the limit is {MAX_POINTS:,}"))
         self._steps_timing()
+        self._voltages_in_bus_band()
         least = self.min_duration_s()
         if least > MAX_RUN_S:
             where = ("limits", "slew_per_s") if self._ramps_s() > least / 2 else ("timing",)
@@ -331,6 +380,18 @@ class Protocol(_Strict):
         if self.timing.tare == "per_point":
             raise FieldError(("timing", "tare"), "with `command.steps` a tare per point would "
                              "go to neutral between levels: use `at_start` or `per_depth`")
+
+    def _voltages_in_bus_band(self) -> None:
+        """A swept voltage outside the bus limits would trip at every point: a file error."""
+        if self.voltage is None:
+            return
+        lo, hi = self.limits.min_bus_v, self.limits.max_bus_v
+        for v in self.voltage.values:
+            if (lo is not None and v < lo) or (hi is not None and v > hi):
+                field = "min_bus_v" if lo is not None and v < lo else "max_bus_v"
+                raise FieldError(("limits", field), f"voltage.values has {v:g} V, outside the "
+                                 f"bus limits ({lo if lo is not None else '-'}.."
+                                 f"{hi if hi is not None else '-'} V): every point there would trip")
 
     @property
     def is_steps(self) -> bool:

@@ -127,6 +127,7 @@ class RigSet:
     world: object | None = None  # the simulator's shared state, when simulated
     transform: np.ndarray | None = None  # 6x6 wrench transform of a mounted sensor
     supply: Supply | None = None  # sets the supply voltage, when the protocol sweeps it
+    sensor_rate_hz: float | None = None  # the sensor's own rate; None: it samples as asked
 
     def annotations(self) -> list[dict]:
         """Ground-truth events a simulator knows (e.g. ventilation), to store with the run."""

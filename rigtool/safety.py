@@ -27,41 +27,92 @@ def _run_lengths(mask: np.ndarray, carry: int) -> tuple[int, int]:
     return max(lead, trail, inner), trail
 
 
-class LimitMonitor:
-    """Trips (raises SafetyTrip) when a quantity exceeds its limit for `debounce` samples in a row.
+@dataclass(frozen=True)
+class _Limit:
+    """One protocol limit: the quantity it watches, how it compares, its threshold."""
 
-    Each quantity is counted in its own samples: force samples for thrust, feedback frames
-    for current and speed.
+    field: str  # the protocol's field, e.g. max_bus_v
+    quantity: str  # the reading checked, e.g. bus_v
+    sense: str  # "abs": |x| > threshold; "max": x > threshold; "min": x < threshold
+    threshold: float
+
+    def outside(self, v: np.ndarray) -> np.ndarray:
+        """Readings beyond the threshold; NaN compares False, so missing data never trips."""
+        if self.sense == "abs":
+            return np.abs(v) > self.threshold
+        return v > self.threshold if self.sense == "max" else v < self.threshold
+
+    def worst(self, v: np.ndarray) -> float:
+        """The reading furthest beyond the threshold, as reported in the trip."""
+        if self.sense == "abs":
+            return float(np.nanmax(np.abs(v)))
+        return float(np.nanmax(v) if self.sense == "max" else np.nanmin(v))
+
+
+UNITS = {"thrust_n": "N", "current_a": "A", "speed_rpm": "r/min", "bus_v": "V", "power_w": "W",
+         "torque_nm": "N m", "temperature_c": "degC"}
+
+
+def protocol_limits(limits: Limits) -> list[_Limit]:
+    """The limits a protocol sets, each once (fields left out are not checked)."""
+    table = (("max_thrust_n", "thrust_n", "abs"), ("max_current_a", "current_a", "abs"),
+             ("max_speed_rpm", "speed_rpm", "abs"), ("min_bus_v", "bus_v", "min"),
+             ("max_bus_v", "bus_v", "max"), ("max_power_w", "power_w", "abs"),
+             ("max_torque_nm", "torque_nm", "abs"), ("max_temperature_c", "temperature_c", "max"))
+    return [_Limit(f, q, sense, getattr(limits, f)) for f, q, sense in table
+            if getattr(limits, f) is not None]
+
+
+SUPPLY_DEBOUNCE = 2  # a supply is read at most every BUS_CHECK_S: two readings in a row trip
+
+
+class LimitMonitor:
+    """Trips (raises SafetyTrip) when a quantity is beyond its limit for `debounce` readings in a row.
+
+    Each quantity is counted in its own readings, per source: force samples for thrust and
+    torque, feedback frames for current, speed, bus voltage, power and temperature, and one
+    reading per supply measurement (source "supply"; those are at least `BUS_CHECK_S` apart,
+    so `SUPPLY_DEBOUNCE` of them in a row trip, or `debounce` if smaller).
     """
 
     def __init__(self, limits: Limits) -> None:
         self.debounce = limits.debounce_samples
-        self.checks = {
-            name: lim for name, lim in (
-                ("thrust_n", limits.max_thrust_n),
-                ("current_a", limits.max_current_a),
-                ("speed_rpm", limits.max_speed_rpm),
-            ) if lim is not None
-        }
-        self._carry = dict.fromkeys(self.checks, 0)
+        self.limits = protocol_limits(limits)
+        self.checks = {lim.quantity for lim in self.limits}
+        self._carry: dict[tuple[str, str], int] = {}
 
-    def check(self, values: dict[str, np.ndarray | None]) -> None:
-        for name, limit in self.checks.items():
-            v = values.get(name)
+    def check(self, values: dict[str, np.ndarray | None], source: str = "") -> None:
+        """Judge one block of readings from `source` (the quantities it lacks are None)."""
+        for lim in self.limits:
+            v = values.get(lim.quantity)
             if v is None:
                 continue
-            mask = np.abs(v) > limit  # NaN compares False: missing feedback never trips
+            v = np.asarray(v, dtype=float)
+            key = (lim.field, source)
+            mask = lim.outside(v)
             if not mask.any():
-                self._carry[name] = 0
+                self._carry[key] = 0
                 continue
-            longest, self._carry[name] = _run_lengths(mask, self._carry[name])
-            if longest >= self.debounce:
-                peak = float(np.nanmax(np.abs(v)))
-                raise SafetyTrip(f"limit trip: |{name}| reached {peak:.3g}, above the limit "
-                                 f"{limit:g} for {longest} samples in a row")
+            longest, self._carry[key] = _run_lengths(mask, self._carry.get(key, 0))
+            if longest >= (min(self.debounce, SUPPLY_DEBOUNCE) if source == "supply"
+                           else self.debounce):
+                self._trip(lim, v, longest, source)
+
+    @staticmethod
+    def _trip(lim: _Limit, v: np.ndarray, longest: int, source: str) -> None:
+        value = lim.worst(v)
+        unit = UNITS.get(lim.quantity, "")
+        shown = f"|{lim.quantity}|" if lim.sense == "abs" else lim.quantity
+        side = "below" if lim.sense == "min" else "above"
+        by = f" (from the {source})" if source else ""
+        raise SafetyTrip(f"limit trip: {shown} reached {value:.4g}{by}, {side} the limit "
+                         f"{lim.field} {lim.threshold:g} {unit} for {longest} readings in a row",
+                         {"check": "limit", "limit": lim.field, "quantity": lim.quantity,
+                          "value": value, "threshold": lim.threshold, "unit": unit,
+                          "readings": longest, "source": source or None})
 
     def reset(self) -> None:
-        self._carry = dict.fromkeys(self.checks, 0)
+        self._carry = {}
 
 
 FOLLOW_WINDOW_S = 0.2  # feedback is judged as means over windows this long

@@ -20,9 +20,11 @@ from rigtool.devices.base import ActuatorInfo
 from rigtool.engine import Engine, Outcome
 from rigtool.errors import ConfigError, StoreError, UsageError
 from rigtool.files import UnreadableFile
+from rigtool.limit_sources import source_problems
 from rigtool.plan import PlanStep, estimate_duration_s, expand, step_at
 from rigtool.protocol import Protocol, load_protocol
 from rigtool.rig import Rig, RigSet, load_rig, open_rig, rig_actuator_info, sim_rig
+from rigtool.sensor_rate import check_sensor_rate
 from rigtool.store import DB_ENV, Store, resolve_db_path
 
 
@@ -111,6 +113,7 @@ def check_compatible(setup: SweepSetup, info: ActuatorInfo) -> None:
         problems.append(f"{locate(path, ('command', source))}: command.{source}: values "
                         f"{lo:g}..{hi:g} leave the actuator's range {info.command_min:g}.."
                         f"{info.command_max:g} {info.command_unit}")
+    problems += source_problems(setup.protocol, path, setup.rig, info)
     duration = estimate_duration_s(setup.protocol, info.neutral)
     if not problems and duration > MAX_RUN_S:
         problems.append(f"{locate(path, ('limits', 'slew_per_s'))}: limits.slew_per_s: the run "
@@ -166,6 +169,7 @@ def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
                       current_limit_a=setup.protocol.limits.max_current_a)
     try:
         check_compatible(setup, rigset.actuator.info)
+        check_sensor_rate(setup.protocol, setup.protocol_path, rigset)
     except BaseException:
         rigset.close()
         raise

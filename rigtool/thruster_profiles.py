@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 from rigtool.errors import UsageError
 
-FEEDBACK_CHANNELS = ("speed_rpm", "current_a", "voltage_v")
+FEEDBACK_CHANNELS = ("speed_rpm", "current_a", "voltage_v", "temperature_c")
 COMMAND_MAPS = ("speed", "pwm_table")
 SPEED_LAWS = ("linear", "quadratic")
 INFLOW_LAWS = ("linear", "healey")
@@ -77,6 +77,13 @@ class ThrusterProfile:
     # thrust seen on each channel: N/N for forces, N m/N for torques (reaction torque)
     crosstalk: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     supply_resistance_ohm: float = 0.05  # voltage sag = R * current
+    # an unregulated supply (or a charger-fed battery) floats this far above its setpoint at
+    # no load: the bus is U + supply_rise_v - R * current, above U at light load
+    supply_rise_v: float = 0.0
+    # motor temperature (feedback "temperature_c"): dT/dt = heating * I^2 - (T - ambient) / tau
+    heating_c_per_a2_s: float = 0.0
+    thermal_tau_s: float = 300.0
+    ambient_c: float = 20.0
     # speed loop in the driver: speed per command holds at any supply voltage; otherwise (duty
     # cycle, PWM) the speed reached scales with the supply voltage (back-EMF)
     speed_loop: bool = False
@@ -121,10 +128,10 @@ _NON_NEGATIVE = (
     "cn", "idle_current_a", "speed_noise_rpm", "current_noise_a", "force_noise_n",
     "torque_noise_nm", "vibration_noise_frac", "voltage_noise_v", "supply_resistance_ohm",
     "cav_noise_frac", "cav_current_drop", "cav_ramp_in_s", "cav_ramp_out_s", "inflow_gain",
-    "command_delay_s",
+    "command_delay_s", "supply_rise_v", "heating_c_per_a2_s",
 )  # fmt: skip
 _POSITIVE = ("cp_forward", "cp_reverse", "max_speed_rpm", "tau_s", "supply_voltage_v", "cav_ref_speed_rpm",
-             "cav_duration_shape", "inflow_tau_s")  # fmt: skip
+             "cav_duration_shape", "inflow_tau_s", "thermal_tau_s")  # fmt: skip
 _PWM_BREAKPOINTS = ("pwm_fwd_start", "pwm_fwd_sat_end", "pwm_fwd_end", "pwm_rev_creep_start",
                     "pwm_rev_breakaway", "pwm_rev_sat_start")  # fmt: skip
 

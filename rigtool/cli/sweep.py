@@ -113,6 +113,7 @@ def _fmt_duration(seconds: float) -> str:
 def _print_plan(setup: SweepSetup, neutral: float) -> None:
     """The plan's size, timing and first and last steps, all counted without expanding it."""
     from rigtool.plan import estimate_duration_s, step_at
+    from rigtool.sensor_rate import dry_run_rate
 
     p = setup.protocol
     n = p.n_points()
@@ -129,6 +130,7 @@ def _print_plan(setup: SweepSetup, neutral: float) -> None:
     out.print(f"  per point: settle {timing.settle.max_seconds():g} s max, acquire "
               f"{timing.acquire.n_samples} samples at {timing.acquire.rate_hz:g} Hz, rest {timing.rest_s:g} s; "
               f"tare {timing.tare}")
+    out.print(f"  sensor timing: {dry_run_rate(p, setup.rig)}")
     out.print(f"  samples to store: {n * timing.acquire.n_samples:,}")
     out.print(f"  estimated duration on the rig: {_fmt_duration(estimate_duration_s(p, neutral))}")
     volts = p.voltage is not None

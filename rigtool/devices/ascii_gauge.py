@@ -8,8 +8,9 @@ Two ways to get readings:
 
 Each line must match a regular expression (matched against the whole line, surrounding
 blanks removed) with a named group `value`, and optionally `unit` (N, kN, kgf, gf,
-lbf, ozf, ... case-insensitive, so Mark-10's `lbF` works) and `seq` (a device counter
-or millisecond timestamp, returned as the block's `seq`). Lines that do not match are
+lbf, ozf, ... case-insensitive, so Mark-10's `lbF` works), `seq` (a device counter
+or millisecond timestamp, returned as the block's `seq`) and `temperature_c` (an auxiliary
+temperature, for the protocol's `max_temperature_c`; not stored). Lines that do not match are
 counted and skipped. The reading in N is `sign * (value - offset) * scale * unit`;
 it goes on the configured F/T channel and the other five channels are NaN.
 """
@@ -100,6 +101,11 @@ class AsciiGaugeConfig(BaseModel):
         return self
 
 
+def has_temperature(config: AsciiGaugeConfig) -> bool:
+    """Whether the gauge's lines carry a `temperature_c` field (an auxiliary channel)."""
+    return "temperature_c" in re.compile(config.pattern or "").groupindex
+
+
 class LineParser:
     """One line of text -> (seq or None, reading in N before bias), or None if it does not match."""
 
@@ -108,11 +114,20 @@ class LineParser:
         self._pattern = re.compile(config.pattern or "")
 
     def __call__(self, text: str) -> tuple[int | None, float] | None:
+        parsed = self.fields(text)
+        return None if parsed is None else parsed[:2]
+
+    def fields(self, text: str) -> tuple[int | None, float, float] | None:
+        """(seq or None, reading in N, temperature_c or NaN), or None if the line does not match."""
         cfg = self.config
         m = self._pattern.fullmatch(text.strip())
         if m is None:
             return None
         groups = m.groupdict()
+        try:
+            temperature = float(groups.get("temperature_c") or "nan")
+        except ValueError:
+            temperature = float("nan")
         unit = groups.get("unit") or cfg.unit
         try:
             value = float(groups["value"])
@@ -122,7 +137,7 @@ class LineParser:
             return None
         if factor is None or not np.isfinite(value):
             return None
-        return seq, cfg.sign * (value - cfg.offset) * cfg.scale * factor
+        return seq, cfg.sign * (value - cfg.offset) * cfg.scale * factor, temperature
 
 
 class AsciiGauge(Device):
@@ -138,6 +153,7 @@ class AsciiGauge(Device):
         self.name = f"force gauge on {cfg.url}"
         self._now = now
         self.parse = LineParser(cfg)
+        self.has_temperature = has_temperature(cfg)
         self._query = (cfg.query or "").encode("ascii")
         self._channel = FT_CHANNELS.index(cfg.channel)
         self._bias = 0.0
@@ -170,7 +186,8 @@ class AsciiGauge(Device):
         arr = np.asarray(rows, dtype=float)
         ft = np.full((n, 6), np.nan)
         ft[:, self._channel] = arr[:, 2] - self._bias
-        return ForceBlock(arr[:, 0], ft, arr[:, 1].astype(np.int64))
+        temperature = arr[:, 3] if self.has_temperature else None
+        return ForceBlock(arr[:, 0], ft, arr[:, 1].astype(np.int64), temperature)
 
     def set_bias(self, bias: np.ndarray) -> None:
         """Subtract the bias of this gauge's channel from later readings (on top of earlier ones)."""
@@ -268,11 +285,11 @@ class AsciiGauge(Device):
     def _line(self, raw: bytes, t: float) -> tuple:
         """(t, seq, reading in N); the reading is NaN for a line that does not parse."""
         self._stats["lines"] += 1
-        parsed = self.parse(raw.decode("ascii", errors="replace"))
+        parsed = self.parse.fields(raw.decode("ascii", errors="replace"))
         if parsed is None:
             self._stats["unparseable"] += 1
-            return t, -1, np.nan
-        seq, value = parsed
+            return t, -1, np.nan, np.nan
+        seq, value, temperature = parsed
         self._count += 1
         self._stats["readings"] += 1
-        return t, self._count if seq is None else seq, value
+        return t, self._count if seq is None else seq, value, temperature

@@ -71,6 +71,7 @@ class ForceBlock:
     t_s: np.ndarray
     ft: np.ndarray  # shape (n, 6): fx, fy, fz, tx, ty, tz
     seq: np.ndarray | None = None
+    temperature_c: np.ndarray | None = None  # an auxiliary channel of the sensor's, per sample
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -85,6 +86,7 @@ class FeedbackBlock:
     current_a: np.ndarray | None = None
     voltage_v: np.ndarray | None = None
     fault: str | None = None
+    temperature_c: np.ndarray | None = None  # an auxiliary channel (limits only; not stored)
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -98,7 +100,7 @@ class ActuatorInfo:
     neutral: float
     command_min: float
     command_max: float
-    feedback: tuple[str, ...] = field(default=())  # subset of speed_rpm, current_a, voltage_v
+    feedback: tuple[str, ...] = field(default=())  # subset of speed_rpm, current_a, voltage_v, temperature_c
 
 
 @runtime_checkable

@@ -463,6 +463,11 @@ class NetFTSensor(Device):
             self.close()
             raise
 
+    @property
+    def rate_hz(self) -> float | None:
+        """The box's RDT rate from its netftapi2.xml (None: not read; the sweep measures it)."""
+        return self.calibration.rate_hz
+
     # -- ForceSensor ----------------------------------------------------------------------
     def read(self, n: int, rate_hz: float) -> ForceBlock:
         """The next `n` records (at the box's rate; `rate_hz` is advisory)."""

@@ -23,11 +23,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from rigtool.bounds import MAX_CLOCK_HZ, MAX_DURATION_S, Baudrate, Command, PositiveSeconds, Seconds
 from rigtool.devices.base import ActuatorInfo, Device, FeedbackBlock
 from rigtool.devices.framing import LineFramer
+from rigtool.devices.thermistor import Thermistor
 from rigtool.errors import DeviceError, UsageError
 
 log = logging.getLogger(__name__)
 
-FEEDBACK_GROUPS = ("speed_rpm", "current_a", "voltage_v")
+FEEDBACK_GROUPS = ("speed_rpm", "current_a", "voltage_v", "temperature_c")
+THERMISTOR_GROUP = "thermistor_counts"  # ADC counts, converted by the `thermistor:` section
 _MAX_LINE = 256  # bytes; a longer run without a line end is garbage
 _READ_TIMEOUT_S = 0.02  # reader thread poll period
 
@@ -62,6 +64,7 @@ class Stm32BridgeConfig(BaseModel):
     reply_regex: str = r"OK(?:\s+(?P<value>.*?))?\s*"  # success; optional group `value`
     error_regex: str = r"ERR\b\s*(?P<reason>.*?)\s*"  # refusal; optional group `reason`
     telemetry_regex: str = ""  # unsolicited feedback lines; groups named speed_rpm etc.
+    thermistor: Thermistor | None = None  # converts a `thermistor_counts` telemetry group
 
     @model_validator(mode="after")
     def _consistent(self) -> Stm32BridgeConfig:
@@ -76,10 +79,17 @@ class Stm32BridgeConfig(BaseModel):
                 re.compile(getattr(self, name))
             except re.error as exc:
                 raise ValueError(f"{name}: invalid regex: {exc}") from None
-        unknown = set(re.compile(self.telemetry_regex).groupindex) - set(FEEDBACK_GROUPS)
+        groups = set(re.compile(self.telemetry_regex).groupindex)
+        unknown = groups - {*FEEDBACK_GROUPS, THERMISTOR_GROUP}
         if unknown:
             raise ValueError(f"telemetry_regex: unknown groups {sorted(unknown)}; "
-                             f"use {', '.join(FEEDBACK_GROUPS)}")
+                             f"use {', '.join((*FEEDBACK_GROUPS, THERMISTOR_GROUP))}")
+        if (THERMISTOR_GROUP in groups) != (self.thermistor is not None):
+            raise ValueError(f"a `{THERMISTOR_GROUP}` telemetry group and a `thermistor:` "
+                             "section go together (the section converts its counts)")
+        if THERMISTOR_GROUP in groups and "temperature_c" in groups:
+            raise ValueError(f"telemetry_regex: give `temperature_c` or `{THERMISTOR_GROUP}`, "
+                             "not both")
         info = actuator_info(self)
         if not info.command_min <= info.neutral <= info.command_max:
             raise ValueError(f"need command_min <= neutral <= command_max, got "
@@ -124,7 +134,10 @@ def actuator_info(config: Stm32BridgeConfig) -> ActuatorInfo:
     lo = config.command_min if config.command_min is not None else (0.0 if counts else 1100.0)
     hi = config.command_max if config.command_max is not None else (
         float(config.arr) if counts else 1900.0)
-    feedback = tuple(g for g in FEEDBACK_GROUPS if g in re.compile(config.telemetry_regex).groupindex)
+    groups = set(re.compile(config.telemetry_regex).groupindex)
+    if THERMISTOR_GROUP in groups:
+        groups.add("temperature_c")
+    feedback = tuple(g for g in FEEDBACK_GROUPS if g in groups)
     return ActuatorInfo(config.command_unit, float(neutral), float(lo), float(hi), feedback)
 
 
@@ -315,6 +328,9 @@ class Stm32Bridge(Device):
             except ValueError:
                 self.stats["garbage"] += 1
                 return
+            if THERMISTOR_GROUP in values and self.config.thermistor is not None:
+                counts = values.pop(THERMISTOR_GROUP)
+                values["temperature_c"] = float(self.config.thermistor.temperature_c(counts))
             with self._fb_lock:
                 self._feedback.append((t, values))
             self.stats["frames"] += 1

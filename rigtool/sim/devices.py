@@ -65,7 +65,7 @@ class SimActuator(Device):
             return FeedbackBlock(np.empty(0))
         t = np.concatenate([b.t_s for b in blocks])
         fields = {}
-        for name in ("speed_rpm", "current_a", "voltage_v"):
+        for name in ("speed_rpm", "current_a", "voltage_v", "temperature_c"):
             fields[name] = (
                 np.concatenate([getattr(b, name) for b in blocks])
                 if name in self.info.feedback
@@ -78,6 +78,7 @@ class SimForceSensor(Device):
     """The twin's force sensor: six channels at the requested rate, with bias and noise."""
 
     channels = ("fx", "fy", "fz", "tx", "ty", "tz")
+    follows_rate = True  # samples at whatever rate the engine asks (rigtool/sensor_rate.py)
 
     def __init__(self, world: SimWorld) -> None:
         self.world = world
@@ -92,7 +93,8 @@ class SimForceSensor(Device):
         out = self.world.twin.sample(t)
         self.world.wait_until(float(t[-1]))
         self._next_t = float(t[-1]) + 1.0 / rate_hz
-        self.world.feedback.append(FeedbackBlock(t, out.speed_rpm, out.current_a, out.voltage_v))
+        self.world.feedback.append(FeedbackBlock(t, out.speed_rpm, out.current_a, out.voltage_v,
+                                                 temperature_c=out.temperature_c))
         seq = np.arange(self._seq, self._seq + n)
         self._seq += n
         return ForceBlock(t, out.ft - self._bias, seq)

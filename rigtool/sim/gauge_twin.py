@@ -6,7 +6,8 @@ slave path) through pyserial. Personalities:
 * `mark10`: answers each `?` with a line like `-18.78 lbF` (CR LF), or in `stream`
   mode prints such lines at `rate_hz`;
 * `hx711-csv`: prints `millis,raw` lines at `rate_hz` (10 or 80 Hz on real boards),
-  where raw = offset + force_n / scale, as an uncalibrated HX711 sketch would.
+  where raw = offset + force_n / scale, as an uncalibrated HX711 sketch would
+  (`temperature=True`: `millis,raw,temperature_c`, a sketch that also reads a sensor).
 
 `garbage` is the fraction of lines garbled (poll: the answer is replaced; stream: a
 junk line is inserted); `silent` stops all output. Both can change while it runs.
@@ -35,7 +36,8 @@ class GaugeTwin:
     def __init__(self, live: LiveTwin, preset: Literal["mark10", "hx711-csv"] = "mark10", *,
                  mode: Literal["poll", "stream"] | None = None, unit: str = "lbF",
                  rate_hz: float | None = None, scale: float = 0.001, offset: float = 8000.0,
-                 channel: int | None = None, garbage: float = 0.0, seed: int = 0) -> None:
+                 channel: int | None = None, garbage: float = 0.0, seed: int = 0,
+                 temperature: bool = False) -> None:
         if preset not in ("mark10", "hx711-csv"):
             raise ValueError(f"unknown gauge preset {preset!r}")
         self.live = live
@@ -49,6 +51,7 @@ class GaugeTwin:
         self.scale, self.offset = scale, offset  # hx711: N per count, raw count at zero force
         self.channel = live.twin.profile.thrust_channel if channel is None else channel
         self.garbage = garbage
+        self.temperature = temperature  # hx711-csv: a third field, the motor's temperature
         self.silent = False
         self.stats = dict.fromkeys(("queries", "lines", "garbage", "dropped"), 0)
         self._rng = random.Random(seed)
@@ -89,7 +92,17 @@ class GaugeTwin:
         if self.preset == "mark10":
             return f"{f / self._n_per_unit:.2f} {self.unit}\r\n".encode()
         millis = int((time.monotonic() - self._t0) * 1000)
-        return f"{millis},{round(self.offset + f / self.scale)}\r\n".encode()
+        raw = round(self.offset + f / self.scale)
+        if self.temperature:
+            return f"{millis},{raw},{self.temperature_c():.2f}\r\n".encode()
+        return f"{millis},{raw}\r\n".encode()
+
+    def temperature_c(self) -> float:
+        """The motor temperature the twin reports now (NaN when its profile has none)."""
+        block = self.live.latest()
+        if block is None or block.temperature_c is None:
+            return float("nan")
+        return float(block.temperature_c[-1])
 
     # -- internals ------------------------------------------------------------------------
     def _junk(self) -> bytes:

@@ -29,6 +29,7 @@ class LiveBlock:
     speed_rpm: np.ndarray
     current_a: np.ndarray
     voltage_v: np.ndarray
+    temperature_c: np.ndarray | None = None
 
 
 class LiveTwin:
@@ -98,7 +99,8 @@ class LiveTwin:
         t = start + np.arange(n) / self.rate_hz
         out = self.twin.sample(t)
         self._next_t = float(t[-1]) + 1.0 / self.rate_hz
-        block = LiveBlock(t, out.ft, out.speed_rpm, out.current_a, out.voltage_v)
+        block = LiveBlock(t, out.ft, out.speed_rpm, out.current_a, out.voltage_v,
+                          out.temperature_c)
         self._latest = block
         for q in self._subscribers:
             try:

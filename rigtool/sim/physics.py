@@ -34,6 +34,11 @@ def _new_block(size: int) -> np.ndarray:
     return block
 
 
+def _bus_v(p: ThrusterProfile, supply_v: float) -> float:
+    """The bus at no load: the supply's setpoint, plus its rise when it is on."""
+    return supply_v + p.supply_rise_v if supply_v > 0 and p.supply_rise_v else supply_v
+
+
 def _mixing_matrices(p: ThrusterProfile, t0: float, supply_v: float) -> tuple[np.ndarray, np.ndarray]:
     """Matrices mapping work-block rows to the six F/T channels and to speed, current, voltage."""
     ch, sign = p.thrust_channel, p.thrust_sign
@@ -49,7 +54,7 @@ def _mixing_matrices(p: ThrusterProfile, t0: float, supply_v: float) -> tuple[np
     fb_mix = np.zeros((3, 6))  # columns: one, 3 normals, speed, current
     fb_mix[0, [1, 4]] = p.speed_noise_rpm, 1.0
     fb_mix[1, [2, 5]] = p.current_noise_a, 1.0
-    fb_mix[2, [0, 3, 5]] = supply_v, p.voltage_noise_v, -p.supply_resistance_ohm
+    fb_mix[2, [0, 3, 5]] = _bus_v(p, supply_v), p.voltage_noise_v, -p.supply_resistance_ohm
     return ft_mix, fb_mix
 
 
@@ -73,6 +78,7 @@ class TwinSamples:
     speed_rpm: np.ndarray  # speed feedback with noise
     current_a: np.ndarray  # current feedback with noise
     voltage_v: np.ndarray  # bus voltage feedback with noise
+    temperature_c: np.ndarray | None = None  # motor temperature, when the profile reports it
 
 
 class ThrusterTwin:
@@ -106,6 +112,9 @@ class ThrusterTwin:
         self._log_onset = np.log(np.array(p.cav_mean_onset_s, dtype=float))
         self._log_duration = np.log(np.array(p.cav_mean_duration_s, dtype=float))
         self._set_depth_rates()
+        self._heat = "temperature_c" in p.feedback
+        self._temp_c = p.ambient_c  # motor temperature at self._temp_t
+        self._temp_t = self._t0
 
     # ----- public API -----
 
@@ -159,7 +168,7 @@ class ThrusterTwin:
         on = self._supply_v > 0
         self._cn = p.cn * p.supply_voltage_v / self._supply_v if on else 0.0
         self._idle = p.idle_current_a if on else 0.0
-        self._fb_mix[2, 0] = self._supply_v
+        self._fb_mix[2, 0] = _bus_v(p, self._supply_v)
         self._n_target = self.target_speed_rpm(self._command)
         if abs(self._n_target) < p.cav_min_speed_rpm:
             self._end_active_event()
@@ -224,7 +233,17 @@ class ThrusterTwin:
                             for v in (n, m))
         self._t = t1
         thrust_true = thrust if isinstance(thrust, np.ndarray) else np.full(size, thrust)
-        return TwinSamples(ft, thrust_true, speed, current_fb, voltage)
+        temperature = self._temperature(t, float(np.mean(current))) if self._heat else None
+        return TwinSamples(ft, thrust_true, speed, current_fb, voltage, temperature)
+
+    def _temperature(self, t: np.ndarray, current_a: float) -> np.ndarray:
+        """Motor temperature at `t` under a block's mean current (first-order heating and
+        cooling, exact for a constant current), advancing the thermal state to t[-1]."""
+        p = self.profile
+        steady = p.ambient_c + p.heating_c_per_a2_s * current_a**2 * p.thermal_tau_s
+        temp = steady + (self._temp_c - steady) * np.exp(-(t - self._temp_t) / p.thermal_tau_s)
+        self._temp_c, self._temp_t = float(temp[-1]), float(t[-1])
+        return temp
 
     def steady_state(self, command: float) -> tuple[float, float, float]:
         """Noise-free steady (speed_rpm, thrust_n, current_a) at `command`, without ventilation."""
@@ -425,10 +444,12 @@ class ThrusterTwin:
 
 def _concat(a: TwinSamples, b: TwinSamples) -> TwinSamples:
     """Two consecutive blocks of samples as one."""
+    temperature = (None if a.temperature_c is None or b.temperature_c is None
+                   else np.concatenate((a.temperature_c, b.temperature_c)))
     return TwinSamples(*(np.concatenate((x, y)) for x, y in
                          zip((a.ft, a.thrust_true_n, a.speed_rpm, a.current_a, a.voltage_v),
                              (b.ft, b.thrust_true_n, b.speed_rpm, b.current_a, b.voltage_v),
-                             strict=True)))
+                             strict=True)), temperature)
 
 
 def pwm_thrust_n(p: ThrusterProfile, command: float) -> float:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rigtool.devices.thermistor import Thermistor
 from rigtool.sim.line_server import LineServer
 from rigtool.sim.live import LiveTwin
 
@@ -62,6 +63,7 @@ class Stm32BridgeTwin:
         watchdog_ms: int = 500,
         dialect: Dialect | None = None,
         telemetry_hz: float = 0.0,
+        thermistor: Thermistor | None = None,
         seed: int = 0,
         host: str = "127.0.0.1",
     ) -> None:
@@ -78,6 +80,7 @@ class Stm32BridgeTwin:
         self.watchdog_ms = watchdog_ms
         self.dialect = dialect or Dialect()
         self.telemetry_hz = telemetry_hz
+        self.thermistor = thermistor  # telemetry's {thermistor_counts}: the motor's temperature
         self.ccr = dict.fromkeys(self.channels, self.neutral_ccr)
         self.garbage = False
         self.no_replies = False
@@ -203,8 +206,12 @@ class Stm32BridgeTwin:
         block = self.live.latest()
         if block is None:
             return
+        temperature = (float(block.temperature_c[-1]) if block.temperature_c is not None
+                       else float("nan"))
+        counts = self.thermistor.counts(temperature) if self.thermistor is not None else 0
         text = self.dialect.telemetry.format(speed_rpm=float(block.speed_rpm[-1]),
                                              current_a=float(block.current_a[-1]),
-                                             voltage_v=float(block.voltage_v[-1]))
+                                             voltage_v=float(block.voltage_v[-1]),
+                                             temperature_c=temperature, thermistor_counts=counts)
         for end in self._server.ends():
             self._send(end, text)

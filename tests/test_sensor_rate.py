@@ -1,0 +1,199 @@
+"""The sensor's real rate, not the plan's: a Net F/T box at 1 kHz under a 500 Hz protocol is
+averaged down to 500 Hz over the protocol's whole duration, an 80 Hz gauge acquires the
+protocol's duration at 80 Hz, and a rate that cannot meet the protocol is refused before
+the run starts. The rate stored with every point is the rate of its stored samples."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigtool.cli import main
+from rigtool.clock import RealClock
+from rigtool.devices.ascii_gauge import AsciiGauge
+from rigtool.devices.depth import PresetDepth
+from rigtool.devices.netft import NetFTSensor
+from rigtool.engine import Engine, decimated
+from rigtool.plan import TimingRefused, expand, sensor_timing
+from rigtool.protocol import load_protocol
+from rigtool.rig import RigSet
+from rigtool.sensor_rate import check_sensor_rate
+from rigtool.sim.gauge_twin import GaugeTwin
+from rigtool.sim.netft_twin import NetFTTwin
+from rigtool.store import Store
+
+from .test_netft import LiveActuator
+
+PROTOCOL = """\
+rigtool_protocol: 1
+name: rate
+command: {{unit: percent, values: [0, 50]}}
+depth: {{unit: m, values: [1.0]}}
+timing:
+  settle: {settle}
+  acquire: {acquire}
+  tare: at_start
+  tare_s: 0.2
+limits: {{max_thrust_n: 90, max_staleness_s: 0.5}}
+"""
+
+
+def _protocol(write_yaml, acquire="{seconds: 1.0, rate_hz: 500}", settle="{seconds: 0.3}"):
+    path = write_yaml(PROTOCOL.format(acquire=acquire, settle=settle))
+    return load_protocol(path)[0], path
+
+
+# -- the rule ----------------------------------------------------------------------------
+def test_timing_per_case(write_yaml):
+    protocol, _ = _protocol(write_yaml)  # 500 samples at 500 Hz: 1 s
+    same = sensor_timing(protocol, None)
+    assert (same.how, same.sensor_rate_hz, same.n_read, same.decimate) == ("as planned", 500, 500, 1)
+    assert sensor_timing(protocol, 505.0).how == "as planned"  # within 2 %: the protocol's
+    fast = sensor_timing(protocol, 1000.0)
+    assert (fast.how, fast.decimate, fast.n_read, fast.n_stored, fast.stored_rate_hz) == (
+        "decimated", 2, 1000, 500, 500.0)
+    slow = sensor_timing(protocol, 80.0)
+    assert (slow.how, slow.n_read, slow.stored_rate_hz, slow.acquire_s) == ("duration", 80, 80.0, 1.0)
+    odd = sensor_timing(protocol, 700.0)  # not a multiple: the duration at 700 Hz
+    assert (odd.how, odd.n_read, odd.stored_rate_hz) == ("duration", 700, 700.0)
+    with pytest.raises(TimingRefused) as exc:
+        sensor_timing(protocol, 5.0)  # 5 samples in the protocol's second
+    assert exc.value.field == ("timing", "acquire", "rate_hz") and "5 Hz" in str(exc.value)
+    steady = "{until_steady: {window_s: 0.1, tolerance_n: 0.5, timeout_s: 5}}"
+    protocol, _ = _protocol(write_yaml, acquire="{seconds: 3, rate_hz: 500}", settle=steady)
+    with pytest.raises(TimingRefused) as exc:
+        sensor_timing(protocol, 10.0)
+    assert exc.value.field == ("timing", "settle", "until_steady", "window_s")
+
+
+def test_decimation_averages_whole_groups():
+    block = {"t_s": np.arange(6.0), "fx": np.array([1.0, 3, 5, 7, np.nan, 1]),
+             "seq": np.arange(10, 16.0)}
+    out = decimated(block, 2)
+    assert out["t_s"].tolist() == [0.5, 2.5, 4.5] and out["fx"][:2].tolist() == [2.0, 6.0]
+    assert np.isnan(out["fx"][2]) and out["seq"].tolist() == [11, 13, 15]
+
+
+# -- over real transports ------------------------------------------------------------------
+def _sweep(protocol, path, sensor, live, db_path):
+    rigset = RigSet(actuator=LiveActuator(live), sensor=sensor, depth_stage=PresetDepth(),
+                    clock=RealClock(), thrust_channel=0, thrust_sign=1)
+    store = Store(db_path)
+    run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                              metadata={}, seed=1, command_unit="percent", tool_version="test")
+    try:
+        timing = check_sensor_rate(protocol, path, rigset)  # as the sweep does on opening
+        outcome = Engine(protocol, expand(protocol), rigset, store, run_id).run()
+    finally:
+        rigset.close()
+    assert outcome.status == "completed", outcome.reason
+    return store, run_id, timing
+
+
+def _acquired_s(store, run_id, step) -> float:
+    got = store.samples(run_id, ["t_s", "step_id"])
+    t = got["t_s"][got["step_id"] == step["id"]]
+    return float(t[-1] - t[0]) + 1.0 / step["rate_hz"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("counts", [False, True], ids=["rate-from-xml", "rate-measured"])
+def test_a_1khz_netft_under_a_500hz_protocol_is_averaged_over_the_whole_duration(
+        live, write_yaml, db_path, counts):
+    """The reproduction: before, each level was held 0.5 s (500 records at 1 kHz) and the
+    points said 500 Hz. The box's rate comes from its netftapi2.xml, or is measured when
+    the rig file gives the calibration counts (no XML read)."""
+    box = NetFTTwin(live).start()
+    try:
+        host, port = box.address
+        config = {"driver": "ati-netft", "host": host, "port": port, "http_port": box.http_port}
+        if counts:
+            config.update(counts_per_force=1_000_000, counts_per_torque=1_000_000)
+        protocol, path = _protocol(write_yaml)
+        store, run_id, timing = _sweep(protocol, path, NetFTSensor(config), live, db_path)
+    finally:
+        box.stop()
+    assert timing.how == "decimated" and timing.decimate == 2
+    for step in store.steps(run_id):
+        assert step["rate_hz"] == 500.0 and step["n"] == 500
+        assert _acquired_s(store, run_id, step) == pytest.approx(1.0, abs=0.05)
+        assert step["t_end_s"] - step["t_acquire_s"] >= 0.95
+    event = store.events(run_id, "sensor_rate")[0]["detail"]
+    assert event["how"] == "decimated" and event["sensor_rate_hz"] == pytest.approx(1000, rel=0.02)
+
+
+@pytest.mark.slow
+def test_an_80hz_gauge_under_a_500hz_protocol_acquires_the_protocols_duration(
+        live, write_yaml, db_path):
+    """Before, 500 lines at 80 Hz held each level 6.25 s and the points said 500 Hz."""
+    twin = GaugeTwin(live, "hx711-csv", rate_hz=80, scale=0.001, offset=8000).start()
+    try:
+        sensor = AsciiGauge({"driver": "ascii-gauge", "url": twin.port, "preset": "hx711-csv",
+                             "scale": 0.001, "offset": 8000})
+        protocol, path = _protocol(write_yaml)
+        store, run_id, timing = _sweep(protocol, path, sensor, live, db_path)
+    finally:
+        twin.stop()
+    assert timing.how == "duration" and timing.sensor_rate_hz == pytest.approx(80, rel=0.05)
+    for step in store.steps(run_id):
+        assert step["rate_hz"] == pytest.approx(80, rel=0.05) and step["n"] == timing.n_read
+        assert 76 <= step["n"] <= 84
+        assert _acquired_s(store, run_id, step) == pytest.approx(1.0, abs=0.1)
+
+
+RIG = """\
+rigtool_rig: 1
+name: slow-gauge
+actuator: {{driver: stm32-bridge, url: '{url}', timeout_s: 0.5}}
+sensor: {{driver: ascii-gauge, url: '{port}', preset: hx711-csv, scale: 0.001, offset: 8000}}
+"""
+
+CLI_PROTOCOL = """\
+rigtool_protocol: 1
+name: too-fast
+command: {unit: pwm_counts, values: [0, 300]}
+depth: {unit: cm, values: [30]}
+timing:
+  settle: {seconds: 0.2}
+  acquire: {samples: 250, rate_hz: 500}
+limits: {max_thrust_n: 20}
+"""
+
+
+@pytest.mark.slow
+def test_a_rate_that_cannot_meet_the_protocol_is_refused_before_the_run(tmp_path, capsys):
+    """A 10 Hz gauge and half a second per point: 5 samples. Exit 2, naming the rig's rate
+    and the protocol's field, and no run is created; the actuator never left neutral."""
+    from rigtool.sim.live import LiveTwin
+    from rigtool.sim.physics import ThrusterTwin
+    from rigtool.sim.stm32_twin import Stm32BridgeTwin
+    from rigtool.thruster_profiles import PROFILES
+
+    live = LiveTwin(ThrusterTwin(PROFILES["stm32-pwm"], seed=5)).start()
+    fw = Stm32BridgeTwin(live).start()
+    gauge = GaugeTwin(live, "hx711-csv", rate_hz=10, scale=0.001, offset=8000).start()
+    try:
+        rig = tmp_path / "rig.yaml"
+        rig.write_text(RIG.format(url=fw.url, port=gauge.port))
+        protocol = tmp_path / "p.yaml"
+        protocol.write_text(CLI_PROTOCOL)
+        db = tmp_path / "db.sqlite"
+        assert main(["sweep", str(protocol), "--rig", str(rig), "--db", str(db)]) == 2
+        err = capsys.readouterr().err
+        assert f"{protocol}:7" in err and "timing.acquire.rate_hz" in err
+        assert "streams at 10" in err or "streams at 9.9" in err
+        assert not db.exists() or Store(db).runs() == []
+        assert fw.ccr[fw.thruster_channel] == fw.neutral_ccr
+        assert main(["sweep", str(protocol), "--rig", str(rig), "--dry-run"]) == 0
+        assert "measured over 0.5 s when it opens" in capsys.readouterr().out
+    finally:
+        for part in (gauge, fw, live):
+            part.stop()
+
+
+def test_dry_run_shows_the_timing_used_on_the_twin(write_yaml, capsys):
+    from .conftest import SMALL_PROTOCOL
+
+    assert main(["sweep", str(write_yaml(SMALL_PROTOCOL)), "--sim", "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "sensor timing: 200 samples at 500 Hz (0.4 s) per point (the twin samples" in out
