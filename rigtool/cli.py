@@ -16,9 +16,10 @@ from rich.table import Column, Table
 from rich.text import Text
 
 from rigtool import __version__
+from rigtool.dbpath import DB_ENV, resolve_db_path
 from rigtool.errors import DataError, RigtoolError, UsageError
 from rigtool.progress import default_reporter, stage
-from rigtool.store import DB_ENV, Store, resolve_db_path
+from rigtool.store import Store
 from rigtool.units import unit_label
 
 if TYPE_CHECKING:

@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 
 import rigtool.api
+from rigtool.counters import TRAFFIC_COUNTERS
 from rigtool.errors import RigtoolError
-from rigtool.store import TRAFFIC_COUNTERS, owner_gone
+from rigtool.store import owner_gone
 
 MAX_POINTS = 5000  # points sent per refresh (the newest)
 MAX_TRACE = 2000  # samples of the current point's trace sent per refresh
