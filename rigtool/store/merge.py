@@ -39,7 +39,6 @@ BLOCKS_OF_RUN = (f"SELECT st.idx, b.chunk, b.n, {', '.join('b.' + c for c in SAM
                  "ORDER BY st.idx, b.chunk")
 
 
-
 class MergeConflict(DataError):
     """Two copies of a run disagree on something both hold; nothing is merged."""
 
@@ -85,7 +84,6 @@ class MergeReport:
     present: list[str] = field(default_factory=list)  # nothing new in the source
     running: list[str] = field(default_factory=list)  # still running in the source
     busy: list[str] = field(default_factory=list)  # running in the target: left alone
-
 
 
 def _run_time(run: dict) -> tuple[str, str]:
@@ -154,7 +152,6 @@ def _insert(conn: sqlite3.Connection, table: str, row: dict, skip: str = "") -> 
     cur = conn.execute(f"INSERT INTO main.{table} ({', '.join(names)}) VALUES "
                        f"({', '.join('?' * len(names))})", [row[k] for k in names])
     return cur.lastrowid
-
 
 
 class MergeSource:

@@ -1,7 +1,5 @@
-"""Checked reads from one run database: counts, types, ranges and lengths in SQL before
-anything is fetched, JSON texts parsed with bounds and checked for shape after. A failure is a
-DataError naming the database, the run and the field. The store's queries and the merge read
-through it."""
+"""Checked reads from one run database (`Reader`), which the store's queries and the merge of
+other databases both read through, and the SQL that checks stored sample blocks."""
 
 from __future__ import annotations
 
