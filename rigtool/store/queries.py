@@ -33,6 +33,23 @@ from rigtool.store.records import INT_POINT_COLUMNS, POINT_COLUMNS, TEXT_POINT_C
 READ_SAMPLES = SAMPLES_PER_CHUNK  # samples per chunk `iter_samples` yields (13 columns: ~7 MB)
 
 
+_POINT_NAMES = tuple(dict.fromkeys(POINT_COLUMNS.values()))  # the steps columns `points` reads
+
+
+def _point_columns(rows: list[dict]) -> dict[str, np.ndarray]:
+    """Checked point rows as columns under POINT_COLUMNS' public names."""
+    out = {}
+    for name, column in POINT_COLUMNS.items():
+        values = [r[column] for r in rows]
+        if name in TEXT_POINT_COLUMNS:
+            out[name] = np.array(values, dtype=str)
+        elif name in INT_POINT_COLUMNS:
+            out[name] = np.array(values, dtype=np.int64)
+        else:
+            out[name] = np.array([np.nan if v is None else v for v in values], dtype=float)
+    return out
+
+
 def _opt_float(value: object) -> float | None:
     return None if value is None else float(value)  # type: ignore[arg-type]
 
@@ -150,24 +167,24 @@ class RunQueries:
 
     def points(self, run_id: str) -> dict[str, np.ndarray]:
         """A run's stored points as columns under POINT_COLUMNS' public names, in plan order."""
-        rows = self._step_rows(run_id, tuple(dict.fromkeys(POINT_COLUMNS.values())))
-        out = {}
-        for name, column in POINT_COLUMNS.items():
-            values = [r[column] for r in rows]
-            if name in TEXT_POINT_COLUMNS:
-                out[name] = np.array(values, dtype=str)
-            elif name in INT_POINT_COLUMNS:
-                out[name] = np.array(values, dtype=np.int64)
-            else:
-                out[name] = np.array([np.nan if v is None else v for v in values], dtype=float)
-        return out
+        return _point_columns(self._step_rows(run_id, _POINT_NAMES))
+
+    def points_since(self, run_id: str, after_row: int | None
+                     ) -> tuple[dict[str, np.ndarray], int | None]:
+        """The run's points stored after steps row `after_row` (None: all of them), as `points`
+        gives them, and the last row id read (`after_row` when nothing is new). Point rows are
+        only ever appended, so a reader that keeps what it read fetches only what is new."""
+        where, args = ("", ()) if after_row is None else (" AND id > ?", (after_row,))
+        rows = self._step_rows(run_id, (*_POINT_NAMES, "id"), where, args=args)
+        return _point_columns(rows), max((r["id"] for r in rows), default=after_row)
 
     def _step_rows(self, run_id: str, names: Sequence[str], where: str = "",
-                   parse: bool = False) -> list[dict]:
-        """Checked rows of a run's points in plan order (JSON parsed only if `parse`)."""
+                   parse: bool = False, args: Sequence = ()) -> list[dict]:
+        """Checked rows of a run's points in plan order (JSON parsed only if `parse`); `where`
+        narrows them with its `args`, the cap counts all of the run's points."""
         self._read.count(run_id, "steps", "run_id = ?", (run_id,), MAX_STORED_POINTS)
-        return list(self._read.rows(run_id, "steps", names, "run_id = ?" + where, (run_id,),
-                                    "ORDER BY idx", parse=parse))
+        return list(self._read.rows(run_id, "steps", names, "run_id = ?" + where,
+                                    (run_id, *args), "ORDER BY idx", parse=parse))
 
     def sample_arrays(self, run_id: str, columns: Iterable[str] | None = None,
                       steps: Iterable[int] | None = None) -> dict[str, np.ndarray]:
@@ -237,16 +254,18 @@ class RunQueries:
             r["detail"] = self._read.detail(run_id, r, r.pop("detail_json"))
         return rows
 
-    def transport_counters(self, run_id: str) -> dict:
-        """Transport counters summed over a run's stored points, and the points with problems.
+    def transport_counters(self, run_id: str, after_row: int | None = None) -> dict:
+        """Transport counters summed over a run's stored points (those after steps row
+        `after_row`, as `points_since`), and the points with problems.
 
         Returns {"totals": {role: {counter: n}}, "problem_points": [idx, ...]}, where a
         problem is any counter outside TRAFFIC_COUNTERS that moved during the point.
         """
         totals: dict[str, dict[str, int]] = {}
         problems = []
-        rows = self._step_rows(run_id, ("idx", "counters_json"), " AND counters_json IS NOT NULL",
-                               parse=True)
+        where, args = ("", ()) if after_row is None else (" AND id > ?", (after_row,))
+        rows = self._step_rows(run_id, ("idx", "counters_json"),
+                               " AND counters_json IS NOT NULL" + where, parse=True, args=args)
         for row in rows:
             bad = False
             for role, counters in row["counters_json"].items():
