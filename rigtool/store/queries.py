@@ -174,17 +174,20 @@ class RunQueries:
         """The run's points stored after steps row `after_row` (None: all of them), as `points`
         gives them, and the last row id read (`after_row` when nothing is new). Point rows are
         only ever appended, so a reader that keeps what it read fetches only what is new."""
-        where, args = ("", ()) if after_row is None else (" AND id > ?", (after_row,))
-        rows = self._step_rows(run_id, (*_POINT_NAMES, "id"), where, args=args)
+        rows = self._step_rows(run_id, (*_POINT_NAMES, "id"), after_row=after_row)
         return _point_columns(rows), max((r["id"] for r in rows), default=after_row)
 
     def _step_rows(self, run_id: str, names: Sequence[str], where: str = "",
-                   parse: bool = False, args: Sequence = ()) -> list[dict]:
-        """Checked rows of a run's points in plan order (JSON parsed only if `parse`); `where`
-        narrows them with its `args`, the cap counts all of the run's points."""
+                   parse: bool = False, after_row: int | None = None) -> list[dict]:
+        """Checked rows of a run's points in plan order (JSON parsed only if `parse`), those
+        after steps row `after_row` if given; the cap counts all of the run's points."""
         self._read.count(run_id, "steps", "run_id = ?", (run_id,), MAX_STORED_POINTS)
-        return list(self._read.rows(run_id, "steps", names, "run_id = ?" + where,
-                                    (run_id, *args), "ORDER BY idx", parse=parse))
+        if after_row is None:
+            key, args = "run_id = ?", (run_id,)
+        else:  # `+run_id`: SQLite walks the rowid range, not the whole run in its index
+            key, args = "+run_id = ? AND id > ?", (run_id, after_row)
+        return list(self._read.rows(run_id, "steps", names, key + where, args, "ORDER BY idx",
+                                    parse=parse))
 
     def sample_arrays(self, run_id: str, columns: Iterable[str] | None = None,
                       steps: Iterable[int] | None = None) -> dict[str, np.ndarray]:
@@ -263,9 +266,8 @@ class RunQueries:
         """
         totals: dict[str, dict[str, int]] = {}
         problems = []
-        where, args = ("", ()) if after_row is None else (" AND id > ?", (after_row,))
-        rows = self._step_rows(run_id, ("idx", "counters_json"),
-                               " AND counters_json IS NOT NULL" + where, parse=True, args=args)
+        rows = self._step_rows(run_id, ("idx", "counters_json"), " AND counters_json IS NOT NULL",
+                               parse=True, after_row=after_row)
         for row in rows:
             bad = False
             for role, counters in row["counters_json"].items():
