@@ -5,6 +5,7 @@ back to numpy columns, every block's count and size checked before anything is a
 from __future__ import annotations
 
 from collections.abc import Iterable
+from pathlib import Path
 
 import numpy as np
 
@@ -35,27 +36,27 @@ def block_row(step_id: int, chunk: int, columns: dict[str, np.ndarray | None]) -
     return (step_id, chunk, n, *(encode(columns.get(c)) for c in SAMPLE_COLUMNS[1:]))
 
 
-def decode(blob: bytes | None, n: int, column: str, label: str) -> np.ndarray:
+def decode(blob: bytes | None, n: int, column: str, path: Path) -> np.ndarray:
     """One stored column block as float64 (an absent channel: NaN), its count and size
-    checked before anything is allocated; `label` names the database in a DataError."""
+    checked before anything is allocated; `path` is the run database a DataError names."""
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= SAMPLES_PER_CHUNK:
-        raise DataError(f"{label}: a block of column {column} claims "
+        raise DataError(f"run database {path}: a block of column {column} claims "
                         f"{show(n)} samples (0 .. {SAMPLES_PER_CHUNK:,} allowed); the file "
                         "is damaged")
     if blob is None:
         return np.full(n, np.nan)
     if not isinstance(blob, bytes) or len(blob) != n * BLOB_DTYPE.itemsize:
-        raise DataError(f"{label}: a block of column {column} holds "
+        raise DataError(f"run database {path}: a block of column {column} holds "
                         f"{show(blob)} for {n} samples; the file is damaged")
     return np.frombuffer(blob, dtype=BLOB_DTYPE)
 
 
-def decode_blocks(blocks: list[tuple], cols: list[str], label: str) -> dict[str, np.ndarray]:
+def decode_blocks(blocks: list[tuple], cols: list[str], path: Path) -> dict[str, np.ndarray]:
     """Rows (step idx, n, BLOB per column) decoded into columns, ints as INT_SAMPLE_COLUMNS."""
     out = {"step_idx": np.repeat(np.array([b[0] for b in blocks], dtype=np.int64),
                                  [b[1] for b in blocks])}
     for i, c in enumerate(cols[1:], start=2):
-        values = np.concatenate([decode(b[i], b[1], c, label) for b in blocks]) if blocks \
+        values = np.concatenate([decode(b[i], b[1], c, path) for b in blocks]) if blocks \
             else np.empty(0)
         if c in INT_SAMPLE_COLUMNS:
             values = np.where(np.isnan(values), MISSING_INT, values).astype(np.int64)

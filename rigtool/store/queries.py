@@ -93,12 +93,7 @@ class RunQueries:
     @property
     def _read(self) -> Reader:
         """Checked reads from this store's connection."""
-        return Reader(self.conn, self._label)
-
-    @property
-    def _label(self) -> str:
-        """The database as messages name it."""
-        return f"run database {self.path}"
+        return Reader(self.conn, f"run database {self.path}")
 
     def resolve_run_id(self, ref: str) -> str:
         """Accept a full id, an unambiguous literal id prefix, or `last`: the run most
@@ -196,7 +191,7 @@ class RunQueries:
         other column float64 with NaN for NULL; in acquisition order."""
         chunks = list(self.iter_samples(run_id, columns, steps))
         if not chunks:
-            return decode_blocks([], sample_names(columns), self._label)
+            return decode_blocks([], sample_names(columns), self.path)
         return {c: np.concatenate([ch[c] for ch in chunks]) for c in chunks[0]}
 
     def iter_samples(self, run_id: str, columns: Iterable[str] | None = None,
@@ -219,10 +214,10 @@ class RunQueries:
             pending.append(row)
             held += row[1]
             if held >= batch:
-                yield decode_blocks(pending, cols, self._label)
+                yield decode_blocks(pending, cols, self.path)
                 pending, held = [], 0
         if pending:
-            yield decode_blocks(pending, cols, self._label)
+            yield decode_blocks(pending, cols, self.path)
 
     def run_ids(self) -> list[str]:
         """Every run id, oldest first."""
@@ -309,7 +304,7 @@ class RunQueries:
         self._read.check_blocks(None, "b.step_id = ?", (step_id,))
         blocks = self.conn.execute(f"SELECT n, {', '.join(cols)} FROM sample_blocks WHERE "
                                    "step_id = ? ORDER BY chunk", (step_id,)).fetchall()
-        return {c: np.concatenate([decode(b[i], b[0], c, self._label) for b in blocks])
+        return {c: np.concatenate([decode(b[i], b[0], c, self.path) for b in blocks])
                 if blocks else np.empty(0) for i, c in enumerate(cols, start=1)}
 
     def samples(self, run_id: str, columns: Iterable[str] = SAMPLE_COLUMNS) -> dict[str, np.ndarray]:
@@ -330,7 +325,7 @@ class RunQueries:
                 size = row[0]
                 for i, c in enumerate(cols, start=1):
                     out[c][filled:filled + size] = (row[i] if c == "step_id"
-                                                    else decode(row[i], size, c, self._label))
+                                                    else decode(row[i], size, c, self.path))
                 filled += size
         return out
 
