@@ -23,12 +23,13 @@ from typing import Any
 
 import numpy as np
 
+from rigtool.dbpath import DB_ENV, DEFAULT_DB
 from rigtool.errors import UsageError
 from rigtool.files import decode_utf8, read_regular_bytes
 from rigtool.models import laws
 from rigtool.models.thrust_map import STATUS_KEYS, ThrustMap, thrust_map
 from rigtool.readback import MAX_JSON_BYTES, Invalid, calibration_document, parse_json, show
-from rigtool.store import DB_ENV, DEFAULT_DB, RunRecord, Store
+from rigtool.store import RunRecord, Store
 
 CALIBRATION_FILE = "calibration.json"
 CURVE_FILE = "command_curve.csv"

@@ -16,6 +16,7 @@ from pydantic import ValidationError
 from rigtool import __version__
 from rigtool.bounds import MAX_RUN_S, MAX_SEED
 from rigtool.config import locate
+from rigtool.dbpath import DB_ENV, resolve_db_path
 from rigtool.devices.base import ActuatorInfo
 from rigtool.engine import Engine, Outcome
 from rigtool.errors import ConfigError, StoreError, UsageError
@@ -25,7 +26,7 @@ from rigtool.plan import PlanStep, estimate_duration_s, expand, step_at
 from rigtool.protocol import Protocol, load_protocol
 from rigtool.rig import Rig, RigSet, load_rig, open_rig, rig_actuator_info, sim_rig
 from rigtool.sensor_rate import check_sensor_rate
-from rigtool.store import DB_ENV, Store, resolve_db_path
+from rigtool.store import Store
 
 
 @dataclass

@@ -15,10 +15,11 @@ import numpy as np
 import rigtool
 from rigtool.artefacts import state
 from rigtool.errors import DataError, UsageError
+from rigtool.ids import is_run_id, run_label, utc_now
 from rigtool.outpaths import REPORT_FILE, run_folder
 from rigtool.progress import stage
 from rigtool.readback import brief
-from rigtool.store import Store, is_run_id, run_label, utc_now
+from rigtool.store import Store
 
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration

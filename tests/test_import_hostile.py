@@ -14,6 +14,7 @@ from rigtool import store as store_module
 from rigtool.cli import main
 from rigtool.spool import SampleSpool
 from rigtool.store import Store
+from rigtool.store.connection import Transaction
 
 GOOD = "t,cmd,F\n0,1500,0\n1,1600,1.0\n2,1700,2.0\n3,1800,3.0\n"
 COLS = ["--col", "command=cmd", "--col", "thrust=F", "--col", "time=t", "--command-unit", "pulse_us"]
@@ -121,7 +122,7 @@ def test_many_points_are_written_in_few_transactions(tmp_path: Path, monkeypatch
     data = tmp_path / "ramp.csv"
     data.write_text("t,cmd,F\n" + rows + "\n")
     count = {"n": 0}
-    enter = store_module._Transaction.__enter__
+    enter = Transaction.__enter__
 
     def counting(self):
         count["n"] += 1
@@ -129,7 +130,7 @@ def test_many_points_are_written_in_few_transactions(tmp_path: Path, monkeypatch
 
     db = tmp_path / "runs.sqlite"
     Store(db).close()  # schema migrations are not the import's transactions
-    monkeypatch.setattr(store_module._Transaction, "__enter__", counting)
+    monkeypatch.setattr(Transaction, "__enter__", counting)
     assert main(["import", str(data), *COLS, "--db", str(db)]) == 0
     assert count["n"] <= 10
     store = Store(db, create=False)
@@ -142,9 +143,9 @@ def test_many_points_are_written_in_few_transactions(tmp_path: Path, monkeypatch
 
 KILL_AFTER_COMMIT = """\
 import os, sys
-from rigtool import store
-store.IMPORT_ROWS_PER_TRANSACTION = 500
-_exit = store._Transaction.__exit__
+from rigtool.store import connection, writer
+writer.IMPORT_ROWS_PER_TRANSACTION = 500
+_exit = connection.Transaction.__exit__
 _count = [0]
 def _dies(self, *exc):
     result = _exit(self, *exc)
@@ -152,7 +153,7 @@ def _dies(self, *exc):
     if _count[0] == {n}:
         os._exit(9)  # like SIGKILL: no cleanup runs
     return result
-store._Transaction.__exit__ = _dies
+connection.Transaction.__exit__ = _dies
 from rigtool.cli import main
 sys.exit(main(sys.argv[1:]))
 """

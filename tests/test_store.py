@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from rigtool.errors import StoreError, UsageError
-from rigtool.store import SCHEMA_VERSION, StepRecord, Store, new_run_id
+from rigtool.ids import new_run_id
+from rigtool.store import SCHEMA_VERSION, StepRecord, Store
 
 
 def _run(store: Store) -> str:
@@ -155,10 +156,10 @@ def test_migration_from_v1_keeps_data_and_adds_seq(db_path):
 def test_migration_to_blocks_keeps_every_sample_in_order(db_path, monkeypatch):
     """v7 -> v8: rows become column blocks per point, chunked, with NULLs as NaN and absent
     channels as NULL blocks; the rows table is gone."""
-    import rigtool.store
+    import rigtool.store.schema
     from rigtool.store import MIGRATIONS
 
-    monkeypatch.setattr(rigtool.store, "SAMPLES_PER_CHUNK", 4)
+    monkeypatch.setattr(rigtool.store.schema, "SAMPLES_PER_CHUNK", 4)
     conn = sqlite3.connect(db_path, isolation_level=None)
     for migrate in MIGRATIONS[:7]:
         migrate(conn)

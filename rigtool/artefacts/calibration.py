@@ -35,8 +35,8 @@ from rigtool.artefacts.write import (
     json_clean,
     json_text,
 )
+from rigtool.ids import utc_now
 from rigtool.outpaths import run_folder
-from rigtool.store import utc_now
 
 GRAMS_PER_NEWTON = 1000.0 / 9.80665  # grams-force per newton
 FORMAT = "rigtool-calibration"

@@ -15,9 +15,9 @@ import rigtool
 from rigtool.analysis.cavitation import IN_SAMPLE_NOTE, CavitationResult
 from rigtool.analysis.qctm_export import model_document
 from rigtool.artefacts.write import atomic_write, json_clean, json_text
+from rigtool.ids import utc_now
 from rigtool.models import MODEL_FILE, VARIANCE_FILE
 from rigtool.outpaths import run_folder
-from rigtool.store import utc_now
 
 SUMMARY_FILE = "cavitation.json"
 TRAIN_CSV = "gp_training.csv"

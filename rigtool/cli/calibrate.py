@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING
 from rigtool.cli.calibration_table import calibration_table
 from rigtool.cli.console import err, out
 from rigtool.cli.options import CALIBRATIONS_OUT, DB, RUN, positive_int
-from rigtool.store import Store, resolve_db_path
+from rigtool.dbpath import resolve_db_path
+from rigtool.store import Store
 
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration

@@ -8,7 +8,8 @@ from rich.table import Table
 
 from rigtool.cli.console import err, out
 from rigtool.cli.options import DB, out_folder
-from rigtool.store import Store, resolve_db_path
+from rigtool.dbpath import resolve_db_path
+from rigtool.store import Store
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:

@@ -8,9 +8,10 @@ from pathlib import Path
 
 from rigtool.cli.console import out
 from rigtool.cli.options import DB, RUN_HELP, out_folder
+from rigtool.dbpath import resolve_db_path
 from rigtool.errors import UsageError
 from rigtool.progress import stage
-from rigtool.store import Store, resolve_db_path
+from rigtool.store import Store
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:

@@ -7,8 +7,9 @@ import os
 
 from rigtool.cli.console import err, out
 from rigtool.cli.options import DB
+from rigtool.dbpath import resolve_db_path
 from rigtool.progress import stage
-from rigtool.store import Store, resolve_db_path
+from rigtool.store import Store
 
 MAX_PRINTED_ERRORS = 200  # unreadable cells of one imported file listed on stderr
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from rigtool.store import DB_ENV
+from rigtool.dbpath import DB_ENV
 
 DB_HELP = f"run database (default: ${DB_ENV}, the rig file's db, or ./rigtool.sqlite)"
 RUN_HELP = "run id, unique prefix, or `last`"

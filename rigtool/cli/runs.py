@@ -9,7 +9,8 @@ from rich.text import Text
 
 from rigtool.cli.console import out
 from rigtool.cli.options import DB, RUN
-from rigtool.store import Store, resolve_db_path
+from rigtool.dbpath import resolve_db_path
+from rigtool.store import Store
 from rigtool.units import unit_label
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 from rigtool.cli.console import err, out
 from rigtool.cli.options import DB, port_number
 from rigtool.cli.signals import stop_on_signals
+from rigtool.dbpath import resolve_db_path
 from rigtool.errors import RigtoolError
-from rigtool.store import resolve_db_path
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:

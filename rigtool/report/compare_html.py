@@ -11,9 +11,9 @@ from matplotlib.figure import Figure
 import rigtool
 from rigtool.artefacts.write import atomic_write
 from rigtool.compare import CompareResult
+from rigtool.ids import utc_now
 from rigtool.report import figures as fg
 from rigtool.report.html import fmt_num
-from rigtool.store import utc_now
 from rigtool.units import unit_label
 
 REPORT_FILE = "compare.html"

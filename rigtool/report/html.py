@@ -20,10 +20,11 @@ from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.steady import PointTable
 from rigtool.analysis.voltage import VoltageLaw
 from rigtool.artefacts.write import atomic_write
+from rigtool.ids import utc_now
 from rigtool.outpaths import REPORT_FILE
 from rigtool.report import figures as fg
 from rigtool.run_warnings import run_warnings
-from rigtool.store import Store, utc_now
+from rigtool.store import Store
 from rigtool.units import unit_label
 
 VENTILATION_KIND = "sim.ventilation"

@@ -21,8 +21,10 @@ from typing import Any
 import numpy as np
 
 import rigtool.api
+from rigtool.counters import TRAFFIC_COUNTERS
 from rigtool.errors import RigtoolError
-from rigtool.store import TRAFFIC_COUNTERS, owner_gone
+from rigtool.store import owner_gone
+from rigtool.watch.rows import RunRows
 
 MAX_POINTS = 5000  # points sent per refresh (the newest)
 MAX_TRACE = 2000  # samples of the current point's trace sent per refresh
@@ -139,6 +141,7 @@ class Watcher:
         self._seen: dict[str, tuple[int, float]] = {}  # run -> (points, wall time first seen)
         self._rate: dict[str, tuple[int, float]] = {}  # run -> first (points, time) observed
         self._listed_at: dict[str, float] = {}
+        self._rows = RunRows()  # points and counters, read incrementally
         self._reader = ThreadPoolExecutor(1, thread_name_prefix="rigtool-watch-reader")
 
     def resolve(self) -> str | None:
@@ -172,6 +175,7 @@ class Watcher:
         if self._lab is not None:
             self._lab.close()
             self._lab = None
+            self._rows = RunRows()
 
     def start(self) -> str | None:
         """Open the database and resolve the run now (errors surface before serving)."""
@@ -209,9 +213,9 @@ class Watcher:
             return {"run": None, "waiting": f"no run in {self.db.name} yet", "bounds": bounds}
         store = lab.store
         record = self._record(store, run_id, now)
-        points = store.points(run_id)
+        points = self._rows.points(store, run_id)
         events = store.events(run_id)
-        counters = store.transport_counters(run_id)
+        counters = self._rows.counters(store, run_id)
         stored = len(points["step_idx"])
         current = self._current(record, points)
         return {
