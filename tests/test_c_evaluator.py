@@ -357,3 +357,24 @@ def test_bad_kinv_and_bad_input_exit_with_a_message(qctm_eval, hetero_files, tmp
     out = subprocess.run([str(qctm_eval), str(tmp_path / MODEL_FILE)],
                          input="1000,1,0.3,0\n1000,abc,0.3,0\n", capture_output=True, text=True)
     assert out.returncode == 2 and "line 2" in out.stderr and out.stdout == ""
+
+
+def test_calibrate_writes_no_unused_gp_terms_and_both_readers_agree(qctm_eval, twin, tmp_path,
+                                                                    capsys):
+    """`rigtool calibrate` with the default fit (no GP signal): format 6 without the
+    posterior-variance file or the signal arrays, an earlier fit's file in the folder
+    removed, and the C program and rigtool.models agree on it."""
+    folder, rec, betm = twin
+    out = tmp_path / folder.name
+    out.mkdir()
+    shutil.copy(folder / VARIANCE_FILE, out / VARIANCE_FILE)  # left by an earlier calibrate
+    assert main(["calibrate", folder.name, "--db", str(folder.parent.parent / "db.sqlite"),
+                 "--out", str(tmp_path)]) == 0
+    capsys.readouterr()
+    doc = json.loads((out / MODEL_FILE).read_text())
+    assert doc["format_version"] == 6 and doc["gp"]["signal"] is False
+    assert doc["gp"]["signal_var"] == 0 and not {"alpha", "a_n", "weights"} & set(doc["gp"])
+    assert not (out / VARIANCE_FILE).exists()
+    assert load_model(out).alpha is None
+    worst, flags = _agree(qctm_eval, out, *_mixed(rec, betm))
+    assert worst < ATOL and np.any(flags & CURRENT_FAULT)

@@ -12,7 +12,9 @@ averaged over a window of `features.window_blocks` blocks within the segment tha
 thrust = f_BETM(n, I) + y_mean + g(z) + sum_j a_j m(r_j) with the gated mean term
 g(z) = beta z / (1 + exp(-(|z| - z0) / s)), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r) and
 r_j = || (x - X_j) / (x_scale * length_scales) ||; the noise variance of a new measurement is
-exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic).
+exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic). A model whose GP
+signal variance is 0 (format 6, gp.signal false: the default fit) has no a_j and no
+posterior-variance file: those terms are 0.
 
 Safety (format 4): a block whose shortfall lies outside `bounds.shortfall` (current dropout,
 current below idle, speed and current that disagree) is a current fault: it falls back to the

@@ -1,4 +1,4 @@
-/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-4).
+/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-6).
  *
  * Build:  cc -std=c99 -O2 -o qctm_eval qctm_gp.c qctm_eval_main.c -lm
  *
