@@ -242,6 +242,7 @@ def test_causal_model_features_never_look_ahead(tmp_path):
         if lead is None:
             del doc["features"]["lead_blocks"]  # files written before the option read as centred
         (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+        np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
         z = load_model(tmp_path).features(n, i, 0.3)[:, 1]
         assert (z[3] > 0) == ahead and z[5] > 0
 
