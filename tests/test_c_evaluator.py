@@ -63,7 +63,7 @@ timing: {settle: {seconds: 1.0}, acquire: {seconds: 8, rate_hz: 250}, rest_s: 1.
 limits: {max_thrust_n: 90, max_current_a: 12, max_speed_rpm: 2000, slew_per_s: 200}
 """
 # a full GP signal, so the posterior sums of the C evaluator are exercised on a twin model
-# (the default fit keeps none; the synthetic "hetero" model below is such a one)
+# (the default fit keeps none: the synthetic "slim" model below; "hetero" keeps one)
 PARAMS = CavitationParams(budget=120, gp=GpParams(hyper_n=120, n_restarts=0,
                                                   signal_scales=(1.0,)))
 BETM = Betm(cp_fwd=2e-5, cp_rev=1.6e-5, c_n=1.2e-9, i_0=0.3, ci_fwd=17.0, ci_rev=13.6,
@@ -161,9 +161,13 @@ def test_twin_model_agrees_with_python(qctm_eval, twin):
     assert np.sum(flags == 0) > len(flags) // 2  # mostly ordinary blocks
 
 
-def test_twin_model_without_kinv_uses_the_prior_variance(qctm_eval, twin, tmp_path):
+def test_twin_model_as_format_5_without_kinv_uses_the_prior_variance(qctm_eval, twin,
+                                                                      tmp_path):
+    """Before format 6 the posterior-variance file was optional (format 6 says whether)."""
     folder, rec, betm = twin
-    shutil.copy(folder / MODEL_FILE, tmp_path / MODEL_FILE)
+    doc = json.loads((folder / MODEL_FILE).read_text())
+    assert doc["gp"].pop("signal") is True
+    (tmp_path / MODEL_FILE).write_text(json.dumps({**doc, "format_version": 5}))
     inputs = _mixed(rec, betm)
     _agree(qctm_eval, tmp_path, *inputs)
     post, prior = _run_c(qctm_eval, folder, *inputs), _run_c(qctm_eval, tmp_path, *inputs)
@@ -187,8 +191,9 @@ def _gp_data(n: int, seed: int, betm: Betm = BETM) -> tuple[np.ndarray, ...]:
 
 
 def _synthetic(folder: Path, case: str) -> Betm:
-    """Write a synthetic model: "hetero" (centred window, no bounds: above_n is Infinity in
-    the JSON, no domain) or "exact" (causal, BETM level tables, bounds and domain)."""
+    """Write a synthetic model: "hetero" (a GP signal kept, centred window, no bounds:
+    above_n is Infinity in the JSON, no domain), "slim" (the default fit: no GP signal, so
+    no posterior-variance file) or "exact" (causal, BETM level tables, bounds and domain)."""
     betm = BETM_LEVELS if case == "exact" else BETM
     _, _, _, _, x, y, w = _gp_data(100, 3, betm)
     p = GpParams(hyper_n=100, n_restarts=0)
@@ -199,10 +204,14 @@ def _synthetic(folder: Path, case: str) -> Betm:
         doc = model_document(betm, gp, {}, window=5, lead=0, bounds=Bounds((-0.2, 0.3), 2.0),
                              domain=domain)
     else:
+        if case == "hetero":
+            p = GpParams(hyper_n=100, n_restarts=0, signal_scales=(1.0,))
         gp = fit_hetero(x, y, w, np.floor(np.arange(y.size) * 0.1) % 2, p)
         doc = model_document(betm, gp, {}, window=3)
+    assert doc["gp"]["signal"] == (case != "slim")
     (folder / MODEL_FILE).write_text(json.dumps(doc))
-    np.save(folder / VARIANCE_FILE, gp.k_inv)
+    if doc["gp"]["signal"]:
+        np.save(folder / VARIANCE_FILE, gp.k_inv)
     return betm
 
 
@@ -212,7 +221,7 @@ def _as_version_2(doc: dict) -> dict:
     for key in ("bounds", "domain", "flags"):
         del doc[key]
     del doc["features"]["lead_blocks"]
-    for key in ("gate_z0", "gate_s"):
+    for key in ("gate_z0", "gate_s", "signal"):
         del doc["gp"][key]
     return doc
 
@@ -225,9 +234,9 @@ def hetero_files(tmp_path_factory) -> tuple[str, bytes]:
     return (folder / MODEL_FILE).read_text(), (folder / VARIANCE_FILE).read_bytes()
 
 
-@pytest.mark.parametrize("case", ["hetero", "exact", "v2"])
+@pytest.mark.parametrize("case", ["hetero", "slim", "exact", "v2"])
 def test_synthetic_models_agree_with_python(qctm_eval, hetero_files, tmp_path, case):
-    if case == "exact":
+    if case in ("exact", "slim"):
         betm = _synthetic(tmp_path, case)
     else:  # the module's hetero model, as it is or as a version-2 file
         doc = json.loads(hetero_files[0])
@@ -243,8 +252,74 @@ def test_synthetic_models_agree_with_python(qctm_eval, hetero_files, tmp_path, c
     assert worst < ATOL and np.any(flags & CURRENT_FAULT)
     if case == "exact":
         assert np.any(flags & CLAMPED) and np.any(flags & OUT_OF_DOMAIN)
+    if case == "v2":  # before format 6 the file is optional: the prior variance without it
+        (tmp_path / VARIANCE_FILE).unlink()
+        _agree(qctm_eval, tmp_path, n, i, h, s)
+
+
+FIXTURE = Path(__file__).parent / "fixtures" / "qctm_v5"  # written by the format-5 writer
+
+
+def test_format_5_file_with_kinv_evaluates_as_the_format_5_reader_did(qctm_eval, tmp_path):
+    """A small format-5 model (GP signal, qctm_gp_kinv.npy) and the format-5 reader's output:
+    both readers still load it and give that output."""
+    assert json.loads((FIXTURE / MODEL_FILE).read_text())["format_version"] == 5
+    want = np.genfromtxt(FIXTURE / "expected.csv", delimiter=",", names=True)
+    n, i, h, seg = (want[k] for k in ("speed_rpm", "current_a", "depth_m", "segment"))
+    seg = seg.astype(int)
+    model = load_model(FIXTURE)
+    assert model.k_inv is not None and model.alpha is not None
+    p = model.evaluate(n, i, h, seg)
+    for got, col in ((p.thrust_n, "thrust_n"), (p.lo95, "lo95"), (p.hi95, "hi95")):
+        np.testing.assert_allclose(got, want[col], rtol=1e-12, atol=1e-9)
+    np.testing.assert_array_equal(p.flags, want["flags"].astype(int))
+    _agree(qctm_eval, FIXTURE, n, i, h, seg)
+    shutil.copy(FIXTURE / MODEL_FILE, tmp_path / MODEL_FILE)  # format 5 without kinv: prior
+    assert load_model(tmp_path).k_inv is None
+    _agree(qctm_eval, tmp_path, n, i, h, seg)
+
+
+def _both_refuse(exe: Path, folder: Path, words: str) -> None:
+    """The C program exits 1 with a one-line message and load_model raises, both with `words`."""
+    out = subprocess.run([str(exe), str(folder)], input="1000,1,0.3,0\n",
+                         capture_output=True, text=True)
+    assert out.returncode == 1 and out.stdout == "" and len(out.stderr.splitlines()) == 1
+    assert words in out.stderr, out.stderr
+    with pytest.raises(ValueError, match=words):
+        load_model(folder)
+
+
+@pytest.fixture(scope="module")
+def slim_text(tmp_path_factory) -> str:
+    """Text of a synthetic model without GP signal (format 6, "signal": false)."""
+    folder = tmp_path_factory.mktemp("cslim")
+    _synthetic(folder, "slim")
+    assert not (folder / VARIANCE_FILE).exists()
+    return (folder / MODEL_FILE).read_text()
+
+
+def test_the_signal_flag_must_match_the_fields_and_files(qctm_eval, hetero_files, slim_text,
+                                                         tmp_path):
+    """Format 6: gp.signal false with a variance file, alpha or a signal variance, or true
+    without them, is refused by both readers."""
+    text, kinv = hetero_files
+    (tmp_path / MODEL_FILE).write_text(slim_text)
+    (tmp_path / VARIANCE_FILE).write_bytes(kinv)  # an earlier fit's file left in the folder
+    _both_refuse(qctm_eval, tmp_path, "belongs to another fit")
     (tmp_path / VARIANCE_FILE).unlink()
-    _agree(qctm_eval, tmp_path, n, i, h, s)
+    cases = [(slim_text, '"signal": false', '"signal": true', "gp.alpha is missing"),
+             (slim_text, '"signal": false', '"signal": 0', "gp.signal must be true or false"),
+             (slim_text, '"signal_var": 0.0', '"signal_var": 1e-9', "signal_var"),
+             (slim_text, '"signal": false', '"signal": false, "a_n": [1]', "gp.a_n is present"),
+             (text, '"signal": true', '"signal": false', "gp.alpha is present")]
+    for base, old, new, words in cases:
+        assert old in base
+        (tmp_path / MODEL_FILE).write_text(base.replace(old, new, 1))
+        _both_refuse(qctm_eval, tmp_path, words)
+    (tmp_path / MODEL_FILE).write_text(text)  # a GP signal without its variance file
+    _both_refuse(qctm_eval, tmp_path, "is missing")
+    (tmp_path / VARIANCE_FILE).write_bytes(kinv)
+    _agree(qctm_eval, tmp_path, np.array([1000.0]), np.array([1.5]), np.array([0.3]), [0])
 
 
 BAD_DOCS = {
@@ -255,8 +330,8 @@ BAD_DOCS = {
     "bad number": lambda t: t.replace('"y_std": ', '"y_std": 1.', 1),
     "bad escape": lambda t: t.replace('"rigtool-qctm-gp"', '"rigtool\\q"', 1),
     "not an object": lambda t: "[1, 2, 3]",
-    "version 1": lambda t: t.replace('"format_version": 5', '"format_version": 1', 1),
-    "version 6": lambda t: t.replace('"format_version": 5', '"format_version": 6', 1),
+    "version 1": lambda t: t.replace('"format_version": 6', '"format_version": 1', 1),
+    "version 7": lambda t: t.replace('"format_version": 6', '"format_version": 7', 1),
     "x_train type": lambda t: t.replace('"x_train": [', '"x_train": "no", "x": [', 1),
     "unknown betm field": lambda t: t.replace('"cp_fwd"', '"cp_sideways": 1, "cp_fwd"', 1),
 }
@@ -282,3 +357,24 @@ def test_bad_kinv_and_bad_input_exit_with_a_message(qctm_eval, hetero_files, tmp
     out = subprocess.run([str(qctm_eval), str(tmp_path / MODEL_FILE)],
                          input="1000,1,0.3,0\n1000,abc,0.3,0\n", capture_output=True, text=True)
     assert out.returncode == 2 and "line 2" in out.stderr and out.stdout == ""
+
+
+def test_calibrate_writes_no_unused_gp_terms_and_both_readers_agree(qctm_eval, twin, tmp_path,
+                                                                    capsys):
+    """`rigtool calibrate` with the default fit (no GP signal): format 6 without the
+    posterior-variance file or the signal arrays, an earlier fit's file in the folder
+    removed, and the C program and rigtool.models agree on it."""
+    folder, rec, betm = twin
+    out = tmp_path / folder.name
+    out.mkdir()
+    shutil.copy(folder / VARIANCE_FILE, out / VARIANCE_FILE)  # left by an earlier calibrate
+    assert main(["calibrate", folder.name, "--db", str(folder.parent.parent / "db.sqlite"),
+                 "--out", str(tmp_path)]) == 0
+    capsys.readouterr()
+    doc = json.loads((out / MODEL_FILE).read_text())
+    assert doc["format_version"] == 6 and doc["gp"]["signal"] is False
+    assert doc["gp"]["signal_var"] == 0 and not {"alpha", "a_n", "weights"} & set(doc["gp"])
+    assert not (out / VARIANCE_FILE).exists()
+    assert load_model(out).alpha is None
+    worst, flags = _agree(qctm_eval, out, *_mixed(rec, betm))
+    assert worst < ATOL and np.any(flags & CURRENT_FAULT)

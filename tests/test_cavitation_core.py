@@ -187,8 +187,10 @@ def test_gp_export_reload_matches_sklearn(tmp_path, hetero):
     gp = fit_hetero(x, y, w, np.floor(t / 2.0) % 2, p) if hetero else fit_exact(x, y, w, p)
     assert (gp.noise is not None) == hetero
     doc = model_document(BETM, gp, {"run_ids": ["synthetic"]}, window=3, block_s=0.2)
+    assert doc["gp"]["signal"] == (not hetero)  # the default hetero fit keeps no signal
     (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
-    np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
+    if doc["gp"]["signal"]:
+        np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
     model = load_model(tmp_path)
     assert model.window == 3
     speed, current, depth, seg, xq, _, _ = _gp_data(60, seed=4)
@@ -207,7 +209,8 @@ def test_gp_export_reload_matches_sklearn(tmp_path, hetero):
     s = np.sqrt(5.0) * np.sqrt((d**2).sum(axis=1))
     z = xq[0, 1]
     gate = 1.0 if g["gate_s"] == 0 else 1.0 / (1.0 + np.exp(-(abs(z) - g["gate_z0"]) / g["gate_s"]))
-    c_mean = g["y_mean"] + g["beta"] * z * gate + np.sum(np.array(g["a_n"]) * (1 + s + s * s / 3) * np.exp(-s))
+    a_n = np.array(g["a_n"]) if g["signal"] else 0.0  # no signal: no a_n, no kernel term
+    c_mean = g["y_mean"] + g["beta"] * z * gate + np.sum(a_n * (1 + s + s * s / 3) * np.exp(-s))
     assert c_mean == pytest.approx(mean_sk[0], abs=1e-6)
     if hetero:
         nz = doc["noise"]
@@ -239,6 +242,7 @@ def test_causal_model_features_never_look_ahead(tmp_path):
         if lead is None:
             del doc["features"]["lead_blocks"]  # files written before the option read as centred
         (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+        np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
         z = load_model(tmp_path).features(n, i, 0.3)[:, 1]
         assert (z[3] > 0) == ahead and z[5] > 0
 
@@ -398,7 +402,8 @@ def _synthetic_model(tmp_path, **doc_changes):
     doc = model_document(BETM, gp, {}, window=3, block_s=0.2)
     doc.update(doc_changes)
     (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
-    np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
+    if doc["gp"]["signal"]:
+        np.save(tmp_path / VARIANCE_FILE, gp.k_inv)
     return load_model(tmp_path), gp
 
 

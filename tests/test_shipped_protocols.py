@@ -7,24 +7,31 @@ must not change a number. `RIGTOOL_UPDATE_GOLDEN=1` writes them anew after an in
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
+import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 import rigtool
+from rigtool.analysis.blocks import block_means
+from rigtool.analysis.dataset import load_run
 from rigtool.artefacts.formats import FORMATS, MODULES
 from rigtool.artefacts.vehicle import ExportOptions
 from rigtool.cli import main
 from rigtool.errors import UsageError
+from rigtool.models import MODEL_FILE, VARIANCE_FILE, load_model
 from rigtool.store import Store
 from rigtool.thruster_profiles import profile_with_overrides
 from rigtool.workflows import export_calibration, stored_results
 
 from .conftest import PROTOCOLS
+from .test_c_evaluator import C_DIR, CC, _agree
 from .test_export_all_formats import OPTIONS, empty_lists
 
 SHIPPED = sorted(p.stem for p in PROTOCOLS.glob("*.yaml"))
@@ -84,6 +91,26 @@ def test_sweep_calibrate_report(name, tmp_path, monkeypatch, capsys):
     assert report.endswith("report.html") and (tmp_path / report).is_file()
     if name in NEEDS:
         assert 'id="cavitation"' in (tmp_path / report).read_text()
+        _qctm_model_is_slim_and_read_by_both(folder, tmp_path)
+
+
+def _qctm_model_is_slim_and_read_by_both(folder: Path, tmp_path: Path) -> None:
+    """The default QCTM-GP keeps no GP signal: no posterior-variance file (18 MB here before
+    format 6), the model files under 1 MB, and rigtool.models and the C evaluator agree on
+    the run's own block means."""
+    doc = json.loads((folder / MODEL_FILE).read_text())
+    assert doc["format_version"] == 6 and doc["gp"]["signal"] is False
+    assert not (folder / VARIANCE_FILE).exists()
+    assert (folder / MODEL_FILE).stat().st_size < 1_000_000
+    with Store(tmp_path / "rigtool.sqlite", read_only=True) as store:
+        b = block_means(load_run(store, store.resolve_run_id("last")), 0.2)
+    inputs = (b.speed_rpm, b.current_a, b.depth_m, b.point.astype(int))
+    assert np.isfinite(load_model(folder).evaluate(*inputs).thrust_n).all()
+    if CC is not None:
+        exe = tmp_path / "qctm_eval"
+        subprocess.run([CC, "-std=c99", "-O2", "-o", str(exe), str(C_DIR / "qctm_gp.c"),
+                        str(C_DIR / "qctm_eval_main.c"), "-lm"], check=True)
+        _agree(exe, folder, *inputs)
 
 
 def _twin_drift(name: str, db) -> tuple[dict, bool]:

@@ -11,7 +11,14 @@ import numpy as np
 from rigtool.analysis.trainset import TrainingSet
 from rigtool.models.betm import Betm
 from rigtool.models.domain import DEFAULT_MAX_DISTANCE, Bounds, Domain
-from rigtool.models.qctm import FEATURES, FORMAT, FORMAT_VERSION, VARIANCE_FILE, GatedMean
+from rigtool.models.qctm import (
+    FEATURES,
+    FORMAT,
+    FORMAT_VERSION,
+    SIGNAL_ARRAYS,
+    VARIANCE_FILE,
+    GatedMean,
+)
 
 RANGE_MARGIN = 0.05  # each training range is widened by this fraction of its span per side
 ABOVE_QUANTILE = 0.995  # quantile of f_measured - f_BETM that sets bounds.above_n
@@ -35,12 +42,14 @@ def fit_limits(training: TrainingSet, shortfall: tuple[float, float],
 def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
                    block_s: float = 0.2, lead: int | None = None,
                    bounds: Bounds | None = None, domain: Domain | None = None) -> dict:
-    """The JSON document of a fitted model (`gp` an analysis.gp.ExactGp on gp_features)."""
+    """The JSON document of a fitted model (`gp` an analysis.gp.ExactGp on gp_features).
+    With signal variance 0 the GP's mean and posterior terms are 0: `gp.signal` is false and
+    the arrays only they use (SIGNAL_ARRAYS, the variance file) are left out."""
     h = gp.hyper  # type: ignore[attr-defined]
     y_std = float(gp.y_std)  # type: ignore[attr-defined]
     alpha = np.asarray(gp.alpha)  # type: ignore[attr-defined]
     noise = getattr(gp, "noise", None)
-    return {
+    doc = {
         "format": FORMAT, "format_version": FORMAT_VERSION, **extra,
         "inputs": ["speed_rpm", "current_a", "depth_m"],
         "features": {"columns": list(FEATURES), "block_s": block_s, "window_blocks": window,
@@ -71,5 +80,9 @@ def model_document(betm: Betm, gp: object, extra: dict, window: int = 1,
             "alpha": alpha.tolist(),
             "a_n": (y_std * h.signal_var * alpha).tolist(),
             "variance_file": VARIANCE_FILE,
+            "signal": h.signal_var != 0.0,
         },
     }
+    if not doc["gp"]["signal"]:
+        doc["gp"] = {k: v for k, v in doc["gp"].items() if k not in SIGNAL_ARRAYS}
+    return doc

@@ -1,5 +1,5 @@
-"""Quasi-cavitation artefacts: cavitation.json, qctm_gp.json + kinv, GP training CSV/Parquet
-(docs/cavitation.md)."""
+"""Quasi-cavitation artefacts: cavitation.json, qctm_gp.json (+ kinv when the GP keeps a
+signal), GP training CSV/Parquet (docs/cavitation.md)."""
 
 from __future__ import annotations
 
@@ -114,8 +114,10 @@ def write_cavitation_artefacts(res: CavitationResult, out_dir: str | Path,
     paths = [atomic_write(target / SUMMARY_FILE, json_text(summary_document(res, created))),
              # the model keeps full precision: its weights are summed over every training row
              atomic_write(target / MODEL_FILE, json_text(model, indent=None, digits=None))]
-    if res.gp.k_inv is not None:
+    if model["gp"]["signal"] and res.gp.k_inv is not None:
         paths.append(atomic_write(target / VARIANCE_FILE, _npy_bytes(res.gp.k_inv)))
+    else:  # no GP signal: nothing uses the matrix, and a reader refuses an earlier fit's
+        (target / VARIANCE_FILE).unlink(missing_ok=True)
     cols = training_table(res)
     head = _header(res, created)
     lines = ["# " + h for h in head] + [",".join(cols)]

@@ -12,7 +12,9 @@ averaged over a window of `features.window_blocks` blocks within the segment tha
 thrust = f_BETM(n, I) + y_mean + g(z) + sum_j a_j m(r_j) with the gated mean term
 g(z) = beta z / (1 + exp(-(|z| - z0) / s)), m(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r) and
 r_j = || (x - X_j) / (x_scale * length_scales) ||; the noise variance of a new measurement is
-exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic).
+exp(log_mean + log_bias + signal_var sum_j b_j m(r'_j)) (heteroscedastic). A model whose GP
+signal variance is 0 (format 6, gp.signal false: the default fit) has no a_j and no
+posterior-variance file: those terms are 0.
 
 Safety (format 4): a block whose shortfall lies outside `bounds.shortfall` (current dropout,
 current below idle, speed and current that disagree) is a current fault: it falls back to the
@@ -49,7 +51,10 @@ VARIANCE_FILE = "qctm_gp_kinv.npy"
 FORMAT = "rigtool-qctm-gp"
 MAX_MODEL_BYTES = 64 << 20  # qctm_gp.json: a few MB for the largest training budget
 MAX_VARIANCE_BYTES = 256 << 20  # qctm_gp_kinv.npy: n_train^2 doubles (2000 rows: 32 MB)
-FORMAT_VERSION = 5  # 5: noise bias per regime; 4: bounds, domain; 3: gate, lead_blocks; 2: beta z
+# 6: gp.signal (false: no GP mean or posterior terms, no alpha and no variance file);
+# 5: noise bias per regime; 4: bounds, domain; 3: gate, lead_blocks; 2: beta z
+FORMAT_VERSION = 6
+SIGNAL_ARRAYS = ("alpha", "a_n", "weights", "variance_file")  # absent when gp.signal is false
 Z95 = 1.959963984540054
 SQRT5 = 5.0**0.5
 LOG_CHI2_BIAS = 1.2703628454614782  # -E[log chi^2_1]: exp(E[log e^2] + this) = var(e), e Gaussian
@@ -227,8 +232,8 @@ class ThrustModel:
     noise_var: float
     y_mean: float
     y_std: float
-    x_train: np.ndarray
-    alpha: np.ndarray
+    x_train: np.ndarray  # also the domain's training rows
+    alpha: np.ndarray | None  # None: no GP signal (format 6 "signal": false), mean g(z) alone
     k_inv: np.ndarray | None
     noise: LogNoise | None = None  # heteroscedastic noise; None: constant noise_var
     window: int = 1  # shortfall averaging window (blocks)
@@ -258,6 +263,11 @@ class ThrustModel:
     def correction(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(GP mean of f_measured - f_BETM, std of a new measurement) at GP inputs x, N."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
+        if self.alpha is None:  # signal_var 0: the kernel terms of mean and variance are 0
+            var_n2 = np.full(len(x), self.y_std**2 * (max(self.signal_var, 0.0) + self.noise_var))
+            if self.noise is not None:
+                var_n2 = var_n2 + self.noise.var_n2(x)
+            return self.y_mean + self.mean_term(x[:, 1]), np.sqrt(var_n2)
         xs = (x - self.x_mean) / self.x_scale
         xt = (self.x_train - self.x_mean) / self.x_scale
         out_mean = np.empty(len(xs))
@@ -377,11 +387,40 @@ def load_model(calibration_dir: str | Path) -> ThrustModel:
     name = doc["gp"].get("variance_file", VARIANCE_FILE)
     if name in ("", ".", "..") or Path(name).name != name:
         raise UnreadableModel(f"{path}: gp.variance_file: {show(name)} is not a file name")
-    k_inv = _variance(folder / name) if (folder / name).exists() else None
+    signal = _signal(doc, version, path)
+    if not signal and (folder / VARIANCE_FILE).exists():
+        raise UnreadableModel(f"{folder / VARIANCE_FILE} is present but {path} has no GP "
+                              "signal (gp.signal false): the file belongs to another fit")
+    if version >= 6 and signal and not (folder / name).exists():
+        raise UnreadableModel(f"{path} has a GP signal (gp.signal true) but its posterior-"
+                              f"variance file {folder / name} is missing")
+    k_inv = _variance(folder / name) if signal and (folder / name).exists() else None
     try:
         return model_from_document(doc, k_inv)
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as exc:
         raise UnreadableModel(f"{path}: {type(exc).__name__}: {brief(exc)}") from None
+
+
+def _signal(doc: dict, version: int, path: Path) -> bool:
+    """Whether the document carries GP signal terms (format 6: gp.signal; older: always),
+    refusing a flag that contradicts the fields present."""
+    g = doc["gp"]
+    if version < 6:
+        return True
+    signal = g.get("signal")
+    if not isinstance(signal, bool):
+        raise UnreadableModel(f"{path}: gp.signal must be true or false, found {show(signal)}")
+    if signal and "alpha" not in g:
+        raise UnreadableModel(f"{path}: gp.signal is true but gp.alpha is missing")
+    if not signal:
+        present = [k for k in SIGNAL_ARRAYS if k in g]
+        if present:
+            raise UnreadableModel(f"{path}: gp.signal is false but gp.{present[0]} is present")
+        var = g.get("signal_var")
+        if isinstance(var, bool) or not isinstance(var, int | float) or var != 0:
+            raise UnreadableModel(f"{path}: gp.signal is false but gp.signal_var is "
+                                  f"{show(g.get('signal_var'))}, not 0")
+    return signal
 
 
 def _variance(path: Path) -> np.ndarray:
@@ -397,11 +436,22 @@ def _variance(path: Path) -> np.ndarray:
 
 
 def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustModel:
-    """A ThrustModel from a qctm_gp.json document (and the posterior-variance matrix)."""
+    """A ThrustModel from a qctm_gp.json document (and the posterior-variance matrix, which
+    a document without GP signal, format 6 "signal": false, does not use)."""
     b = doc["betm"]
     betm = Betm(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in b.items()})
     g = doc["gp"]
-    n_train = len(g["x_train"])
+    signal = doc.get("format_version", 1) < 6 or g["signal"] is not False
+    x_train = np.array(g["x_train"], dtype=float)
+    n_train = len(x_train)
+    if x_train.shape != (n_train, len(FEATURES)) or n_train == 0:
+        raise ValueError(f"gp.x_train is {x_train.shape}, not rows of {len(FEATURES)} inputs")
+    alpha = np.array(g["alpha"], dtype=float) if signal else None
+    if alpha is not None and alpha.shape != (n_train,):
+        raise ValueError(f"gp.alpha has shape {alpha.shape}, the model has {n_train} "
+                         "training rows")
+    if not signal:
+        k_inv = None
     if k_inv is not None and np.shape(k_inv) != (n_train, n_train):
         raise ValueError(f"the posterior-variance matrix is {np.shape(k_inv)}, the model has "
                          f"{n_train} training rows: it belongs to another fit")
@@ -409,7 +459,7 @@ def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustMod
         betm=betm, x_mean=np.array(g["x_mean"]), x_scale=np.array(g["x_scale"]),
         length_scales=np.array(g["length_scales"]), signal_var=float(g["signal_var"]),
         noise_var=float(g["noise_var"]), y_mean=float(g["y_mean"]), y_std=float(g["y_std"]),
-        x_train=np.array(g["x_train"], dtype=float), alpha=np.array(g["alpha"]), k_inv=k_inv,
+        x_train=x_train, alpha=alpha, k_inv=k_inv,
         noise=None if doc.get("noise") is None else LogNoise.from_dict(doc["noise"]),
         window=int(doc.get("features", {}).get("window_blocks", 1)),
         lead=None if doc.get("features", {}).get("lead_blocks") is None

@@ -1,4 +1,4 @@
-/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-4).
+/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-6).
  *
  * Build:  cc -std=c99 -O2 -o qctm_eval qctm_gp.c qctm_eval_main.c -lm
  *
@@ -589,7 +589,7 @@ typedef struct {
     size_t n;
     double x_mean[3], x_scale[3], ls[3];
     double *xt; /* standardised training rows (x_train - x_mean) / x_scale, n x 3 */
-    double *w;  /* gp.a_n, or noise.alpha */
+    double *w;  /* gp.a_n, or noise.alpha; NULL for a GP without signal (no mean terms) */
 } kernel_sum;
 
 struct qctm_model {
@@ -602,6 +602,7 @@ struct qctm_model {
     long long window, half_hi, half_lo;
     /* GP */
     kernel_sum gp;
+    int has_signal; /* 0: format 6 "signal": false, no GP mean or posterior terms */
     double signal_var, noise_var, y_mean, y_std, beta, gate_z0, gate_s;
     double *kinv; /* n x n, or NULL: prior variance */
     /* heteroscedastic noise */
@@ -703,13 +704,12 @@ static int get_vec3(loader *L, const jval *obj, const char *what, const char *ke
     return 0;
 }
 
-/* Training rows (n x 3) and their per-row weights w of a kernel sum. */
-static int get_kernel(loader *L, const jval *obj, const char *what, const char *w_name,
-                      kernel_sum *ks)
+/* Training rows (n x 3) of a kernel sum, standardised; its weights w are left NULL. */
+static int get_rows(loader *L, const jval *obj, const char *what, kernel_sum *ks)
 {
     const jval *rows = jget(obj, "x_train");
     char name[64];
-    size_t j, k, nw;
+    size_t j, k;
     if (get_vec3(L, obj, what, "x_mean", ks->x_mean) != 0
         || get_vec3(L, obj, what, "x_scale", ks->x_scale) != 0
         || get_vec3(L, obj, what, "length_scales", ks->ls) != 0)
@@ -731,6 +731,17 @@ static int get_kernel(loader *L, const jval *obj, const char *what, const char *
             ks->xt[3 * j + k] = (r->items[k].num - ks->x_mean[k]) / ks->x_scale[k];
         }
     }
+    return 0;
+}
+
+/* Training rows (n x 3) and their per-row weights w of a kernel sum. */
+static int get_kernel(loader *L, const jval *obj, const char *what, const char *w_name,
+                      kernel_sum *ks)
+{
+    char name[64];
+    size_t nw;
+    if (get_rows(L, obj, what, ks) != 0)
+        return -1;
     snprintf(name, sizeof name, "%s.%s", what, w_name);
     if (get_vec(L, jget(obj, w_name), name, &ks->w, &nw) != 0)
         return -1;
@@ -814,6 +825,27 @@ static int load_gp(loader *L, qctm_model *m, const jval *doc)
         || get_num(L, g, "beta", 0.0, &m->beta) || get_num(L, g, "gate_z0", 0.0, &m->gate_z0)
         || get_num(L, g, "gate_s", 0.0, &m->gate_s))
         return -1;
+    m->has_signal = 1;
+    if (m->version >= 6) { /* gp.signal false: signal_var 0, the kernel terms are 0 */
+        static const char *const arrays[] = {"alpha", "a_n", "weights", "variance_file"};
+        const jval *sig = jget(g, "signal");
+        size_t k;
+        if (sig == NULL || (sig->type != J_TRUE && sig->type != J_FALSE))
+            return lfail(L, "qctm_gp.json: %s must be true or false", "gp.signal");
+        m->has_signal = sig->type == J_TRUE;
+        if (!m->has_signal) {
+            for (k = 0; k < sizeof arrays / sizeof *arrays; k++)
+                if (jget(g, arrays[k]) != NULL)
+                    return lfail(L, "qctm_gp.json: gp.signal is false but gp.%s is present",
+                                 arrays[k]);
+            if (m->signal_var != 0.0)
+                return lfail(L, "qctm_gp.json: %s", "gp.signal is false but gp.signal_var "
+                             "is not 0");
+            return get_rows(L, g, "gp", &m->gp); /* the domain's training rows */
+        }
+        if (jget(g, "alpha") == NULL)
+            return lfail(L, "qctm_gp.json: %s", "gp.signal is true but gp.alpha is missing");
+    }
     /* mean weights a_n = y_std signal_var alpha (computed from alpha if a file lacks a_n) */
     a_n = jget(g, "a_n");
     if (get_kernel(L, g, "gp", a_n != NULL ? "a_n" : "alpha", &m->gp) != 0)
@@ -915,8 +947,8 @@ static int load_document(loader *L, qctm_model *m, const jval *doc)
     if (version < 2)
         return lfail(L, "qctm_gp.json: %s", "a version-1 model on raw (n, I, h) inputs: rerun "
                      "rigtool calibrate to refit it");
-    if (version > 5)
-        return lfail(L, "qctm_gp.json: %s", "format version above 5: this evaluator reads 2-5");
+    if (version > 6)
+        return lfail(L, "qctm_gp.json: %s", "format version above 6: this evaluator reads 2-6");
     m->version = (int)version;
     return load_betm(L, m, jget(doc, "betm")) || load_features(L, m, doc)
            || load_gp(L, m, doc) || load_noise(L, m, doc) || load_limits(L, m, doc);
@@ -1024,8 +1056,24 @@ qctm_model *qctm_load(const char *path, char *err, size_t errlen)
     }
     jfree(&doc);
     free(json_path);
+    if (!m->has_signal) { /* nothing uses a posterior-variance matrix: one is another fit's */
+        FILE *f = fopen(kinv_path, "rb");
+        if (f != NULL) {
+            fclose(f);
+            set_err(err, errlen, "%s is present but the model has no GP signal (gp.signal "
+                    "false): the file belongs to another fit", kinv_path);
+            free(kinv_path);
+            qctm_free(m);
+            return NULL;
+        }
+        free(kinv_path);
+        return m;
+    }
     if (read_npy(kinv_path, m->gp.n, &m->kinv, &missing, err, errlen) != 0) {
-        if (!missing) {
+        if (missing && m->version >= 6)
+            set_err(err, errlen, "%s is missing but the model has a GP signal (gp.signal "
+                    "true)", kinv_path);
+        if (!missing || m->version >= 6) {
             free(kinv_path);
             qctm_free(m);
             return NULL;
@@ -1185,7 +1233,7 @@ static void correction(const qctm_model *m, const double x[3], double *k, double
     double xs[3], g, u, sum = 0.0, var = m->signal_var, var_n2;
     size_t j, l;
     standardise(&m->gp, x, xs);
-    for (j = 0; j < m->gp.n; j++) {
+    for (j = 0; m->has_signal && j < m->gp.n; j++) {
         double c = matern(&m->gp, xs, j);
         k[j] = m->signal_var * c;
         sum += m->gp.w[j] * c;

@@ -1,4 +1,4 @@
-/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-4).
+/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-6).
  *
  * C99, libc and libm only. It computes what rigtool.models.ThrustModel.evaluate computes
  * (rigtool/models/qctm.py is the reference; docs/cavitation.md, "Export", the recipe).
@@ -23,10 +23,13 @@ typedef struct qctm_model qctm_model;
 /* Load a model. `path` is the calibration folder holding qctm_gp.json, or the .json file
  * itself (any path ending in ".json"). The posterior-variance matrix gp.variance_file
  * (default qctm_gp_kinv.npy, next to the .json) is read when it exists; without it the
- * prior variance is used, as in Python. Returns NULL with a message in err on failure. */
+ * prior variance is used, as in Python. Format 6 says which it is: gp.signal true needs the
+ * file, false (no GP signal: no mean or posterior terms) refuses one. Returns NULL with a
+ * message in err on failure. */
 qctm_model *qctm_load(const char *path, char *err, size_t errlen);
 
-/* 1 when the posterior-variance matrix was loaded, 0 when the prior variance is used. */
+/* 1 when the posterior-variance matrix was loaded, 0 when the prior variance is used (or
+ * the model has no GP signal). */
 int qctm_has_kinv(const qctm_model *m);
 
 void qctm_free(qctm_model *m);
