@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from rigtool.analysis.calibrate import CalibrationParams, calibrate_run  # noqa: E402
-from rigtool.analysis.models import FitParams  # noqa: E402
+from rigtool.analysis.depth_fits import FitParams  # noqa: E402
 from rigtool.cli import main  # noqa: E402
 from rigtool.sim.profiles import PROFILES  # noqa: E402
 from rigtool.store import Store  # noqa: E402

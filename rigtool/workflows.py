@@ -23,8 +23,8 @@ from rigtool.store import Store, is_run_id, run_label, utc_now
 if TYPE_CHECKING:
     from rigtool.analysis.calibrate import Calibration
     from rigtool.analysis.cavitation import CavitationResult
+    from rigtool.analysis.compare import CompareResult
     from rigtool.artefacts.vehicle import DynamicsSource, ExportOptions
-    from rigtool.compare import CompareResult
 
 # Analysis, artefact and comparison modules are imported by the workflow that needs them:
 # `report` only decodes stored results, and starts without scikit-learn or pyarrow.
@@ -267,8 +267,8 @@ def compare(store: Store, run_refs: Sequence[str], reference: str | None = None,
             ) -> tuple[CompareResult, list[Path]]:
     """Compare thrusters (runs): corrections and compare.html in `out_dir`; the reference run
     joins the compared runs if missing."""
+    from rigtool.analysis.compare import compare_curves, curve_from_calibration
     from rigtool.artefacts.compare import write_corrections
-    from rigtool.compare import compare_curves, curve_from_calibration
     from rigtool.report.compare_html import write_compare_report
 
     ids = [store.resolve_run_id(r) for r in run_refs]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from rigtool.analysis.calibrate import CalibrationParams, calibrate_run
-from rigtool.analysis.models import FitParams
+from rigtool.analysis.depth_fits import FitParams
 from rigtool.cli import main
 from rigtool.store import Store
 

@@ -11,6 +11,14 @@ import numpy as np
 import rigtool
 from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
+from rigtool.analysis.depth_fits import (
+    FitParams,
+    ModelFits,
+    WindowSamples,
+    candidate_points,
+    fit_models,
+    speed_sign,
+)
 from rigtool.analysis.dynamics import Dynamics, StepSeries, identify, no_dynamics_reason
 from rigtool.analysis.fits import (
     SECONDS_PER_HOUR,
@@ -20,14 +28,6 @@ from rigtool.analysis.fits import (
     occupied_starts,
     session_index,
     session_line,
-)
-from rigtool.analysis.models import (
-    FitParams,
-    ModelFits,
-    WindowSamples,
-    candidate_points,
-    fit_models,
-    speed_sign,
 )
 from rigtool.analysis.quality import (
     Hysteresis,

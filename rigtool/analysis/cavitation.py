@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from rigtool.analysis.betm import (
+from rigtool.analysis.betm_fit import (
     Betm,
     EstimatorErrors,
     betm_from_section,

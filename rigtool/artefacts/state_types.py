@@ -27,15 +27,15 @@ from types import MappingProxyType
 from typing import Any
 
 from rigtool.analysis import (
-    betm,
+    betm_fit,
     calibrate,
     cavitation,
     curves,
+    depth_fits,
     dynamics,
     events,
     fits,
     gp,
-    models,
     quality,
     steady,
     trainset,
@@ -48,7 +48,7 @@ from rigtool.models import domain
 Fields = dict[str, Any]
 
 TYPES: Mapping[str, type] = MappingProxyType({
-    "betm.EstimatorErrors/1": betm.EstimatorErrors,
+    "betm.EstimatorErrors/1": betm_fit.EstimatorErrors,
     "calibrate.Calibration/1": calibrate.Calibration,
     "calibrate.CalibrationParams/1": calibrate.CalibrationParams,
     "calibrate.DepthSection/1": calibrate.DepthSection,
@@ -73,7 +73,7 @@ TYPES: Mapping[str, type] = MappingProxyType({
     "model.Betm/1": model_betm.Betm,
     "model.Bounds/1": domain.Bounds,
     "model.Domain/1": domain.Domain,
-    "models.FitParams/1": models.FitParams,
+    "models.FitParams/1": depth_fits.FitParams,
     "quality.Hysteresis/1": quality.Hysteresis,
     "quality.Repeatability/1": quality.Repeatability,
     "quality.TareDrift/1": quality.TareDrift,

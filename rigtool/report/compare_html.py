@@ -9,8 +9,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import rigtool
+from rigtool.analysis.compare import CompareResult
 from rigtool.artefacts.write import atomic_write
-from rigtool.compare import CompareResult
 from rigtool.report import figures as fg
 from rigtool.report.html import fmt_num
 from rigtool.store import utc_now

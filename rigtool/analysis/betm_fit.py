@@ -1,4 +1,5 @@
-"""BETM: inverse-variance fusion of speed- and current-based thrust ([Luo2020], docs/references.md).
+"""Fitting the BETM (rigtool.models.betm) to a deep calibration: inverse-variance fusion of speed-
+and current-based thrust ([Luo2020], docs/references.md).
 
 f_n = C_p |n| n (C_p per direction), f_i = s C_i (I - I_0)^(2/3) with s the sign of the speed;
 both are fused with a prior N(u0, sigma0^2). The consistency test compares the normalised
