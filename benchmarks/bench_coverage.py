@@ -38,8 +38,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rigtool.analysis.calibrate import CalibrationParams, calibrate_run  # noqa: E402
+from rigtool.analysis.calibrate import calibrate_run  # noqa: E402
 from rigtool.analysis.depth_fits import FitParams  # noqa: E402
+from rigtool.analysis.results import CalibrationParams  # noqa: E402
 from rigtool.cli import main  # noqa: E402
 from rigtool.sim.profiles import PROFILES  # noqa: E402
 from rigtool.store import Store  # noqa: E402

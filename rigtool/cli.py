@@ -22,7 +22,7 @@ from rigtool.store import DB_ENV, Store, resolve_db_path
 from rigtool.units import unit_label
 
 if TYPE_CHECKING:
-    from rigtool.analysis.calibrate import Calibration
+    from rigtool.analysis.results import CalibrationResult
     from rigtool.artefacts.vehicle import ExportOptions
     from rigtool.engine import Outcome
 
@@ -472,6 +472,7 @@ def _num(v: float) -> str:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from rigtool import workflows
+    from rigtool.analysis.calibrate import summary_rows
 
     with Store(resolve_db_path(args.db), create=False) as store:
         check = None
@@ -483,7 +484,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         cal = res.calibration
         table = Table("quantity", "value", "95 % interval", "unit", "note",
                       title=f"calibration of run {res.run_id} ({cal.run_name})")
-        for name, value, lo, hi, unit, note in cal.summary_rows():
+        for name, value, lo, hi, unit, note in summary_rows(cal):
             interval = f"{_num(lo)} .. {_num(hi)}" if lo == lo or hi == hi else ""
             table.add_row(name, _num(value), interval, unit, note)
         out.print(table)
@@ -501,7 +502,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_warnings(store: Store, run_id: str, cal: Calibration | None, notes: list[str]) -> None:
+def _print_warnings(store: Store, run_id: str, cal: CalibrationResult | None, notes: list[str]) -> None:
     """Print the run's warnings: the same list the report shows."""
     from rigtool.run_warnings import stored_run_warnings
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import rigtool
-from rigtool.analysis.calibrate import calibrate_run
+from rigtool.analysis.calibrate import calibrate_run, summary_rows
 from rigtool.artefacts.calibration import write_artefacts
 from rigtool.store import StepRecord, Store
 
@@ -156,7 +156,7 @@ def test_can_run_curve_quality_and_windows(can_cal):
 
 
 def test_summary_rows(can_cal):
-    rows = can_cal.summary_rows()
+    rows = summary_rows(can_cal)
     names = [r[0] for r in rows]
     assert "C_p_fwd @ 0.5 m" in names and "tare_drift" in names
     assert all(len(r) == 6 and isinstance(r[4], str) for r in rows)

@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigtool.analysis.calibrate import CalibrationParams, calibrate_run
+from rigtool.analysis.calibrate import calibrate_run
 from rigtool.analysis.depth_fits import FitParams
+from rigtool.analysis.results import CalibrationParams
 from rigtool.cli import main
 from rigtool.importers import Mapping, import_file, with_overrides
 from rigtool.models.betm import Betm

@@ -20,9 +20,8 @@ import numpy as np
 import pytest
 
 import rigtool
-from rigtool.analysis.calibrate import Calibration
-from rigtool.analysis.cavitation import CavitationResult
 from rigtool.analysis.fits import Coefficient
+from rigtool.analysis.results import CalibrationResult, CavitationResult
 from rigtool.artefacts import state, state_types
 from rigtool.cli import main
 from rigtool.errors import StoreError
@@ -87,7 +86,7 @@ def test_fixture_decodes_to_its_expected_values(path: Path):
     data = state.decode(blob)
     expected = json.loads(path.with_suffix(".json").read_text())
     assert json.loads(json.dumps(summary(data))) == expected
-    assert isinstance(data["calibration"], Calibration)
+    assert isinstance(data["calibration"], CalibrationResult)
     assert data["cavitation"] is None or isinstance(data["cavitation"], CavitationResult)
     assert int(path.stem.rpartition("-v")[2]) == format_of(blob)
 
@@ -173,7 +172,7 @@ def _reachable(roots: tuple[type, ...]) -> set[type]:
 
 
 def test_every_class_a_calibration_can_hold_is_registered():
-    reachable = _reachable((Calibration, CavitationResult))
+    reachable = _reachable((CalibrationResult, CavitationResult))
     assert reachable - set(state_types.TYPES.values()) == set()
 
 

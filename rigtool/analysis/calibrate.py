@@ -1,18 +1,16 @@
-"""`rigtool calibrate` analysis: a stored run -> a Calibration (one section per depth)."""
+"""`rigtool calibrate` analysis: a stored run -> a CalibrationResult (one section per depth)."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
 import rigtool
-from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
+from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
 from rigtool.analysis.depth_fits import (
-    FitParams,
     ModelFits,
     WindowSamples,
     candidate_points,
@@ -30,123 +28,64 @@ from rigtool.analysis.fits import (
     session_line,
 )
 from rigtool.analysis.quality import (
-    Hysteresis,
-    Repeatability,
-    TareDrift,
     drift_over_sweep,
     hysteresis,
     repeatability,
     tare_drift,
 )
-from rigtool.analysis.steady import PointTable, SettlingCriterion, SteadyWindows, steady_windows
-from rigtool.analysis.voltage import VoltageLaw, fit_voltage_law, voltage_point
+from rigtool.analysis.results import (
+    CalibrationParams,
+    CalibrationResult,
+    DepthSection,
+    TareDrift,
+    VoltageLaw,
+)
+from rigtool.analysis.steady import PointTable, SteadyWindows, steady_windows
+from rigtool.analysis.voltage import fit_voltage_law, voltage_point
 from rigtool.store import Store
 
 SummaryRow = tuple[str, float, float, float, str, str]
 NAN = math.nan
-DEEP_DEPTH_M = 0.6  # shallower than this, ventilation is possible ([Luo2020], docs/references.md)
 # One coefficient per fit is checked for quality (the others share its R2 and n).
 CHECKED_FITS = ("C_p_fwd", "C_p_rev", "C_n", "k_free", "C_i_fwd_direct", "C_i_rev_direct")
 
 
-@dataclass(frozen=True)
-class CalibrationParams:
-    """Every threshold the analysis uses; all of it is written to calibration.json."""
-
-    settling: SettlingCriterion = field(default_factory=SettlingCriterion)
-    curve: CurveParams = field(default_factory=CurveParams)
-    fit: FitParams = field(default_factory=FitParams)
-    min_r2: float = 0.98
-    min_points: int = 5
-    drift_warn_n_per_h: float = 0.1  # unused (kept: stored calibrations name it)
-    # a drift is warned about when its interval excludes zero and it moves the zero over the
-    # sweep by more than this many times the thrust noise
-    drift_warn_noise_ratio: float = 1.0
-    deep_depth_m: float = DEEP_DEPTH_M  # shallower points may ventilate: no zero fitted there
-
-
-@dataclass
-class DepthSection:
-    """Results for the points at one depth (depth_m is None when the run sets no depth).
-
-    `zero` is the thrust zero (offset + drift since the tare) found by the model fit or, without
-    speed feedback, from the dead points; curve, hysteresis and repeatability are relative to it.
-    """
-
-    depth_m: float | None
-    points: PointTable
-    fits: dict[str, Coefficient]
-    curve: CommandCurve | None
-    zero: ZeroLine | None
-    hysteresis: Hysteresis | None
-    repeatability: Repeatability | None
-    warnings: list[str]
-    speed_sign: str = "measured"  # or "inferred from command" / "inferred from thrust"
-    voltage_v: float | None = None  # supply voltage set for these points (None: not swept)
-    bus_v: float = NAN  # mean bus voltage measured over them (NaN: not recorded)
-
-    @property
-    def label(self) -> str:
-        depth = "no depth" if self.depth_m is None else f"{self.depth_m:g} m"
-        return depth if self.voltage_v is None else f"{depth}, {self.voltage_v:g} V"
-
-
-@dataclass
-class Calibration:
-    """Everything `rigtool calibrate` found in one run; arrays are ready to plot."""
-
-    run_id: str
-    run_name: str
-    run_status: str
-    command_unit: str
-    neutral_command: float
-    thruster_id: str | None
-    propeller_diameter_m: float | None
-    water_density_kg_m3: float | None
-    tool_version: str
-    params: CalibrationParams
-    sections: list[DepthSection]
-    drift: TareDrift | None
-    warnings: list[str]
-    voltage_laws: list[VoltageLaw] = field(default_factory=list)  # per depth, voltage sweeps
-    dynamics: Dynamics | None = None  # step-response runs
-
-    def summary_rows(self) -> list[SummaryRow]:
-        """(name, value, lo, hi, unit, note) rows for a CLI table; NaN where not applicable."""
-        rows: list[SummaryRow] = []
-        multi = len(self.sections) > 1
-        for sec in self.sections:
-            suffix = f" @ {sec.label}" if multi else ""
-            for c in sec.fits.values():
-                note = c.note if math.isnan(c.r2) else f"R2={c.r2:.4f}, n={c.n}"
-                rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, note))
-            if sec.zero is not None and "zero_drift" not in sec.fits:
-                rows.append(("zero_drift" + suffix, sec.zero.drift_n_per_s * 3600, NAN, NAN,
-                             "N/h", f"sensor zero read from the {sec.zero.source}"))
-            if sec.curve is not None:
-                u = self.command_unit
-                rows += [("dead_zone" + suffix, NAN, lo, hi, u, "") for lo, hi in
-                         sec.curve.dead_zones]
-                rows += [("saturated" + suffix, NAN, lo, hi, u, "") for lo, hi in
-                         sec.curve.saturated]
-                rows += [("break_away" + suffix, c, NAN, NAN, u, "") for c in
-                         sec.curve.break_aways]
-            if sec.hysteresis is not None:
-                rows.append(("hysteresis_max" + suffix, sec.hysteresis.max_abs_n, NAN, NAN, "N",
-                             f"at {sec.hysteresis.at_command:g} {self.command_unit}"))
-            if sec.repeatability is not None:
-                rows.append(("repeatability_max_std" + suffix, sec.repeatability.max_std_n, NAN,
-                             NAN, "N", f"median {sec.repeatability.median_std_n:.4g} N"))
-        if self.drift is not None:
-            s = self.drift.slope
-            rows.append((s.name, s.value, s.lo, s.hi, s.unit, f"{s.n} tares"))
-        for law in self.voltage_laws:
-            suffix = "" if law.depth_m is None else f" @ {law.depth_m:g} m"
-            for c in (law.k_inverse, law.k, law.b):
-                rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, c.note))
-        if self.dynamics is not None:
-            rows += _dynamics_rows(self.dynamics)
-        return rows
+def summary_rows(cal: CalibrationResult) -> list[SummaryRow]:
+    """(name, value, lo, hi, unit, note) rows for a CLI table; NaN where not applicable."""
+    rows: list[SummaryRow] = []
+    multi = len(cal.sections) > 1
+    for sec in cal.sections:
+        suffix = f" @ {sec.label}" if multi else ""
+        for c in sec.fits.values():
+            note = c.note if math.isnan(c.r2) else f"R2={c.r2:.4f}, n={c.n}"
+            rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, note))
+        if sec.zero is not None and "zero_drift" not in sec.fits:
+            rows.append(("zero_drift" + suffix, sec.zero.drift_n_per_s * 3600, NAN, NAN,
+                         "N/h", f"sensor zero read from the {sec.zero.source}"))
+        if sec.curve is not None:
+            u = cal.command_unit
+            rows += [("dead_zone" + suffix, NAN, lo, hi, u, "") for lo, hi in
+                     sec.curve.dead_zones]
+            rows += [("saturated" + suffix, NAN, lo, hi, u, "") for lo, hi in
+                     sec.curve.saturated]
+            rows += [("break_away" + suffix, c, NAN, NAN, u, "") for c in
+                     sec.curve.break_aways]
+        if sec.hysteresis is not None:
+            rows.append(("hysteresis_max" + suffix, sec.hysteresis.max_abs_n, NAN, NAN, "N",
+                         f"at {sec.hysteresis.at_command:g} {cal.command_unit}"))
+        if sec.repeatability is not None:
+            rows.append(("repeatability_max_std" + suffix, sec.repeatability.max_std_n, NAN,
+                         NAN, "N", f"median {sec.repeatability.median_std_n:.4g} N"))
+    if cal.drift is not None:
+        s = cal.drift.slope
+        rows.append((s.name, s.value, s.lo, s.hi, s.unit, f"{s.n} tares"))
+    for law in cal.voltage_laws:
+        suffix = "" if law.depth_m is None else f" @ {law.depth_m:g} m"
+        for c in (law.k_inverse, law.k, law.b):
+            rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, c.note))
+    if cal.dynamics is not None:
+        rows += _dynamics_rows(cal.dynamics)
+    return rows
 
 
 def _dynamics_rows(d: Dynamics) -> list[SummaryRow]:
@@ -159,12 +98,12 @@ def _dynamics_rows(d: Dynamics) -> list[SummaryRow]:
             if c is not None]
 
 
-def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None) -> Calibration:
+def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None) -> CalibrationResult:
     """Load `run_id` from the store and analyse it."""
     return calibrate(load_run(store, run_id), params)
 
 
-def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibration:
+def calibrate(run: RunData, params: CalibrationParams | None = None) -> CalibrationResult:
     """Analyse a loaded run: steady windows, then per depth the curve, fits and quality."""
     p = params or CalibrationParams()
     windows = steady_windows(run.samples, p.settling)
@@ -188,7 +127,7 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
         warnings += [prefix + w for w in law.warnings]
     dynamics, notes = _dynamics(run) if run.step_response else (None, [])
     warnings += notes
-    return Calibration(
+    return CalibrationResult(
         run_id=run.run_id, run_name=run.name, run_status=run.status,
         command_unit=run.command_unit, neutral_command=run.neutral_command,
         thruster_id=run.thruster_id, propeller_diameter_m=run.propeller_diameter_m,

@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from rigtool.analysis.betm_fit import (
     Betm,
-    EstimatorErrors,
     betm_from_section,
     compare_estimators,
     deep_section,
@@ -29,11 +28,10 @@ from rigtool.analysis.betm_fit import (
     voltage_law_b,
 )
 from rigtool.analysis.blocks import Blocks, block_means
-from rigtool.analysis.calibrate import DEEP_DEPTH_M, calibrate
+from rigtool.analysis.calibrate import calibrate
 from rigtool.analysis.dataset import RunData, load_run
 from rigtool.analysis.events import (
     Event,
-    EventParams,
     MatchResult,
     clip_to_windows,
     detect_events,
@@ -42,7 +40,6 @@ from rigtool.analysis.events import (
 )
 from rigtool.analysis.gp import (
     ExactGp,
-    GpParams,
     calibrate_gate,
     fit_exact,
     fit_hetero,
@@ -50,6 +47,14 @@ from rigtool.analysis.gp import (
     variance_parts,
 )
 from rigtool.analysis.qctm_export import fit_limits, model_document
+from rigtool.analysis.results import (
+    DEEP_DEPTH_M,
+    CavitationParams,
+    CavitationResult,
+    ClassErrors,
+    EstimatorErrors,
+    Evaluation,
+)
 from rigtool.analysis.trainset import (
     MAD_TO_SD,
     TrainingSet,
@@ -58,8 +63,7 @@ from rigtool.analysis.trainset import (
     stratified_pick,
 )
 from rigtool.errors import UsageError
-from rigtool.models import Z95, Bounds, Domain, ThrustModel, gp_features, model_from_document
-from rigtool.models.domain import DEFAULT_SHORTFALL
+from rigtool.models import Z95, ThrustModel, gp_features, model_from_document
 from rigtool.models.qctm import shortfall
 from rigtool.store import Store
 
@@ -74,83 +78,6 @@ Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 IN_SAMPLE_NOTE = ("partly in-sample: each fold is refitted on the other fold's points, but the "
                   "hyperparameters, noise model and mean term come from the fit on all points; "
                   "held-out runs (benchmarks/bench_cavitation.py) give the honest figures")
-
-@dataclass(frozen=True)
-class CavitationParams:
-    """Every option of the quasi-cavitation analysis (written to cavitation.json)."""
-
-    detect_block_s: float = 0.1
-    train_block_s: float = 0.2
-    budget: int = 2000
-    gamma: float = 3.0
-    edge_s: float = 0.5
-    shortfall_window_s: float = 1.0  # averaging window of the current shortfall
-    causal: bool = False  # window of past blocks only (a controller's view); else centred
-    shortfall_range: tuple[float, float] = DEFAULT_SHORTFALL  # else a current fault
-    events: EventParams = field(default_factory=EventParams)
-    gp: GpParams = field(default_factory=GpParams)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @property
-    def window_blocks(self) -> int:
-        """Shortfall averaging window in train blocks (>= 1)."""
-        return max(1, int(round(self.shortfall_window_s / self.train_block_s)))
-
-    @property
-    def lead_blocks(self) -> int:
-        """Blocks the shortfall window reaches ahead: 0 when causal, else half the window."""
-        return 0 if self.causal else self.window_blocks // 2
-
-
-@dataclass
-class ClassErrors:
-    """Prediction errors of one class of blocks (during/outside events, edges, steps)."""
-
-    name: str
-    n: int
-    p95_abs_n: float
-    max_abs_n: float
-    rms_n: float
-    coverage95: float
-    max_at: str
-
-
-@dataclass
-class Evaluation:
-    """Errors by class, overall coverage, event matching against truth, and where from."""
-
-    source: str
-    classes: list[ClassErrors]
-    coverage95: float
-    matching: MatchResult | None
-    truth_source: str
-
-
-@dataclass
-class CavitationResult:
-    """Everything `calibrate_cavitation` found; arrays are ready to plot and export."""
-
-    run_id: str
-    base_run_id: str
-    params: CavitationParams
-    betm: Betm
-    deep_errors: list[EstimatorErrors]
-    deep_errors_samples: list[EstimatorErrors]
-    events: list[dict]
-    event_table: list[dict]
-    training: TrainingSet
-    n_blocks_total: int
-    gp: ExactGp
-    evaluation: Evaluation
-    series: dict[str, np.ndarray]
-    warnings: list[str] = field(default_factory=list)
-    bounds: Bounds = field(default_factory=Bounds)
-    domain: Domain | None = None
-    interval_check: dict | None = None  # held-out check and scale of the 95 % intervals
-    floor: dict | None = None  # how well speed and current can predict the thrust at all
-
 
 def is_shallow(store: Store, run_id: str) -> bool:
     """True when any point of the run is shallower than the deep limit (0.6 m)."""

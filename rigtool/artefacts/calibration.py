@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.dynamics import (
     CONSUMER_LIMIT,
     MAX_MODEL_ERROR,
@@ -26,7 +25,7 @@ from rigtool.analysis.dynamics import (
     selected_tau,
 )
 from rigtool.analysis.fits import Coefficient, ZeroLine
-from rigtool.analysis.voltage import VoltageLaw
+from rigtool.analysis.results import CalibrationResult, DepthSection, VoltageLaw
 from rigtool.artefacts.write import (
     MISSING,
     atomic_write,
@@ -52,7 +51,7 @@ FILES = {
 COMMAND_UNIT = "<command unit>"
 
 
-def write_artefacts(cal: Calibration, out_dir: str | Path,
+def write_artefacts(cal: CalibrationResult, out_dir: str | Path,
                     created_utc: str | None = None) -> list[Path]:
     """Write the artefacts of `cal` into `out_dir`/<run-id>/ and return the file paths.
 
@@ -79,17 +78,17 @@ def write_artefacts(cal: Calibration, out_dir: str | Path,
     return [atomic_write(target / FILES[key], text) for key, text in texts.items()]
 
 
-def _csv_head(cal: Calibration, created: str) -> list[str]:
+def _csv_head(cal: CalibrationResult, created: str) -> list[str]:
     return [f"rigtool {cal.tool_version} calibration of run {cal.run_id}, created {created}",
             f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
 
 
-def lut_text(cal: Calibration, created: str) -> str:
+def lut_text(cal: CalibrationResult, created: str) -> str:
     """inverse_lut.csv: the inverse lookup table of every section."""
     return csv_text(_csv_head(cal, created) + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal))
 
 
-def calibration_document(cal: Calibration, created_utc: str) -> dict:
+def calibration_document(cal: CalibrationResult, created_utc: str) -> dict:
     """The content of calibration.json as JSON-safe Python data (also usable as a store summary)."""
     all_points = [s.points for s in cal.sections]
     start = np.concatenate([p.window_start_s for p in all_points])
@@ -476,7 +475,7 @@ LUT_DOC = ["inverse lookup command(thrust) over each branch's usable range (no d
            "(docs/artefacts.md)"]
 
 
-def _units(columns: Sequence[tuple[str, str, str]], cal: Calibration) -> list[tuple[str, str, str]]:
+def _units(columns: Sequence[tuple[str, str, str]], cal: CalibrationResult) -> list[tuple[str, str, str]]:
     return [(name, cal.command_unit if unit == COMMAND_UNIT else unit, text)
             for name, unit, text in columns]
 
@@ -489,7 +488,7 @@ def _volts(sec: DepthSection) -> float:
     return math.nan if sec.voltage_v is None else sec.voltage_v
 
 
-def _point_rows(cal: Calibration) -> Iterable[list[object]]:
+def _point_rows(cal: CalibrationResult) -> Iterable[list[object]]:
     for sec in cal.sections:
         p = sec.points
         for i in range(len(p)):
@@ -515,7 +514,7 @@ def _point_rows(cal: Calibration) -> Iterable[list[object]]:
             yield row
 
 
-def curve_rows(cal: Calibration) -> Iterable[list[object]]:
+def curve_rows(cal: CalibrationResult) -> Iterable[list[object]]:
     for sec in cal.sections:
         c = sec.curve
         if c is None:
@@ -527,7 +526,7 @@ def curve_rows(cal: Calibration) -> Iterable[list[object]]:
                    float(c.current_mean_a[i]), _volts(sec)]
 
 
-def lut_rows(cal: Calibration) -> Iterable[list[object]]:
+def lut_rows(cal: CalibrationResult) -> Iterable[list[object]]:
     for sec in cal.sections:
         if sec.curve is None:
             continue
@@ -537,7 +536,7 @@ def lut_rows(cal: Calibration) -> Iterable[list[object]]:
                    _volts(sec)]
 
 
-def voltage_rows(cal: Calibration) -> Iterable[list[object]]:
+def voltage_rows(cal: CalibrationResult) -> Iterable[list[object]]:
     for law in cal.voltage_laws:
         for v in law.points:
             row: list[object] = [math.nan if law.depth_m is None else law.depth_m, v.voltage_v,
@@ -550,7 +549,7 @@ def voltage_rows(cal: Calibration) -> Iterable[list[object]]:
 
 # -- manufacturer-style performance table -----------------------------------------------------
 
-def performance_rows(cal: Calibration) -> list[list[float]]:
+def performance_rows(cal: CalibrationResult) -> list[list[float]]:
     """One row per (depth, command) over the 'ok' points: the means of their steady-window
     means, thrust relative to the sensor zero; per supply voltage too in a voltage sweep.
     Columns: performance_header."""
@@ -587,11 +586,11 @@ def performance_header(command_unit: str, voltage_swept: bool = False) -> list[s
             "Efficiency (g/W)"]
 
 
-def _voltage_swept(cal: Calibration) -> bool:
+def _voltage_swept(cal: CalibrationResult) -> bool:
     return any(sec.voltage_v is not None for sec in cal.sections)
 
 
-def performance_text(cal: Calibration) -> str:
+def performance_text(cal: CalibrationResult) -> str:
     """performance.csv: a plain table (no comment lines) that spreadsheets and `rigtool
     import` read as they are (docs/artefacts.md)."""
     lines = [",".join(performance_header(cal.command_unit, _voltage_swept(cal)))]

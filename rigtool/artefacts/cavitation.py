@@ -12,8 +12,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 import rigtool
-from rigtool.analysis.cavitation import IN_SAMPLE_NOTE, CavitationResult
+from rigtool.analysis.cavitation import IN_SAMPLE_NOTE
 from rigtool.analysis.qctm_export import model_document
+from rigtool.analysis.results import CavitationResult
 from rigtool.artefacts.write import atomic_write, json_clean, json_text
 from rigtool.models import MODEL_FILE, VARIANCE_FILE
 from rigtool.outpaths import run_folder

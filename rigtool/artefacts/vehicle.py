@@ -14,7 +14,6 @@ from functools import cached_property
 import numpy as np
 
 import rigtool
-from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.dynamics import (
     CONSUMERS,
     QUADRATIC_SPEED,
@@ -23,6 +22,7 @@ from rigtool.analysis.dynamics import (
     first_order_tau,
     selected_tau,
 )
+from rigtool.analysis.results import CalibrationResult, DepthSection
 from rigtool.artefacts.write import csv_cell
 from rigtool.models.thrust_map import Table, ThrustMap, thrust_map
 
@@ -163,7 +163,7 @@ class ExportInput:
     """Everything an artefact is made of: the calibration, the section it describes, the
     creation time, the dynamics (None: none identified or given) and the options."""
 
-    cal: Calibration
+    cal: CalibrationResult
     sec: DepthSection
     created: str
     dynamics: DynamicsSource | None
@@ -220,7 +220,7 @@ class ExportInput:
         return self.dynamics.params(self.coef("C_p_fwd"), self.coef("C_p_rev"))
 
 
-def deepest(cal: Calibration) -> DepthSection:
+def deepest(cal: CalibrationResult) -> DepthSection:
     """The section the vehicle artefacts describe: the deepest (or the only) depth and, in a
     voltage sweep, the middle supply voltage (as the Python API's default)."""
     known = [s.depth_m for s in cal.sections if s.depth_m is not None]

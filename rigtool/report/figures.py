@@ -23,9 +23,8 @@ from matplotlib.lines import Line2D
 
 from rigtool.analysis.curves import CommandCurve
 from rigtool.analysis.fits import Coefficient
-from rigtool.analysis.quality import Hysteresis, TareDrift
+from rigtool.analysis.results import Hysteresis, TareDrift, VoltageLaw
 from rigtool.analysis.steady import PointTable
-from rigtool.analysis.voltage import VoltageLaw
 from rigtool.models import laws
 
 FWD = "#1f5fa8"
