@@ -59,13 +59,8 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     stored (calibrate --export checks the formats' prerequisites there).
     """
     from rigtool.analysis.calibrate import calibrate as analyse
-    from rigtool.analysis.cavitation import (
-        EVENT_KIND,
-        calibrate_cavitation,
-        cavitation_stage,
-        training_runs,
-        unchecked_thruster,
-    )
+    from rigtool.analysis.cavitation import EVENT_KIND, calibrate_cavitation
+    from rigtool.analysis.cavitation_runs import cavitation_stage, training_runs, unchecked_thruster
     from rigtool.analysis.dataset import load_run
     from rigtool.analysis.results import CavitationParams
     from rigtool.artefacts.calibration import calibration_document, write_artefacts
