@@ -18,6 +18,7 @@ from rigtool.analysis.depth_fits import (
     speed_sign,
 )
 from rigtool.analysis.dynamics import Dynamics, StepSeries, identify, no_dynamics_reason
+from rigtool.analysis.efficiency import overall_efficiency
 from rigtool.analysis.fits import (
     SECONDS_PER_HOUR,
     Z95,
@@ -250,7 +251,7 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
         points.thrust_zero_n = np.nan_to_num(zero.at(points.t_mid_s))
     if models.torque_zero is not None:
         points.torque_zero_nm = np.nan_to_num(models.torque_zero.at(points.t_mid_s))
-        above = int(np.sum(points.overall_efficiency[models.used] > 1.0))
+        above = int(np.sum(overall_efficiency(points)[models.used] > 1.0))
         if above:
             models.warnings.append(
                 f"shaft power exceeds electrical power at {above} point(s) (overall efficiency "

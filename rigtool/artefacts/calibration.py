@@ -24,6 +24,15 @@ from rigtool.analysis.dynamics import (
     first_order_tau,
     selected_tau,
 )
+from rigtool.analysis.efficiency import (
+    efficiency_n_per_w,
+    efficiency_resolved,
+    efficiency_se_n_per_w,
+    mech_power_se_w,
+    mech_power_w,
+    overall_efficiency,
+    overall_efficiency_se,
+)
 from rigtool.analysis.fits import Coefficient, ZeroLine
 from rigtool.analysis.results import CalibrationResult, DepthSection, VoltageLaw
 from rigtool.artefacts.write import (
@@ -151,14 +160,14 @@ def _efficiency_doc(sec: DepthSection) -> dict | None:
     floor (None without power)."""
     p = sec.points
     live = (p.status == "ok") & ~p.dead
-    eff = np.where(live, p.efficiency_n_per_w, np.nan)
+    eff = np.where(live, efficiency_n_per_w(p), np.nan)
     if not np.isfinite(eff).any():
         return None
     i = int(np.nanargmax(eff))
-    below = live & (p.power.mean > 0) & ~p.efficiency_resolved
+    below = live & (p.power.mean > 0) & ~efficiency_resolved(p)
     floor = p.power_floor_w[i] if p.power_floor_w.size == len(p) else 0.0
     return {"max_n_per_w": float(eff[i]), "max_g_per_w": float(eff[i]) * GRAMS_PER_NEWTON,
-            "se_n_per_w": float(p.efficiency_se_n_per_w[i]), "at_command": float(p.command[i]),
+            "se_n_per_w": float(efficiency_se_n_per_w(p)[i]), "at_command": float(p.command[i]),
             "at_thrust_n": float(p.thrust_corrected_n[i]), "power_w": float(p.power.mean[i]),
             "n_points": int(np.isfinite(eff).sum()),
             "power": "mean over the steady window of V * |I| sample by sample",
@@ -170,12 +179,12 @@ def _efficiency_doc(sec: DepthSection) -> dict | None:
 
 def _overall_doc(p) -> dict | None:
     """Best shaft power over electrical power among the live points (None without torque)."""
-    eta = np.where((p.status == "ok") & ~p.dead, p.overall_efficiency, np.nan)
+    eta = np.where((p.status == "ok") & ~p.dead, overall_efficiency(p), np.nan)
     if not np.isfinite(eta).any():
         return None
     i = int(np.nanargmax(eta))
-    return {"max": float(eta[i]), "se": float(p.overall_efficiency_se[i]),
-            "at_command": float(p.command[i]), "mech_power_w": float(p.mech_power_w[i]),
+    return {"max": float(eta[i]), "se": float(overall_efficiency_se(p)[i]),
+            "at_command": float(p.command[i]), "mech_power_w": float(mech_power_w(p)[i]),
             "power_w": float(p.power.mean[i]),
             "definition": "|Q| omega / (V |I|): shaft power over electrical power"}
 
@@ -504,13 +513,13 @@ def _point_rows(cal: CalibrationResult) -> Iterable[list[object]]:
             for ch in (p.voltage, p.power):
                 row += [float(ch.mean[i]), float(ch.std[i]), float(ch.se[i]), float(ch.min[i]),
                         float(ch.max[i])]
-            eff = float(p.efficiency_n_per_w[i])
-            row += [eff, float(p.efficiency_se_n_per_w[i]), eff * GRAMS_PER_NEWTON, _volts(sec)]
+            eff = float(efficiency_n_per_w(p)[i])
+            row += [eff, float(efficiency_se_n_per_w(p)[i]), eff * GRAMS_PER_NEWTON, _volts(sec)]
             q = p.torque
             row += [float(q.mean[i]), float(q.std[i]), float(q.se[i]), float(q.min[i]),
-                    float(q.max[i]), float(p.torque_zero_nm[i]), float(p.mech_power_w[i]),
-                    float(p.mech_power_se_w[i]), float(p.overall_efficiency[i]),
-                    float(p.overall_efficiency_se[i])]
+                    float(q.max[i]), float(p.torque_zero_nm[i]), float(mech_power_w(p)[i]),
+                    float(mech_power_se_w(p)[i]), float(overall_efficiency(p)[i]),
+                    float(overall_efficiency_se(p)[i])]
             yield row
 
 
@@ -567,7 +576,7 @@ def performance_rows(cal: CalibrationResult) -> list[list[float]]:
                 return float(v.mean()) if v.size else math.nan
 
             thrust, power = mean(f), mean(p.power.mean)
-            resolved = power > 0 and bool(np.all(p.efficiency_resolved[m]))
+            resolved = power > 0 and bool(np.all(efficiency_resolved(p)[m]))
             g_per_w = abs(thrust) / power * GRAMS_PER_NEWTON if resolved else math.nan
             row = [_depth(sec), float(command), mean(p.speed.mean), mean(p.current.mean),
                    mean(p.voltage.mean), power, thrust, thrust / 9.80665, g_per_w]

@@ -15,6 +15,7 @@ from markupsafe import Markup
 
 import rigtool
 from rigtool.analysis.dynamics import Dynamics
+from rigtool.analysis.efficiency import efficiency_n_per_w
 from rigtool.analysis.fits import Coefficient
 from rigtool.analysis.results import CalibrationResult, DepthSection, VoltageLaw
 from rigtool.analysis.steady import PointTable
@@ -270,7 +271,7 @@ def _section(sec: DepthSection, cal: CalibrationResult, unit: str, suffix: str,
 def _efficiency_figure(sec: DepthSection, suffix: str, at: str, fmt: str) -> FigureItem:
     base = ("efficiency", f"fig-efficiency{suffix}", f"Efficiency and electrical power{at}")
     p = sec.points
-    if not (np.isfinite(p.efficiency_n_per_w) & (p.status == "ok") & ~p.dead).any():
+    if not (np.isfinite(efficiency_n_per_w(p)) & (p.status == "ok") & ~p.dead).any():
         return FigureItem(*base, "No efficiency figure: the run recorded no bus voltage and "
                           "current (electrical power V·|I| needs both).")
     return FigureItem(*base, "Thrust per electrical watt (g/W; bars: 95 % intervals) and "
