@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rigtool.analysis.dataset import Samples, Steps
+from rigtool.analysis.stats import MAX_R1_SAMPLES, ar1_coefficient, effective_sample_size
 
 CHANNEL_UNITS = {"thrust_n": "N", "speed_rpm": "r/min", "current_a": "A", "voltage_v": "V",
                  "power_w": "W", "torque_nm": "N m"}
@@ -324,8 +325,8 @@ def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points:
         c1 = np.bincount(pid[:-1][same], weights=(dev[1:] * dev[:-1])[same], minlength=n_points)
         var = c0 / (cnt - 1)
         std = np.sqrt(var)
-        r1 = np.clip(c1 / c0, 0.0, 0.999)
-        n_eff = np.maximum(cnt * (1 - r1) / (1 + r1), 1.0)
+        r1 = ar1_coefficient(c1 / c0, MAX_R1_SAMPLES)
+        n_eff = effective_sample_size(cnt, r1, 1.0)
         se_ar1 = std / np.sqrt(n_eff)
     se = np.fmax(se_ar1, batch_se)
     mean = np.where(cnt > 0, mean, np.nan)
