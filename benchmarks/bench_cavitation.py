@@ -31,8 +31,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from rigtool.analysis.cavitation import CavitationParams, evaluate_on_run, thrust_model, train_model
+from rigtool.analysis.cavitation import evaluate_on_run, thrust_model, train_model
 from rigtool.analysis.gp import SIGNAL_SCALES, GpParams
+from rigtool.analysis.results import CavitationParams
 from rigtool.models import OUT_OF_DOMAIN
 from rigtool.store import Store
 

@@ -38,8 +38,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from rigtool.analysis.calibrate import CalibrationParams, calibrate_run  # noqa: E402
-from rigtool.analysis.models import FitParams  # noqa: E402
+from rigtool.analysis.calibrate import calibrate_run  # noqa: E402
+from rigtool.analysis.depth_fits import FitParams  # noqa: E402
+from rigtool.analysis.efficiency import efficiency_n_per_w  # noqa: E402
+from rigtool.analysis.results import CalibrationParams  # noqa: E402
 from rigtool.cli import main  # noqa: E402
 from rigtool.store import Store  # noqa: E402
 from rigtool.thruster_profiles import PROFILES  # noqa: E402
@@ -98,7 +100,7 @@ def calibrate_last(db: Path) -> Outcome:
 
 def _eff_ok(points: object) -> bool:
     """No finite efficiency at a point below its power floor."""
-    eff = points.efficiency_n_per_w  # type: ignore[attr-defined]
+    eff = efficiency_n_per_w(points)  # type: ignore[arg-type]
     floor = getattr(points, "power_floor_w", np.zeros(0))
     if floor.size != eff.size:
         return True

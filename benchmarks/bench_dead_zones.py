@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from rigtool.analysis.calibrate import Calibration, calibrate_run
+from rigtool.analysis.calibrate import calibrate_run
+from rigtool.analysis.results import CalibrationResult
 from rigtool.api import Calibration as ApiCalibration
 from rigtool.cli import main
 from rigtool.store import Store
@@ -144,7 +145,7 @@ def protocol_text(case: Case, samples: int) -> str:
     return yaml.safe_dump(doc, sort_keys=False)
 
 
-def calibrate_case(case: Case, samples: int, folder: Path) -> Calibration:
+def calibrate_case(case: Case, samples: int, folder: Path) -> CalibrationResult:
     """Sweep the case on the twin through the CLI and calibrate the run in process."""
     protocol = folder / f"case-{case.seed}.yaml"
     protocol.write_text(protocol_text(case, samples))
@@ -172,7 +173,7 @@ def break_error(found: list[float], truth: int) -> float:
     return abs(found[0] - truth) if len(found) == 1 else math.inf
 
 
-def commands_into_dead(cal: Calibration, zones: list[tuple[int, int]]) -> list[float]:
+def commands_into_dead(cal: CalibrationResult, zones: list[tuple[int, int]]) -> list[float]:
     """Commands `cal.command()` gives for nonzero thrusts that the twin runs as a dead count."""
     api = ApiCalibration.from_results(cal, "2000-01-01T00:00:00Z")
     thrust = np.concatenate([np.linspace(-4.0, -1e-4, 4000), np.linspace(1e-4, 6.0, 6000)])
@@ -199,7 +200,7 @@ def evaluate(case: Case, samples: int, folder: Path) -> Result:
         time.perf_counter() - start)
 
 
-def sensor_drift(cal: Calibration) -> float:
+def sensor_drift(cal: CalibrationResult) -> float:
     """The sensor drift (N/h) found: the zero's drift during the sweep, or, where the sensor
     was tared at every point (so the zero of the points does not drift), the tares' drift."""
     (sec,) = cal.sections

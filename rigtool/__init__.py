@@ -6,7 +6,8 @@ The Python API (docs/api.md): `rigtool.open(db)` for runs, points and samples, a
 
 from typing import Any
 
-__version__ = "0.1.0"
+from rigtool.version import __version__
+
 __all__ = ["__version__", "load_calibration", "open"]
 
 

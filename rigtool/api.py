@@ -198,15 +198,26 @@ class Run:
 
 @dataclass(frozen=True)
 class Value:
-    """A coefficient with its 95 % interval (NaN where it has none)."""
+    """A coefficient with its 95 % interval lo..hi (NaN where it has none); the spelling of
+    the analysis results and of calibration.json."""
 
     name: str
     value: float
-    low: float
-    high: float
+    lo: float
+    hi: float
     unit: str
     n: int = 0
     r2: float = math.nan
+
+    @property
+    def low(self) -> float:
+        """`lo` under the name docs/api.md gave it first (kept readable)."""
+        return self.lo
+
+    @property
+    def high(self) -> float:
+        """`hi` under the name docs/api.md gave it first (kept readable)."""
+        return self.hi
 
 
 @dataclass(frozen=True)

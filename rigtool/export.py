@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rigtool.analysis.calibrate import DEEP_DEPTH_M
+from rigtool.analysis.results import DEEP_DEPTH_M
 from rigtool.api import deepest_depth, middle_voltage
 from rigtool.artefacts.encode import csv_safe_text
 from rigtool.artefacts.write import atomic_write

@@ -7,14 +7,14 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from rigtool.analysis.calibrate import Calibration
+    from rigtool.analysis.results import CalibrationResult
     from rigtool.store import Store
 
 WARN_KINDS = ("limit_trip", "warning", "interrupt")
 MAX_EVENT_LINES = 12
 
 
-def run_warnings(run: dict, events: list[dict], cal: Calibration | None,
+def run_warnings(run: dict, events: list[dict], cal: CalibrationResult | None,
                  extra: Sequence[str] = ()) -> list[str]:
     """Run status, warning events, calibration warnings (merged across depths), then `extra`."""
     out = []
@@ -32,7 +32,7 @@ def run_warnings(run: dict, events: list[dict], cal: Calibration | None,
     return out + list(extra)
 
 
-def stored_run_warnings(store: Store, run_id: str, cal: Calibration | None,
+def stored_run_warnings(store: Store, run_id: str, cal: CalibrationResult | None,
                         extra: Sequence[str] = ()) -> list[str]:
     """`run_warnings` of a stored run (reads its record and events)."""
     return run_warnings(store.run(run_id), store.events(run_id), cal, extra)

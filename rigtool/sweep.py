@@ -13,7 +13,6 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from rigtool import __version__
 from rigtool.bounds import MAX_RUN_S, MAX_SEED
 from rigtool.config import locate
 from rigtool.dbpath import DB_ENV, resolve_db_path
@@ -27,6 +26,7 @@ from rigtool.protocol import Protocol, load_protocol
 from rigtool.rig import Rig, RigSet, load_rig, open_rig, rig_actuator_info, sim_rig
 from rigtool.sensor_rate import check_sensor_rate
 from rigtool.store import Store
+from rigtool.version import __version__
 
 
 @dataclass

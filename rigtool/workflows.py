@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-import rigtool
 from rigtool.artefacts import state
 from rigtool.errors import DataError, UsageError
 from rigtool.ids import is_run_id, run_label, utc_now
@@ -20,12 +19,12 @@ from rigtool.outpaths import REPORT_FILE, run_folder
 from rigtool.progress import stage
 from rigtool.readback import brief
 from rigtool.store import Store
+from rigtool.version import __version__
 
 if TYPE_CHECKING:
-    from rigtool.analysis.calibrate import Calibration
-    from rigtool.analysis.cavitation import CavitationResult
+    from rigtool.analysis.compare import CompareResult
+    from rigtool.analysis.results import CalibrationResult, CavitationResult
     from rigtool.artefacts.vehicle import DynamicsSource, ExportOptions
-    from rigtool.compare import CompareResult
 
 # Analysis, artefact and comparison modules are imported by the workflow that needs them:
 # `report` only decodes stored results, and starts without scikit-learn or pyarrow.
@@ -43,7 +42,7 @@ class Results:
 
     run_id: str
     created_utc: str
-    calibration: Calibration | None
+    calibration: CalibrationResult | None
     cavitation: CavitationResult | None = None
     notes: list[str] = field(default_factory=list)
     folder: Path | None = None
@@ -53,7 +52,7 @@ class Results:
 def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", *,
               base: str | None = None, causal: bool = False,
               train_with: Sequence[str] = (),
-              check: Callable[[Calibration], None] | None = None) -> Results:
+              check: Callable[[CalibrationResult], None] | None = None) -> Results:
     """Calibrate a stored run: write calibrations/<run-id>/ and store the results.
 
     Every reference (the run, `base`, `train_with`) is checked before any file is written;
@@ -61,15 +60,10 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     stored (calibrate --export checks the formats' prerequisites there).
     """
     from rigtool.analysis.calibrate import calibrate as analyse
-    from rigtool.analysis.cavitation import (
-        EVENT_KIND,
-        CavitationParams,
-        calibrate_cavitation,
-        cavitation_stage,
-        training_runs,
-        unchecked_thruster,
-    )
+    from rigtool.analysis.cavitation import EVENT_KIND, calibrate_cavitation
+    from rigtool.analysis.cavitation_runs import cavitation_stage, training_runs, unchecked_thruster
     from rigtool.analysis.dataset import load_run
+    from rigtool.analysis.results import CavitationParams
     from rigtool.artefacts.calibration import calibration_document, write_artefacts
     from rigtool.artefacts.cavitation import write_cavitation_artefacts
     from rigtool.artefacts.formats import remove_exports
@@ -106,7 +100,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
             notes.append(CAUSAL_WARNING)
     results = Results(run_id, created, cal, cav, notes, folder, paths)
     store.add_calibration(run_id, str(folder), calibration_document(cal, created),
-                          rigtool.__version__, state=_encode(results), created_utc=created)
+                          __version__, state=_encode(results), created_utc=created)
     return results
 
 
@@ -146,9 +140,9 @@ def _stored_state(blob: bytes, run_id: str, db: Path) -> dict:
     if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
         raise _bad_state(db, run_id, "has notes that are not a list of texts")
     if cal is not None:
-        from rigtool.analysis.calibrate import Calibration
+        from rigtool.analysis.results import CalibrationResult
 
-        if not isinstance(cal, Calibration):
+        if not isinstance(cal, CalibrationResult):
             raise _bad_state(db, run_id, f"holds a {type(cal).__name__}, not a calibration")
         if cal.run_id != run_id:
             raise _bad_state(db, run_id, f"is the calibration of run {run_label(cal.run_id)}")
@@ -249,7 +243,7 @@ def report(store: Store, run_ref: str, out_dir: str | Path = "calibrations", *,
                             image_format=image_format)
 
 
-def calibration_of(store: Store, run_id: str) -> Calibration:
+def calibration_of(store: Store, run_id: str) -> CalibrationResult:
     """The run's stored calibration, or (never calibrated) one computed now and not stored."""
     from rigtool.analysis.calibrate import calibrate_run
 
@@ -268,8 +262,8 @@ def compare(store: Store, run_refs: Sequence[str], reference: str | None = None,
             ) -> tuple[CompareResult, list[Path]]:
     """Compare thrusters (runs): corrections and compare.html in `out_dir`; the reference run
     joins the compared runs if missing."""
+    from rigtool.analysis.compare import compare_curves, curve_from_calibration
     from rigtool.artefacts.compare import write_corrections
-    from rigtool.compare import compare_curves, curve_from_calibration
     from rigtool.report.compare_html import write_compare_report
 
     ids = [store.resolve_run_id(r) for r in run_refs]
@@ -308,14 +302,14 @@ def export_calibration(store: Store, run_ref: str, out_dir: str | Path, formats:
 
 def export_check(store: Store, run_ref: str, formats: Sequence[str], *,
                  dynamics_run: str | None = None, options: ExportOptions | None = None
-                 ) -> Callable[[Calibration], None]:
+                 ) -> Callable[[CalibrationResult], None]:
     """What calibrate --export runs on the analysis before it writes anything: the dynamics
     run's checks and every format's prerequisites (UsageError naming each missing one)."""
     from rigtool.artefacts.formats import check_formats, export_input
 
     run_id = _exportable(store, run_ref)
 
-    def check(cal: Calibration) -> None:
+    def check(cal: CalibrationResult) -> None:
         source = _own_dynamics(run_id, cal)
         if dynamics_run is not None:
             source = _dynamics_source(store, dynamics_run, cal)
@@ -334,13 +328,13 @@ def _exportable(store: Store, run_ref: str) -> str:
     return run_id
 
 
-def _own_dynamics(run_id: str, cal: Calibration) -> DynamicsSource | None:
+def _own_dynamics(run_id: str, cal: CalibrationResult) -> DynamicsSource | None:
     from rigtool.artefacts.vehicle import DynamicsSource
 
     return None if cal.dynamics is None else DynamicsSource(run_id, cal.dynamics)
 
 
-def _dynamics_source(store: Store, run_ref: str, cal: Calibration) -> DynamicsSource:
+def _dynamics_source(store: Store, run_ref: str, cal: CalibrationResult) -> DynamicsSource:
     """The identified dynamics of a calibrated step-response run of the same thruster."""
     from rigtool.artefacts.vehicle import DynamicsSource
 

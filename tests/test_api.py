@@ -78,7 +78,8 @@ def test_calibration_from_folder_equals_stored(lab_run):
     np.testing.assert_allclose(folder.thrust(commands, depth=0.8),
                                stored.thrust(commands, depth=0.8), rtol=1e-8)
     c = folder.coefficients["C_p_fwd"]
-    assert c.low < c.value < c.high and c.unit == "N/(r/min)^2"
+    assert c.lo < c.value < c.hi and c.unit == "N/(r/min)^2"
+    assert (c.low, c.high) == (c.lo, c.hi)  # the names docs/api.md gave first still read
     assert folder.coefficients["C_p_fwd"] == folder.coefficients_at(1.0)["C_p_fwd"]
     with pytest.raises(ValueError, match="no section at depth 0.5 m"):
         folder.thrust(50, depth=0.5)

@@ -17,10 +17,11 @@ import pytest
 
 import rigtool.models
 from rigtool.analysis.blocks import block_means
-from rigtool.analysis.cavitation import CavitationParams, calibrate_cavitation
+from rigtool.analysis.cavitation import calibrate_cavitation
 from rigtool.analysis.dataset import load_run
 from rigtool.analysis.gp import GpParams, fit_exact, fit_hetero
 from rigtool.analysis.qctm_export import model_document
+from rigtool.analysis.results import CavitationParams
 from rigtool.artefacts.cavitation import write_cavitation_artefacts
 from rigtool.cli import main
 from rigtool.models import (

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from rigtool.analysis.betm import split_variances
+from rigtool.analysis.betm_fit import split_variances
 from rigtool.analysis.events import (
     EventParams,
     clip_to_windows,

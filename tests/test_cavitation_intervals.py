@@ -13,7 +13,6 @@ from rigtool.analysis.cavitation import (
     CHECK_LEVEL,
     ONE_RUN_WARNING,
     OUTSIDE_CHECK_LEVEL,
-    CavitationParams,
     block_folds,
     calibrate_cavitation,
     check_folds,
@@ -22,6 +21,7 @@ from rigtool.analysis.cavitation import (
     thrust_model,
 )
 from rigtool.analysis.gp import GateShift, GpParams, calibrate_gate, shift_noise
+from rigtool.analysis.results import CavitationParams
 from rigtool.analysis.trainset import TrainingSet
 from rigtool.cli import main
 from rigtool.models import Z95

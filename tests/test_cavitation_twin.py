@@ -8,14 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigtool.analysis.cavitation import (
-    CavitationParams,
-    calibrate_cavitation,
-    evaluate_on_run,
-    find_base_run,
-    is_shallow,
-)
+from rigtool.analysis.cavitation import calibrate_cavitation, evaluate_on_run
+from rigtool.analysis.cavitation_runs import find_base_run, is_shallow
 from rigtool.analysis.gp import GpParams, sklearn_predict
+from rigtool.analysis.results import CavitationParams
 from rigtool.artefacts.cavitation import (
     TRAIN_CSV,
     TRAIN_PARQUET,

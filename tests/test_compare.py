@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rigtool.analysis.compare import ThrusterCurve, compare_curves
 from rigtool.cli import main
-from rigtool.compare import ThrusterCurve, compare_curves
 from rigtool.progress import SilentReporter
 from rigtool.store import Store
 from rigtool.sweep import resolve, run_sweep

@@ -246,7 +246,7 @@ def test_rise_and_fall_constants_are_recovered(tmp_path):
     rf = dyn.consumers["rise-fall"]
     for key, truth in (("tau_rise", RF_TRUTH["tau_rise"]), ("tau_fall", RF_TRUTH["tau_fall"])):
         v = rf.parameters[key]
-        assert v.value == pytest.approx(truth, rel=0.05) and v.low <= truth <= v.high, key
+        assert v.value == pytest.approx(truth, rel=0.05) and v.lo <= truth <= v.hi, key
     assert dyn.document["consumers"]["rise-fall"]["differ"] is True
     assert dyn.rise_time_constant_s == pytest.approx(rf.parameters["tau_rise"].value)
     assert dyn.fall_time_constant_s == pytest.approx(rf.parameters["tau_fall"].value)

@@ -81,7 +81,7 @@ def test_every_voltage_and_depth_is_its_own_row_with_a_role(dataset):
     for row in mine.itertuples():
         expected = api.coefficients_at(row.depth_m, row.supply_voltage_v)["C_p_fwd"]
         assert (row.value, row.lo, row.hi) == pytest.approx(
-            (expected.value, expected.low, expected.high), rel=1e-9)
+            (expected.value, expected.lo, expected.hi), rel=1e-9)
     (main_row,) = mine[mine.main_section].itertuples()
     assert (main_row.depth_m, main_row.supply_voltage_v) == (1.2, 15.5)  # the API's default
     assert main_row.value == pytest.approx(api.coefficients["C_p_fwd"].value, rel=1e-9)

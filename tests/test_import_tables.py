@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigtool.analysis.calibrate import CalibrationParams, calibrate_run
-from rigtool.analysis.models import FitParams
+from rigtool.analysis.calibrate import calibrate_run
+from rigtool.analysis.depth_fits import FitParams
+from rigtool.analysis.results import CalibrationParams
 from rigtool.cli import main
 from rigtool.importers import Mapping, import_file, with_overrides
 from rigtool.models.betm import Betm
@@ -69,7 +70,7 @@ def test_thrust_from_current_and_betm_follow_the_free_law(tmp_path: Path) -> Non
     """Where the free law replaced the cubic one, the API's thrust from current and the BETM
     built from the section use it (k and I_0_free with C_i), not the cubic I_0."""
     import rigtool
-    from rigtool.analysis.betm import betm_from_section
+    from rigtool.analysis.betm_fit import betm_from_section
     from rigtool.workflows import stored_results
 
     th = random_maker(9307, k=3.38, current_step=0.05)

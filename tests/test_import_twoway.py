@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from rigtool.analysis.dataset import Samples
-from rigtool.analysis.models import scatter_se
+from rigtool.analysis.depth_fits import scatter_se
 from rigtool.analysis.steady import steady_windows
 from rigtool.cli import main
 from rigtool.store import Store

@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigtool.analysis.calibrate import CalibrationParams, calibrate_run
-from rigtool.analysis.models import FitParams
+from rigtool.analysis.calibrate import calibrate_run
+from rigtool.analysis.depth_fits import FitParams
+from rigtool.analysis.results import CalibrationParams
 from rigtool.cli import main
 from rigtool.store import Store
 

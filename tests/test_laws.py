@@ -12,7 +12,7 @@ import pytest
 
 import rigtool
 from rigtool.analysis.fits import Coefficient
-from rigtool.analysis.voltage import VoltageLaw
+from rigtool.analysis.results import VoltageLaw
 from rigtool.cli import main
 from rigtool.models import laws
 from rigtool.models.betm import Betm

@@ -145,7 +145,7 @@ RANKS = {
     "foundation": ("rigtool.errors", "rigtool.units", "rigtool.bounds", "rigtool.clock",
                    "rigtool.files", "rigtool.outpaths", "rigtool.readback", "rigtool.spool",
                    "rigtool.ids", "rigtool.dbpath", "rigtool.counters",
-                   "rigtool.thruster_profiles", "rigtool.models"),
+                   "rigtool.thruster_profiles", "rigtool.version", "rigtool.models"),
     "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan"),
     "devices": ("rigtool.devices", "rigtool.sim", "rigtool.rig"),
     "store": ("rigtool.store",),
@@ -153,7 +153,8 @@ RANKS = {
     "artefacts": ("rigtool.artefacts",),
     "report": ("rigtool.report",),
     "workflows": ("rigtool.workflows", "rigtool.engine", "rigtool.safety", "rigtool.sweep",
-                  "rigtool.progress", "rigtool.check", "rigtool.importers"),
+                  "rigtool.progress", "rigtool.check", "rigtool.importers",
+                  "rigtool.limit_sources", "rigtool.sensor_rate"),
     "interfaces": ("rigtool", "rigtool.__main__", "rigtool.cli", "rigtool.api",
                    "rigtool.watch", "rigtool.export"),
 }

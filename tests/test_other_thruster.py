@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from rigtool.analysis.cavitation import cavitation_stage, training_runs
+from rigtool.analysis.cavitation_runs import cavitation_stage, training_runs
 from rigtool.cli import main
 from rigtool.store import Store
 

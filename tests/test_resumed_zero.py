@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigtool.analysis.calibrate import Calibration, calibrate_run
+from rigtool.analysis.calibrate import calibrate_run
 from rigtool.analysis.fits import ZeroLine, fit_thrust_speed
+from rigtool.analysis.results import CalibrationResult
 from rigtool.cli import main
 from rigtool.progress import SilentReporter
 from rigtool.sim import physics
@@ -89,14 +90,14 @@ def _sweep(tmp: Path, text: str, seed: int, stop_after: int | None = None,
 
 
 def _pair(tmp: Path, text: str, seed: int, stop_after: int,
-          continuing: bool = False) -> tuple[Calibration, Calibration]:
+          continuing: bool = False) -> tuple[CalibrationResult, CalibrationResult]:
     """Calibrations of the uninterrupted run and of the interrupted and resumed one."""
     full = calibrate_run(*_sweep(tmp, text, seed))
     resumed = calibrate_run(*_sweep(tmp, text, seed, stop_after, continuing))
     return full, resumed
 
 
-def _drift(cal: Calibration) -> tuple[float, float, float]:
+def _drift(cal: CalibrationResult) -> tuple[float, float, float]:
     """(value, lo, hi) of the calibration's zero drift (N/h), from its single section."""
     (sec,) = cal.sections
     if "zero_drift" in sec.fits:
@@ -114,7 +115,7 @@ def _agree(a: tuple[float, float, float], b: tuple[float, float, float]) -> bool
     return abs(a[0] - b[0]) <= math.hypot((a[2] - a[1]) / 2, (b[2] - b[1]) / 2)
 
 
-def _assert_agree(full: Calibration, resumed: Calibration, truth_n_per_h: float) -> None:
+def _assert_agree(full: CalibrationResult, resumed: CalibrationResult, truth_n_per_h: float) -> None:
     """The resumed run has two sessions, its drift interval holds the truth, and its drift
     and model coefficients agree with the uninterrupted run's."""
     (sec,) = resumed.sections
@@ -128,7 +129,7 @@ def _assert_agree(full: Calibration, resumed: Calibration, truth_n_per_h: float)
             assert _agree((a.value, a.lo, a.hi), (b.value, b.lo, b.hi)), (name, a, b)
 
 
-def _drift_warnings(cal: Calibration) -> list[str]:
+def _drift_warnings(cal: CalibrationResult) -> list[str]:
     """The warnings about a drift of the sensor zero or of the tares."""
     return [w for w in cal.warnings if "drifts" in w or "tare drift" in w]
 

@@ -14,7 +14,7 @@ import json
 import numpy as np
 import pytest
 
-from rigtool.analysis.cavitation import truth_intervals
+from rigtool.analysis.cavitation_truth import truth_intervals
 from rigtool.cli import main
 from rigtool.store import Store
 

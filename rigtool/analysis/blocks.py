@@ -73,3 +73,33 @@ def block_means(run: RunData, block_s: float = 0.2) -> Blocks:
     point = cat.pop("point").astype(int)
     return Blocks(**cat, point=point, depth_m=run.steps.depth_m[point],
                   command=run.steps.command[point], block_s=block_s)
+
+
+def in_intervals(t: np.ndarray, intervals: list[tuple[float, float]]) -> np.ndarray:
+    """Mask of times inside any [a, b] interval."""
+    m = np.zeros(t.size, bool)
+    for a, b in intervals:
+        m |= (t >= a) & (t <= b)
+    return m
+
+
+def windows_of(blocks: Blocks) -> list[tuple[float, float]]:
+    """Acquisition window (first to last sample time) of every point."""
+    return [(float(blocks.t0_s[blocks.point == p].min()), float(blocks.t1_s[blocks.point == p].max()))
+            for p in np.unique(blocks.point)]
+
+
+def classify(blocks: Blocks, events: list[tuple[float, float]], edge_s: float) -> np.ndarray:
+    """Class per block: 'step' (within edge_s of a point start), 'edge' (of an event start or
+    end inside the window), 'event', 'outside'."""
+    cls = np.full(len(blocks), "outside", dtype=object)
+    ev = in_intervals(blocks.t_s, events)
+    cls[ev] = "event"
+    wins = windows_of(blocks)
+    edges = [x for a, b in events for x in (a, b) if any(wa < x < wb for wa, wb in wins)]
+    near = np.zeros(len(blocks), bool)
+    for x in edges:
+        near |= np.abs(blocks.t_s - x) <= edge_s
+    cls[near] = "edge"
+    cls[blocks.t_in_point_s <= edge_s] = "step"
+    return cls

@@ -1,17 +1,23 @@
-"""`rigtool calibrate` analysis: a stored run -> a Calibration (one section per depth)."""
+"""`rigtool calibrate` analysis: a stored run -> a CalibrationResult (one section per depth)."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
-import rigtool
-from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, CurveParams, command_curve
+from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
+from rigtool.analysis.depth_fits import (
+    ModelFits,
+    WindowSamples,
+    candidate_points,
+    fit_models,
+    speed_sign,
+)
 from rigtool.analysis.dynamics import Dynamics, StepSeries, identify, no_dynamics_reason
+from rigtool.analysis.efficiency import overall_efficiency
 from rigtool.analysis.fits import (
     SECONDS_PER_HOUR,
     Z95,
@@ -21,102 +27,37 @@ from rigtool.analysis.fits import (
     session_index,
     session_line,
 )
-from rigtool.analysis.models import (
-    FitParams,
-    ModelFits,
-    WindowSamples,
-    candidate_points,
-    fit_models,
-    speed_sign,
-)
 from rigtool.analysis.quality import (
-    Hysteresis,
-    Repeatability,
-    TareDrift,
     drift_over_sweep,
     hysteresis,
     repeatability,
     tare_drift,
 )
-from rigtool.analysis.steady import PointTable, SettlingCriterion, SteadyWindows, steady_windows
-from rigtool.analysis.voltage import VoltageLaw, fit_voltage_law, voltage_point
+from rigtool.analysis.results import (
+    CalibrationParams,
+    CalibrationResult,
+    DepthSection,
+    TareDrift,
+    VoltageLaw,
+)
+from rigtool.analysis.steady import PointTable, SteadyWindows, steady_windows
+from rigtool.analysis.voltage import fit_voltage_law, voltage_point
 from rigtool.store import Store
+from rigtool.version import __version__
 
 NAN = math.nan
-DEEP_DEPTH_M = 0.6  # shallower than this, ventilation is possible ([Luo2020], docs/references.md)
 # One coefficient per fit is checked for quality (the others share its R2 and n).
 CHECKED_FITS = ("C_p_fwd", "C_p_rev", "C_n", "k_free", "C_i_fwd_direct", "C_i_rev_direct")
 
 
-@dataclass(frozen=True)
-class CalibrationParams:
-    """Every threshold the analysis uses; all of it is written to calibration.json."""
-
-    settling: SettlingCriterion = field(default_factory=SettlingCriterion)
-    curve: CurveParams = field(default_factory=CurveParams)
-    fit: FitParams = field(default_factory=FitParams)
-    min_r2: float = 0.98
-    min_points: int = 5
-    drift_warn_n_per_h: float = 0.1  # unused (kept: stored calibrations name it)
-    # a drift is warned about when its interval excludes zero and it moves the zero over the
-    # sweep by more than this many times the thrust noise
-    drift_warn_noise_ratio: float = 1.0
-    deep_depth_m: float = DEEP_DEPTH_M  # shallower points may ventilate: no zero fitted there
 
 
-@dataclass
-class DepthSection:
-    """Results for the points at one depth (depth_m is None when the run sets no depth).
-
-    `zero` is the thrust zero (offset + drift since the tare) found by the model fit or, without
-    speed feedback, from the dead points; curve, hysteresis and repeatability are relative to it.
-    """
-
-    depth_m: float | None
-    points: PointTable
-    fits: dict[str, Coefficient]
-    curve: CommandCurve | None
-    zero: ZeroLine | None
-    hysteresis: Hysteresis | None
-    repeatability: Repeatability | None
-    warnings: list[str]
-    speed_sign: str = "measured"  # or "inferred from command" / "inferred from thrust"
-    voltage_v: float | None = None  # supply voltage set for these points (None: not swept)
-    bus_v: float = NAN  # mean bus voltage measured over them (NaN: not recorded)
-
-    @property
-    def label(self) -> str:
-        depth = "no depth" if self.depth_m is None else f"{self.depth_m:g} m"
-        return depth if self.voltage_v is None else f"{depth}, {self.voltage_v:g} V"
-
-
-@dataclass
-class Calibration:
-    """Everything `rigtool calibrate` found in one run; arrays are ready to plot."""
-
-    run_id: str
-    run_name: str
-    run_status: str
-    command_unit: str
-    neutral_command: float
-    thruster_id: str | None
-    propeller_diameter_m: float | None
-    water_density_kg_m3: float | None
-    tool_version: str
-    params: CalibrationParams
-    sections: list[DepthSection]
-    drift: TareDrift | None
-    warnings: list[str]
-    voltage_laws: list[VoltageLaw] = field(default_factory=list)  # per depth, voltage sweeps
-    dynamics: Dynamics | None = None  # step-response runs
-
-
-def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None) -> Calibration:
+def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None) -> CalibrationResult:
     """Load `run_id` from the store and analyse it."""
     return calibrate(load_run(store, run_id), params)
 
 
-def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibration:
+def calibrate(run: RunData, params: CalibrationParams | None = None) -> CalibrationResult:
     """Analyse a loaded run: steady windows, then per depth the curve, fits and quality."""
     p = params or CalibrationParams()
     windows = steady_windows(run.samples, p.settling)
@@ -140,11 +81,11 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
         warnings += [prefix + w for w in law.warnings]
     dynamics, notes = _dynamics(run) if run.step_response else (None, [])
     warnings += notes
-    return Calibration(
+    return CalibrationResult(
         run_id=run.run_id, run_name=run.name, run_status=run.status,
         command_unit=run.command_unit, neutral_command=run.neutral_command,
         thruster_id=run.thruster_id, propeller_diameter_m=run.propeller_diameter_m,
-        water_density_kg_m3=run.water_density_kg_m3, tool_version=rigtool.__version__,
+        water_density_kg_m3=run.water_density_kg_m3, tool_version=__version__,
         params=p, sections=sections, drift=drift, warnings=warnings, voltage_laws=laws,
         dynamics=dynamics,
     )
@@ -263,7 +204,7 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
         points.thrust_zero_n = np.nan_to_num(zero.at(points.t_mid_s))
     if models.torque_zero is not None:
         points.torque_zero_nm = np.nan_to_num(models.torque_zero.at(points.t_mid_s))
-        above = int(np.sum(points.overall_efficiency[models.used] > 1.0))
+        above = int(np.sum(overall_efficiency(points)[models.used] > 1.0))
         if above:
             models.warnings.append(
                 f"shaft power exceeds electrical power at {above} point(s) (overall efficiency "

@@ -1,7 +1,9 @@
 """Quasi-cavitation calibration of a shallow run: BETM, events, GP training set, QCTM-GP, evaluation.
 
 BETM coefficients come from a deep, full-range base run (`--base`, or the most recent
-completed run of the same thruster whose depths are all >= 0.6 m). All analysis works on
+completed run of the same thruster whose depths are all >= 0.6 m; chosen in
+cavitation_runs.py, which holds the stage's store reads). Evaluation against the twin's
+truth is in cavitation_truth.py. All analysis works on
 short block means (see blocks.py): events on `detect_block_s`, the GP on `train_block_s`.
 The in-run evaluation is a 2-fold split by point (alternate (depth, command) combinations are
 held out whole: blocks within a point, and within one ventilation event, are autocorrelated),
@@ -15,34 +17,29 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from rigtool.analysis.betm import (
+from rigtool.analysis.betm_fit import (
     Betm,
-    EstimatorErrors,
     betm_from_section,
     compare_estimators,
     deep_section,
     level_variances,
     voltage_law_b,
 )
-from rigtool.analysis.blocks import Blocks, block_means
-from rigtool.analysis.calibrate import DEEP_DEPTH_M, calibrate
+from rigtool.analysis.blocks import Blocks, block_means, classify, in_intervals
+from rigtool.analysis.calibrate import calibrate
+from rigtool.analysis.cavitation_runs import cavitation_stage
+from rigtool.analysis.cavitation_truth import evaluate
 from rigtool.analysis.dataset import RunData, load_run
 from rigtool.analysis.events import (
     Event,
-    EventParams,
-    MatchResult,
-    clip_to_windows,
     detect_events,
-    match_events,
     relative_drop,
 )
 from rigtool.analysis.gp import (
     ExactGp,
-    GpParams,
     calibrate_gate,
     fit_exact,
     fit_hetero,
@@ -50,6 +47,12 @@ from rigtool.analysis.gp import (
     variance_parts,
 )
 from rigtool.analysis.qctm_export import fit_limits, model_document
+from rigtool.analysis.results import (
+    CavitationParams,
+    CavitationResult,
+    EstimatorErrors,
+    Evaluation,
+)
 from rigtool.analysis.trainset import (
     MAD_TO_SD,
     TrainingSet,
@@ -58,14 +61,11 @@ from rigtool.analysis.trainset import (
     stratified_pick,
 )
 from rigtool.errors import UsageError
-from rigtool.models import Z95, Bounds, Domain, ThrustModel, gp_features, model_from_document
-from rigtool.models.domain import DEFAULT_SHORTFALL
+from rigtool.models import Z95, ThrustModel, gp_features, model_from_document
 from rigtool.models.qctm import shortfall
 from rigtool.store import Store
 
 EVENT_KIND = "ventilation"
-TRUTH_KIND = "sim.ventilation"
-FEEDBACK_NEEDED = (("speed_rpm_mean", "speed"), ("current_a_mean", "current"))  # step column, name
 # (speed, current, depth, segment) of consecutive blocks -> (thrust, lo95, hi95)
 Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                      tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -74,228 +74,6 @@ Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
 IN_SAMPLE_NOTE = ("partly in-sample: each fold is refitted on the other fold's points, but the "
                   "hyperparameters, noise model and mean term come from the fit on all points; "
                   "held-out runs (benchmarks/bench_cavitation.py) give the honest figures")
-
-@dataclass(frozen=True)
-class CavitationParams:
-    """Every option of the quasi-cavitation analysis (written to cavitation.json)."""
-
-    detect_block_s: float = 0.1
-    train_block_s: float = 0.2
-    budget: int = 2000
-    gamma: float = 3.0
-    edge_s: float = 0.5
-    shortfall_window_s: float = 1.0  # averaging window of the current shortfall
-    causal: bool = False  # window of past blocks only (a controller's view); else centred
-    shortfall_range: tuple[float, float] = DEFAULT_SHORTFALL  # else a current fault
-    events: EventParams = field(default_factory=EventParams)
-    gp: GpParams = field(default_factory=GpParams)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @property
-    def window_blocks(self) -> int:
-        """Shortfall averaging window in train blocks (>= 1)."""
-        return max(1, int(round(self.shortfall_window_s / self.train_block_s)))
-
-    @property
-    def lead_blocks(self) -> int:
-        """Blocks the shortfall window reaches ahead: 0 when causal, else half the window."""
-        return 0 if self.causal else self.window_blocks // 2
-
-
-@dataclass
-class ClassErrors:
-    """Prediction errors of one class of blocks (during/outside events, edges, steps)."""
-
-    name: str
-    n: int
-    p95_abs_n: float
-    max_abs_n: float
-    rms_n: float
-    coverage95: float
-    max_at: str
-
-
-@dataclass
-class Evaluation:
-    """Errors by class, overall coverage, event matching against truth, and where from."""
-
-    source: str
-    classes: list[ClassErrors]
-    coverage95: float
-    matching: MatchResult | None
-    truth_source: str
-
-
-@dataclass
-class CavitationResult:
-    """Everything `calibrate_cavitation` found; arrays are ready to plot and export."""
-
-    run_id: str
-    base_run_id: str
-    params: CavitationParams
-    betm: Betm
-    deep_errors: list[EstimatorErrors]
-    deep_errors_samples: list[EstimatorErrors]
-    events: list[dict]
-    event_table: list[dict]
-    training: TrainingSet
-    n_blocks_total: int
-    gp: ExactGp
-    evaluation: Evaluation
-    series: dict[str, np.ndarray]
-    warnings: list[str] = field(default_factory=list)
-    bounds: Bounds = field(default_factory=Bounds)
-    domain: Domain | None = None
-    interval_check: dict | None = None  # held-out check and scale of the 95 % intervals
-    floor: dict | None = None  # how well speed and current can predict the thrust at all
-
-
-def is_shallow(store: Store, run_id: str) -> bool:
-    """True when any point of the run is shallower than the deep limit (0.6 m)."""
-    return _any_shallow(store.steps(run_id))
-
-
-def _any_shallow(steps: list[dict]) -> bool:
-    return any(s["depth_m"] is not None and s["depth_m"] < DEEP_DEPTH_M for s in steps)
-
-
-def _missing_feedback(steps: list[dict]) -> str | None:
-    """The feedback (speed, current) no point has a finite sample of, as text; None if both do.
-
-    A point's mean is NULL when none of its samples is finite.
-    """
-    missing = [label for key, label in FEEDBACK_NEEDED if all(s[key] is None for s in steps)]
-    return " and ".join(missing) or None
-
-
-def cavitation_applicable(store: Store, run_id: str) -> str | None:
-    """Why the quasi-cavitation stage does not apply to a run, or None when it does.
-
-    It needs shallow points and speed and current feedback (the BETM reads both); any other
-    run is an ordinary calibration at its depth.
-    """
-    steps = store.steps(run_id)
-    if not _any_shallow(steps):
-        return f"run {run_id} has no point shallower than {DEEP_DEPTH_M:g} m"
-    missing = _missing_feedback(steps)
-    return f"run {run_id} has no {missing} feedback" if missing else None
-
-
-def base_run_problem(store: Store, run_id: str) -> str | None:
-    """What keeps a run from being a BETM base run (all points deep, speed and current
-    feedback), or None when it can be one."""
-    return _base_problem(run_id, store.steps(run_id))
-
-
-def _base_problem(run_id: str, steps: list[dict]) -> str | None:
-    if not steps:
-        return f"run {run_id} has no recorded points"
-    if any(s["depth_m"] is None or s["depth_m"] < DEEP_DEPTH_M for s in steps):
-        return f"run {run_id} is not deep (a base run has every point at {DEEP_DEPTH_M:g} m or deeper)"
-    missing = _missing_feedback(steps)
-    return f"run {run_id} has no {missing} feedback" if missing else None
-
-
-def _thruster_id(run: dict) -> str | None:
-    """The thruster id of a stored run: its metadata, else its protocol's."""
-    return (run.get("metadata") or {}).get("thruster_id") or \
-        ((run.get("protocol") or {}).get("metadata") or {}).get("thruster_id")
-
-
-def _other_thruster(store: Store, run_id: str, other_id: str) -> str | None:
-    """Why run `other_id` cannot join `run_id`'s model: another thruster id (None when the
-    ids agree, or either run has none)."""
-    mine, theirs = _thruster_id(store.run(run_id)), _thruster_id(store.run(other_id))
-    if mine and theirs and mine != theirs:
-        return f"run {other_id} is thruster {theirs!r}, run {run_id} is thruster {mine!r}"
-    return None
-
-
-def unchecked_thruster(store: Store, run_id: str, other_id: str, role: str) -> str | None:
-    """A warning when run `other_id` (the `role`) joins `run_id`'s model and either has no
-    thruster id: nothing shows they are the same thruster."""
-    mine, theirs = _thruster_id(store.run(run_id)), _thruster_id(store.run(other_id))
-    if mine and theirs:
-        return None
-    return (f"{role} run {other_id} ({_id_text(theirs)}) joins the model of run {run_id} "
-            f"({_id_text(mine)}): with an id missing, rigtool cannot check they are the same "
-            "thruster (set metadata.thruster_id in both protocols)")
-
-
-def _id_text(tid: str | None) -> str:
-    return f"thruster {tid!r}" if tid else "no thruster id"
-
-
-def _latest_base_run(store: Store, run_id: str) -> str | None:
-    """Most recent completed base run of the same thruster with >= 10 commands, or None."""
-    tid = _thruster_id(store.run(run_id))
-    for row in store.runs(limit=10_000):
-        if row["id"] == run_id or row["status"] != "completed":
-            continue
-        steps = store.steps(row["id"])
-        if _base_problem(row["id"], steps) or len({s["command"] for s in steps}) < 10:
-            continue
-        if tid is None or _thruster_id(store.run(row["id"])) == tid:
-            return row["id"]
-    return None
-
-
-def _no_base_run(run_id: str) -> str:
-    return (f"no deep base run found for {run_id}: record a deep full-range run with speed "
-            "and current feedback (e.g. protocols/luo2020-baseline.yaml) or pass --base RUN_ID")
-
-
-def find_base_run(store: Store, run_id: str) -> str:
-    """Most recent completed run of the same thruster, all points deep, with speed and current
-    feedback and >= 10 commands."""
-    base = _latest_base_run(store, run_id)
-    if base is None:
-        raise UsageError(_no_base_run(run_id))
-    return base
-
-
-@dataclass(frozen=True)
-class CavitationStage:
-    """Whether a run gets the quasi-cavitation stage: its base run, or why not."""
-
-    base_run_id: str | None
-    reason: str | None = None  # why there is no stage
-    warn: bool = False  # the run qualifies but has no base run: worth a warning
-    notes: tuple[str, ...] = ()  # about the base run (an id that cannot be checked)
-
-    @property
-    def warnings(self) -> list[str]:
-        """The warnings `calibrate` and `report` both give: a qualifying run left without the
-        stage, or a base run whose thruster cannot be checked."""
-        lost = [f"no quasi-cavitation section: {self.reason}"] if self.warn else []
-        return [*lost, *(f"quasi-cavitation: {n}" for n in self.notes)]
-
-
-def cavitation_stage(store: Store, run_id: str, base_ref: str | None) -> CavitationStage:
-    """Decide the quasi-cavitation stage of a run (the one decision calibrate and report share).
-
-    A `base_ref` (--base) is checked: UsageError when the run does not qualify, or the base
-    run is not a deep run with speed and current feedback, or is another thruster id's.
-    """
-    reason = cavitation_applicable(store, run_id)
-    if reason is not None:
-        if base_ref:
-            raise UsageError(f"--base {base_ref}: no quasi-cavitation analysis applies: {reason}")
-        return CavitationStage(None, reason)
-    if base_ref:
-        base_id = store.resolve_run_id(base_ref)
-        problem = base_run_problem(store, base_id) or _other_thruster(store, run_id, base_id)
-        if problem:
-            raise UsageError(f"--base {base_ref}: not usable as a base run: {problem}")
-    else:
-        base_id = _latest_base_run(store, run_id)
-        if base_id is None:
-            return CavitationStage(None, _no_base_run(run_id), warn=True)
-    note = unchecked_thruster(store, run_id, base_id, "base")
-    return CavitationStage(base_id, notes=(note,) if note else ())
-
 
 def build_betm(base: RunData, params: CavitationParams) -> tuple[Betm, list[EstimatorErrors],
                                                                   list[EstimatorErrors]]:
@@ -363,14 +141,6 @@ def event_table(run: RunData, blocks: Blocks, records: list[dict]) -> list[dict]
                      "mean_duration_s": float(np.mean(dur)) if dur else math.nan,
                      "ventilated_frac": float(np.sum(dur)) / seconds if seconds > 0 else math.nan})
     return rows
-
-
-def in_intervals(t: np.ndarray, intervals: list[tuple[float, float]]) -> np.ndarray:
-    """Mask of times inside any [a, b] interval."""
-    m = np.zeros(t.size, bool)
-    for a, b in intervals:
-        m |= (t >= a) & (t <= b)
-    return m
 
 
 def training_blocks(run: RunData, betm: Betm, events: list[Event],
@@ -676,62 +446,6 @@ def check_warnings(check: dict, floor: dict) -> list[str]:
     return out
 
 
-def truth_intervals(store: Store, run_id: str) -> list[tuple[float, float]]:
-    """Twin ground-truth ventilation intervals (evaluation only)."""
-    return [(float(e["detail"]["t_start_s"]), float(e["detail"]["t_end_s"]))
-            for e in store.events(run_id, TRUTH_KIND)]
-
-
-def windows_of(blocks: Blocks) -> list[tuple[float, float]]:
-    """Acquisition window (first to last sample time) of every point."""
-    return [(float(blocks.t0_s[blocks.point == p].min()), float(blocks.t1_s[blocks.point == p].max()))
-            for p in np.unique(blocks.point)]
-
-
-def classify(blocks: Blocks, events: list[tuple[float, float]], edge_s: float) -> np.ndarray:
-    """Class per block: 'step' (within edge_s of a point start), 'edge' (of an event start or
-    end inside the window), 'event', 'outside'."""
-    cls = np.full(len(blocks), "outside", dtype=object)
-    ev = in_intervals(blocks.t_s, events)
-    cls[ev] = "event"
-    wins = windows_of(blocks)
-    edges = [x for a, b in events for x in (a, b) if any(wa < x < wb for wa, wb in wins)]
-    near = np.zeros(len(blocks), bool)
-    for x in edges:
-        near |= np.abs(blocks.t_s - x) <= edge_s
-    cls[near] = "edge"
-    cls[blocks.t_in_point_s <= edge_s] = "step"
-    return cls
-
-
-def class_errors(err: np.ndarray, inside: np.ndarray, cls: np.ndarray, blocks: Blocks) -> list[ClassErrors]:
-    """Error summary per class and for all blocks."""
-    out = []
-    for name in ("event", "outside", "edge", "step", "all"):
-        m = np.ones(err.size, bool) if name == "all" else cls == name
-        if not m.any():
-            out.append(ClassErrors(name, 0, math.nan, math.nan, math.nan, math.nan, ""))
-            continue
-        e = np.abs(err[m])
-        j = np.flatnonzero(m)[int(np.argmax(e))]
-        where = (f"t = {blocks.t_s[j]:.1f} s, {blocks.depth_m[j]:g} m, "
-                 f"command {blocks.command[j]:g}, {cls[j]}")
-        out.append(ClassErrors(name, int(m.sum()), float(np.quantile(e, 0.95)), float(e.max()),
-                               float(np.sqrt(np.mean(e**2))), float(np.mean(inside[m])), where))
-    return out
-
-
-def evaluate_blocks(blocks: Blocks, pred: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                    events: list[tuple[float, float]], edge_s: float, source: str,
-                    matching: MatchResult | None, truth_source: str) -> Evaluation:
-    """Errors of predictions on blocks against measured block thrust, by class."""
-    err = pred - blocks.thrust_n
-    inside = (blocks.thrust_n >= lo) & (blocks.thrust_n <= hi)
-    cls = classify(blocks, events, edge_s)
-    return Evaluation(source, class_errors(err, inside, cls, blocks), float(np.mean(inside)),
-                      matching, truth_source)
-
-
 def evaluate_on_run(store: Store, run_id: str, predict: Predictor, betm: Betm,
                     params: CavitationParams | None = None) -> Evaluation:
     """Held-out evaluation of `predict` on another run (twin truth if stored, else detection)."""
@@ -740,23 +454,8 @@ def evaluate_on_run(store: Store, run_id: str, predict: Predictor, betm: Betm,
     blocks = block_means(run, p.train_block_s)
     pred, lo, hi = predict(blocks.speed_rpm, blocks.current_a, blocks.depth_m, blocks.point)
     detected, det_blocks = find_events(run, betm, p)
-    return _evaluate(store, run_id, blocks, det_blocks, detected, pred, lo, hi, p,
+    return evaluate(store, run_id, blocks, det_blocks, detected, pred, lo, hi, p,
                      f"held-out run {run_id}")
-
-
-def _evaluate(store: Store, run_id: str, blocks: Blocks, det_blocks: Blocks,
-              detected: list[Event], pred: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-              p: CavitationParams, source: str) -> Evaluation:
-    truth = truth_intervals(store, run_id)
-    wins = windows_of(det_blocks)
-    det = [(e.t_start_s, e.t_end_s) for e in detected]
-    if truth:
-        clipped = clip_to_windows(truth, wins)
-        matching = match_events(det, clipped, p.events.min_duration_s)
-        return evaluate_blocks(blocks, pred, lo, hi, truth, p.edge_s, source, matching,
-                               f"{TRUTH_KIND} (twin ground truth)")
-    return evaluate_blocks(blocks, pred, lo, hi, det, p.edge_s, source, None,
-                           "detected events (no ground truth stored)")
 
 
 ONE_RUN_WARNING = ("the model is trained on this one run, so its 95 % intervals were checked and "
@@ -819,22 +518,6 @@ def fit_checked(pool: TrainingSet, training: TrainingSet, params: CavitationPara
     return gp
 
 
-def training_runs(store: Store, run_id: str, refs: Sequence[str]) -> list[str]:
-    """Full ids of the extra training runs `refs` for `run_id`'s model; UsageError for one
-    that is `run_id` itself, repeated, of another thruster id, or not a shallow run with speed
-    and current feedback."""
-    ids = []
-    for ref in refs:
-        rid = store.resolve_run_id(ref)
-        problem = ("it is the run being calibrated" if rid == run_id else
-                   "it is given twice" if rid in ids else
-                   cavitation_applicable(store, rid) or _other_thruster(store, run_id, rid))
-        if problem:
-            raise UsageError(f"--train-with {ref}: {problem}")
-        ids.append(rid)
-    return ids
-
-
 def _training_set(store: Store, run_id: str, betm: Betm, p: CavitationParams) -> TrainingSet:
     """All training blocks of another run, events found with the same BETM."""
     run = load_run(store, run_id)
@@ -865,7 +548,7 @@ def _two_fold(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: B
     combos = np.unique(np.column_stack([all_blocks.x[:, 2], all_blocks.command]), axis=0)
     how = ("by point (alternate depth/command combinations held out)" if len(combos) > 1
            else "into the first and second half of its one point")
-    ev = _evaluate(store, run.run_id, blocks, det_blocks, events, pred, lo, hi, p,
+    ev = evaluate(store, run.run_id, blocks, det_blocks, events, pred, lo, hi, p,
                    f"2-fold split of run {run.run_id} {how}")
     series = {"t_s": blocks.t_s, "thrust_n": blocks.thrust_n, "betm_n": all_blocks.betm_n,
               "pred_n": pred, "lo95_n": lo, "hi95_n": hi, "depth_m": blocks.depth_m,

@@ -51,6 +51,12 @@ from rigtool.analysis.dynamics_response import (
     thrust_response,
 )
 from rigtool.analysis.fits import Coefficient
+from rigtool.analysis.stats import (
+    MAX_R1_FIT,
+    ar1_coefficient,
+    effective_sample_size,
+    lag1_autocorrelation,
+)
 
 Z95 = 1.959963984540054
 BIC_MARGIN = 10.0
@@ -686,11 +692,10 @@ def _local_tau(rate: Coefficient, name: str, x_big: float, n: int, rms: float) -
 
 
 def _covariance(jac: np.ndarray, r: np.ndarray, hold: np.ndarray) -> tuple[np.ndarray, float]:
-    """Heteroscedasticity-consistent covariance inflated for AR(1) residuals; lag-1 corr."""
-    rss = float(r @ r)
-    same = hold[1:] == hold[:-1]
-    r1 = float(np.sum((r[1:] * r[:-1])[same]) / rss) if rss > 0 else 0.0
-    r1 = min(max(r1, 0.0), 0.98)
+    """Heteroscedasticity-consistent covariance inflated for AR(1) residuals (neighbours at one
+    held command only); lag-1 corr."""
+    r1 = ar1_coefficient(lag1_autocorrelation(r, hold[1:] == hold[:-1], float(r @ r)),
+                         MAX_R1_FIT)
     bread = np.linalg.pinv(jac.T @ jac)
     jr = jac * r[:, None]
     return bread @ (jr.T @ jr) @ bread * (1 + r1) / (1 - r1), r1
@@ -735,7 +740,7 @@ def _set_criteria(models: dict[str, DynamicsModel], run: _Run) -> None:
     """BIC and AIC of every model on one effective sample size (from the richest model)."""
     richest = max(models.values(), key=lambda m: m.n_params)
     r1 = richest.lag1_corr
-    n_eff = max(richest.n_samples * (1 - r1) / (1 + r1), richest.n_params + 1.0)
+    n_eff = effective_sample_size(richest.n_samples, r1, richest.n_params + 1.0)
     for m in models.values():
         fit = n_eff * math.log(max(m.rms_n, 1e-150) ** 2)
         m.bic = fit + m.n_params * math.log(n_eff)
@@ -866,8 +871,7 @@ def _constant_bic(run: _Run, m: DynamicsModel) -> float:
     """BIC of a constant thrust on the model's effective sample size."""
     y = run.series.thrust_n
     rms = float(np.std(y))
-    n_eff = m.n_samples * (1 - m.lag1_corr) / (1 + m.lag1_corr)
-    n_eff = max(n_eff, 2.0)
+    n_eff = effective_sample_size(m.n_samples, m.lag1_corr, 2.0)
     return n_eff * math.log(max(rms, 1e-150) ** 2) + math.log(n_eff)
 
 

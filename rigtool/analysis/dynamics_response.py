@@ -11,9 +11,9 @@ the speed target X = sign(F) sqrt(|F| / c(F)). Between command switches:
   the way through it);
 - two-state ([Healey1995] axial inflow): the same x, and m' = (x - m) / tau_a, thrust
   c(x) (x|x| + g (x|x| - m|m|));
-- yoerger (Yoerger, Cooke & Slotine 1990): x' = alpha (X|X| - x|x|), quadratic damping, so
+- yoerger ([Yoerger1990]): x' = alpha (X|X| - x|x|), quadratic damping, so
   small steps settle more slowly than large ones;
-- healey (Healey et al. 1995): Yoerger's speed with Healey's inflow m' = beta (x|x| - m|m|)
+- healey ([Healey1995]): Yoerger's speed with Healey's inflow m' = beta (x|x| - m|m|)
   (quadratic drag on the water column) and thrust c(x) (x|x| + g |x| (x - m));
   healey-lag: the same inflow behind a first-order speed lag (a driver with a speed loop).
 

@@ -9,7 +9,7 @@ Intervals stay honest when the errors are larger or less independent than the st
 errors say: the covariance is scaled by the reduced chi-square when it exceeds 1, and, when
 the acquisition order is given, computed as a sandwich with AR(1)-correlated errors in that
 order (slow drift gives neighbouring points a shared offset), with r1 the lag-1
-autocorrelation of the weighted residuals, bias-corrected as r1 + (1 + 3 r1) / n. Intervals
+autocorrelation of the weighted residuals, bias-corrected (stats.py states the rule). Intervals
 use Student's t with n_eff - p degrees of freedom, n_eff = n (1 - r1) / (1 + r1). The
 thruster-model fits (C_p, C_n) scale by the reduced chi-square both ways once they have
 MIN_SCALE_DOF degrees of freedom: the point standard errors are deliberately cautious (the
@@ -31,9 +31,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rigtool.analysis.stats import (
+    MAX_R1_FIT,
+    ar1_coefficient,
+    effective_sample_size,
+    lag1_autocorrelation,
+)
+
 RPM_PER_RPS = 60.0
 SECONDS_PER_HOUR = 3600.0
-MAX_R1 = 0.98
 DIRECT_MIN_K = 10.0  # direct C_i fit: I - I_0 must exceed this many of its standard errors
 MIN_SCALE_DOF = 20  # model fits with this many degrees of freedom take their scale from the scatter
 CUBIC = 3.0  # the textbook exponent of I = C_n |n|^3 + I_0
@@ -116,13 +122,11 @@ def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
     if order is not None and dof > 1:
         sort = np.argsort(order, kind="stable")
         r = (resid * w)[sort]
-        rss = float(np.sum(r * r))
-        r1 = float(np.sum(r[1:] * r[:-1]) / rss) if rss > 0 else 0.0  # exact fit: no correlation
-        r1 = float(np.clip(r1 + (1 + 3 * r1) / len(y), 0.0, MAX_R1)) if r1 > 0 else 0.0
+        r1 = ar1_coefficient(lag1_autocorrelation(r), MAX_R1_FIT, len(y))
         if r1 > 0:
             a_t = a_s[sort]
             bread = bread @ (a_t.T @ _ar1_correlate(a_t, r1)) @ bread
-            dof = max(int(len(y) * (1 - r1) / (1 + r1)) - design.shape[1], 1)
+            dof = max(int(effective_sample_size(len(y), r1)) - design.shape[1], 1)
     cov = bread / np.outer(scale, scale)
     if dof > 0 and (chi2_red > 1.0 or (scale_down and len(y) - design.shape[1] >= MIN_SCALE_DOF)):
         cov = cov * chi2_red

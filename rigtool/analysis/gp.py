@@ -1,4 +1,5 @@
-"""QCTM-GP: weighted Matern-5/2 GP on standardised (n, z, h), exact and sparse (SoR) forms.
+"""QCTM-GP: weighted Matern-5/2 GP on standardised (n, z, h), exact and sparse (SoR) forms
+([Rasmussen2006], docs/references.md).
 
 Inputs are `rigtool.models.gp_features`: z is the current-implied thrust loss. `fit_hetero`
 adds a heteroscedastic noise model (a second GP on the log of local 95 % quantiles of the

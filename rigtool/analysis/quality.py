@@ -3,60 +3,13 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from rigtool.analysis.fits import Coefficient
+from rigtool.analysis.results import Hysteresis, Repeatability, TareDrift
 
 SECONDS_PER_HOUR = 3600.0
-
-
-@dataclass
-class Hysteresis:
-    """Up-sweep minus down-sweep thrust at commands visited in both directions (N)."""
-
-    command: np.ndarray
-    up_n: np.ndarray
-    down_n: np.ndarray
-    diff_n: np.ndarray
-    diff_se_n: np.ndarray
-
-    @property
-    def max_abs_n(self) -> float:
-        return float(np.max(np.abs(self.diff_n)))
-
-    @property
-    def at_command(self) -> float:
-        return float(self.command[np.argmax(np.abs(self.diff_n))])
-
-
-@dataclass
-class Repeatability:
-    """Standard deviation (N) of the point means across repeats, per (command, direction)."""
-
-    command: np.ndarray
-    direction: np.ndarray
-    n_repeats: np.ndarray
-    std_n: np.ndarray
-
-    @property
-    def max_std_n(self) -> float:
-        return float(np.max(self.std_n))
-
-    @property
-    def median_std_n(self) -> float:
-        return float(np.median(self.std_n))
-
-
-@dataclass
-class TareDrift:
-    """Thrust-channel tare bias vs time, relative to the first tare, and its linear trend."""
-
-    t_s: np.ndarray
-    bias_n: np.ndarray
-    slope: Coefficient
-    zero_scatter_n: float
 
 
 def _group_mean(keys: np.ndarray, values: np.ndarray,

@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rigtool.analysis.dataset import Samples, Steps
+from rigtool.analysis.stats import MAX_R1_SAMPLES, ar1_coefficient, effective_sample_size
 
 CHANNEL_UNITS = {"thrust_n": "N", "speed_rpm": "r/min", "current_a": "A", "voltage_v": "V",
                  "power_w": "W", "torque_nm": "N m"}
-RAD_S_PER_RPM = 2 * np.pi / 60
 MAX_ROUNDING = 0.05  # efficiency only where half a printed step moves power and thrust < 5 %
 MIN_DISTINCT = 5  # a step is recognised in a channel with at least this many distinct values
 MAX_STEP_DIVISOR = 10  # the step may be up to this many times finer than the smallest gap
@@ -124,63 +124,10 @@ class PointTable:
         return self.thrust.mean - self.thrust_zero_n
 
     @property
-    def efficiency_resolved(self) -> np.ndarray:
-        """Points whose power and thrust are at or above their resolution floors."""
-        ok = np.ones(len(self.step_idx), dtype=bool)
-        if self.power_floor_w.size == ok.size:
-            ok &= self.power.mean >= self.power_floor_w
-        if self.thrust_floor_n.size == ok.size:
-            ok &= np.abs(self.thrust_corrected_n) >= self.thrust_floor_n
-        return ok
-
-    @property
-    def efficiency_n_per_w(self) -> np.ndarray:
-        """|thrust| / electrical power (N/W); NaN where the power is not positive or unknown,
-        or below the floor the data's resolution supports (`efficiency_resolved`)."""
-        p = self.power.mean
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where((p > 0) & self.efficiency_resolved,
-                            np.abs(self.thrust_corrected_n) / p, np.nan)
-
-    @property
-    def efficiency_se_n_per_w(self) -> np.ndarray:
-        """Standard error of efficiency_n_per_w (thrust and power errors combined, first order)."""
-        f, p = np.abs(self.thrust_corrected_n), self.power.mean
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rel = np.hypot(self.thrust.se / f, self.power.se / p)
-        return self.efficiency_n_per_w * rel
-
-    @property
     def torque_corrected_nm(self) -> np.ndarray:
         """Mean torque about the thrust axis minus its estimated zero (N m)."""
         zero = self.torque_zero_nm if self.torque_zero_nm.size else 0.0
         return self.torque.mean - zero
-
-    @property
-    def mech_power_w(self) -> np.ndarray:
-        """Shaft power |Q| |omega| from the point means (W); NaN without torque or speed."""
-        return np.abs(self.torque_corrected_nm) * np.abs(self.speed.mean) * RAD_S_PER_RPM
-
-    @property
-    def mech_power_se_w(self) -> np.ndarray:
-        """Standard error of mech_power_w (torque and speed errors combined, first order)."""
-        q, n = np.abs(self.torque_corrected_nm), np.abs(self.speed.mean)
-        return np.hypot(self.torque.se * n, np.nan_to_num(self.speed.se) * q) * RAD_S_PER_RPM
-
-    @property
-    def overall_efficiency(self) -> np.ndarray:
-        """Shaft power over electrical power (motor and driver together), 0..1."""
-        p = self.power.mean
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(p > 0, self.mech_power_w / p, np.nan)
-
-    @property
-    def overall_efficiency_se(self) -> np.ndarray:
-        """Standard error of overall_efficiency, first order."""
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rel = np.hypot(self.mech_power_se_w / self.mech_power_w,
-                           self.power.se / self.power.mean)
-        return self.overall_efficiency * rel
 
     def __len__(self) -> int:
         return len(self.step_idx)
@@ -378,8 +325,8 @@ def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points:
         c1 = np.bincount(pid[:-1][same], weights=(dev[1:] * dev[:-1])[same], minlength=n_points)
         var = c0 / (cnt - 1)
         std = np.sqrt(var)
-        r1 = np.clip(c1 / c0, 0.0, 0.999)
-        n_eff = np.maximum(cnt * (1 - r1) / (1 + r1), 1.0)
+        r1 = ar1_coefficient(c1 / c0, MAX_R1_SAMPLES)
+        n_eff = effective_sample_size(cnt, r1, 1.0)
         se_ar1 = std / np.sqrt(n_eff)
     se = np.fmax(se_ar1, batch_se)
     mean = np.where(cnt > 0, mean, np.nan)

@@ -13,52 +13,15 @@ beside it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from rigtool.analysis.fits import Coefficient, derive_thrust_current, with_systematic, wls
-from rigtool.models import laws
+from rigtool.analysis.results import VoltageLaw, VoltagePoint
 
 Z95 = 1.96
 CP_DIFFERS_P = 1e-3  # C_p differs between voltages when chance gives its scatter less often
 CP_DIFFERS_REL = 0.01  # ... and one voltage's C_p is this far (relative) from the common one
-
-
-@dataclass
-class VoltagePoint:
-    """The coefficients of one supply voltage at one depth."""
-
-    voltage_v: float  # the supply voltage set
-    bus_v: float  # mean bus voltage measured over the fitted points (NaN: not recorded)
-    cp_fwd: Coefficient | None
-    cp_rev: Coefficient | None
-    cn: Coefficient | None
-    ci_fwd: Coefficient | None
-    ci_rev: Coefficient | None
-    current_exponent: float = 3.0  # k of the current law ci_* hold for: f = C_i (I - I_0)^(2/k)
-
-
-@dataclass
-class VoltageLaw:
-    """C_n(U) = k U^b across the voltages of one depth, and whether C_p holds across them."""
-
-    depth_m: float | None
-    points: list[VoltagePoint]
-    k: Coefficient  # A/(r/min)^3 V^-b
-    b: Coefficient  # exponent (1)
-    k_inverse: Coefficient  # k of the physical law C_n = k / U (b fixed at -1), A V/(r/min)^3
-    cp_chi2_red: float  # reduced chi-square of the C_p_fwd values about their weighted mean
-    cp_consistent: bool  # C_p_fwd agrees across voltages within its intervals
-    warnings: list[str]
-
-    def cn_at(self, voltage_v: float | np.ndarray) -> float | np.ndarray:
-        """C_n at supply voltage U from the fitted power law."""
-        return self.k.value * np.asarray(voltage_v, dtype=float) ** self.b.value
-
-    def ci_at(self, voltage_v: float | np.ndarray, cp: float) -> float | np.ndarray:
-        """C_i = C_p / C_n(U)^(2/3) at supply voltage U."""
-        return laws.c_i_from(cp, self.cn_at(voltage_v))
 
 
 def _se(c: Coefficient) -> float:

@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.dynamics import (
     CONSUMER_LIMIT,
     MAX_MODEL_ERROR,
@@ -25,8 +24,17 @@ from rigtool.analysis.dynamics import (
     first_order_tau,
     selected_tau,
 )
+from rigtool.analysis.efficiency import (
+    efficiency_n_per_w,
+    efficiency_resolved,
+    efficiency_se_n_per_w,
+    mech_power_se_w,
+    mech_power_w,
+    overall_efficiency,
+    overall_efficiency_se,
+)
 from rigtool.analysis.fits import Coefficient, ZeroLine
-from rigtool.analysis.voltage import VoltageLaw
+from rigtool.analysis.results import CalibrationResult, DepthSection, VoltageLaw
 from rigtool.artefacts.write import (
     MISSING,
     atomic_write,
@@ -52,7 +60,7 @@ FILES = {
 COMMAND_UNIT = "<command unit>"
 
 
-def write_artefacts(cal: Calibration, out_dir: str | Path,
+def write_artefacts(cal: CalibrationResult, out_dir: str | Path,
                     created_utc: str | None = None) -> list[Path]:
     """Write the artefacts of `cal` into `out_dir`/<run-id>/ and return the file paths.
 
@@ -79,17 +87,17 @@ def write_artefacts(cal: Calibration, out_dir: str | Path,
     return [atomic_write(target / FILES[key], text) for key, text in texts.items()]
 
 
-def _csv_head(cal: Calibration, created: str) -> list[str]:
+def _csv_head(cal: CalibrationResult, created: str) -> list[str]:
     return [f"rigtool {cal.tool_version} calibration of run {cal.run_id}, created {created}",
             f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
 
 
-def lut_text(cal: Calibration, created: str) -> str:
+def lut_text(cal: CalibrationResult, created: str) -> str:
     """inverse_lut.csv: the inverse lookup table of every section."""
     return csv_text(_csv_head(cal, created) + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal))
 
 
-def calibration_document(cal: Calibration, created_utc: str) -> dict:
+def calibration_document(cal: CalibrationResult, created_utc: str) -> dict:
     """The content of calibration.json as JSON-safe Python data (also usable as a store summary)."""
     all_points = [s.points for s in cal.sections]
     start = np.concatenate([p.window_start_s for p in all_points])
@@ -152,14 +160,14 @@ def _efficiency_doc(sec: DepthSection) -> dict | None:
     floor (None without power)."""
     p = sec.points
     live = (p.status == "ok") & ~p.dead
-    eff = np.where(live, p.efficiency_n_per_w, np.nan)
+    eff = np.where(live, efficiency_n_per_w(p), np.nan)
     if not np.isfinite(eff).any():
         return None
     i = int(np.nanargmax(eff))
-    below = live & (p.power.mean > 0) & ~p.efficiency_resolved
+    below = live & (p.power.mean > 0) & ~efficiency_resolved(p)
     floor = p.power_floor_w[i] if p.power_floor_w.size == len(p) else 0.0
     return {"max_n_per_w": float(eff[i]), "max_g_per_w": float(eff[i]) * GRAMS_PER_NEWTON,
-            "se_n_per_w": float(p.efficiency_se_n_per_w[i]), "at_command": float(p.command[i]),
+            "se_n_per_w": float(efficiency_se_n_per_w(p)[i]), "at_command": float(p.command[i]),
             "at_thrust_n": float(p.thrust_corrected_n[i]), "power_w": float(p.power.mean[i]),
             "n_points": int(np.isfinite(eff).sum()),
             "power": "mean over the steady window of V * |I| sample by sample",
@@ -171,12 +179,12 @@ def _efficiency_doc(sec: DepthSection) -> dict | None:
 
 def _overall_doc(p) -> dict | None:
     """Best shaft power over electrical power among the live points (None without torque)."""
-    eta = np.where((p.status == "ok") & ~p.dead, p.overall_efficiency, np.nan)
+    eta = np.where((p.status == "ok") & ~p.dead, overall_efficiency(p), np.nan)
     if not np.isfinite(eta).any():
         return None
     i = int(np.nanargmax(eta))
-    return {"max": float(eta[i]), "se": float(p.overall_efficiency_se[i]),
-            "at_command": float(p.command[i]), "mech_power_w": float(p.mech_power_w[i]),
+    return {"max": float(eta[i]), "se": float(overall_efficiency_se(p)[i]),
+            "at_command": float(p.command[i]), "mech_power_w": float(mech_power_w(p)[i]),
             "power_w": float(p.power.mean[i]),
             "definition": "|Q| omega / (V |I|): shaft power over electrical power"}
 
@@ -476,7 +484,7 @@ LUT_DOC = ["inverse lookup command(thrust) over each branch's usable range (no d
            "(docs/artefacts.md)"]
 
 
-def _units(columns: Sequence[tuple[str, str, str]], cal: Calibration) -> list[tuple[str, str, str]]:
+def _units(columns: Sequence[tuple[str, str, str]], cal: CalibrationResult) -> list[tuple[str, str, str]]:
     return [(name, cal.command_unit if unit == COMMAND_UNIT else unit, text)
             for name, unit, text in columns]
 
@@ -489,7 +497,7 @@ def _volts(sec: DepthSection) -> float:
     return math.nan if sec.voltage_v is None else sec.voltage_v
 
 
-def _point_rows(cal: Calibration) -> Iterable[list[object]]:
+def _point_rows(cal: CalibrationResult) -> Iterable[list[object]]:
     for sec in cal.sections:
         p = sec.points
         for i in range(len(p)):
@@ -505,17 +513,17 @@ def _point_rows(cal: Calibration) -> Iterable[list[object]]:
             for ch in (p.voltage, p.power):
                 row += [float(ch.mean[i]), float(ch.std[i]), float(ch.se[i]), float(ch.min[i]),
                         float(ch.max[i])]
-            eff = float(p.efficiency_n_per_w[i])
-            row += [eff, float(p.efficiency_se_n_per_w[i]), eff * GRAMS_PER_NEWTON, _volts(sec)]
+            eff = float(efficiency_n_per_w(p)[i])
+            row += [eff, float(efficiency_se_n_per_w(p)[i]), eff * GRAMS_PER_NEWTON, _volts(sec)]
             q = p.torque
             row += [float(q.mean[i]), float(q.std[i]), float(q.se[i]), float(q.min[i]),
-                    float(q.max[i]), float(p.torque_zero_nm[i]), float(p.mech_power_w[i]),
-                    float(p.mech_power_se_w[i]), float(p.overall_efficiency[i]),
-                    float(p.overall_efficiency_se[i])]
+                    float(q.max[i]), float(p.torque_zero_nm[i]), float(mech_power_w(p)[i]),
+                    float(mech_power_se_w(p)[i]), float(overall_efficiency(p)[i]),
+                    float(overall_efficiency_se(p)[i])]
             yield row
 
 
-def curve_rows(cal: Calibration) -> Iterable[list[object]]:
+def curve_rows(cal: CalibrationResult) -> Iterable[list[object]]:
     for sec in cal.sections:
         c = sec.curve
         if c is None:
@@ -527,7 +535,7 @@ def curve_rows(cal: Calibration) -> Iterable[list[object]]:
                    float(c.current_mean_a[i]), _volts(sec)]
 
 
-def lut_rows(cal: Calibration) -> Iterable[list[object]]:
+def lut_rows(cal: CalibrationResult) -> Iterable[list[object]]:
     for sec in cal.sections:
         if sec.curve is None:
             continue
@@ -537,7 +545,7 @@ def lut_rows(cal: Calibration) -> Iterable[list[object]]:
                    _volts(sec)]
 
 
-def voltage_rows(cal: Calibration) -> Iterable[list[object]]:
+def voltage_rows(cal: CalibrationResult) -> Iterable[list[object]]:
     for law in cal.voltage_laws:
         for v in law.points:
             row: list[object] = [math.nan if law.depth_m is None else law.depth_m, v.voltage_v,
@@ -550,7 +558,7 @@ def voltage_rows(cal: Calibration) -> Iterable[list[object]]:
 
 # -- manufacturer-style performance table -----------------------------------------------------
 
-def performance_rows(cal: Calibration) -> list[list[float]]:
+def performance_rows(cal: CalibrationResult) -> list[list[float]]:
     """One row per (depth, command) over the 'ok' points: the means of their steady-window
     means, thrust relative to the sensor zero; per supply voltage too in a voltage sweep.
     Columns: performance_header."""
@@ -568,7 +576,7 @@ def performance_rows(cal: Calibration) -> list[list[float]]:
                 return float(v.mean()) if v.size else math.nan
 
             thrust, power = mean(f), mean(p.power.mean)
-            resolved = power > 0 and bool(np.all(p.efficiency_resolved[m]))
+            resolved = power > 0 and bool(np.all(efficiency_resolved(p)[m]))
             g_per_w = abs(thrust) / power * GRAMS_PER_NEWTON if resolved else math.nan
             row = [_depth(sec), float(command), mean(p.speed.mean), mean(p.current.mean),
                    mean(p.voltage.mean), power, thrust, thrust / 9.80665, g_per_w]
@@ -587,11 +595,11 @@ def performance_header(command_unit: str, voltage_swept: bool = False) -> list[s
             "Efficiency (g/W)"]
 
 
-def _voltage_swept(cal: Calibration) -> bool:
+def _voltage_swept(cal: CalibrationResult) -> bool:
     return any(sec.voltage_v is not None for sec in cal.sections)
 
 
-def performance_text(cal: Calibration) -> str:
+def performance_text(cal: CalibrationResult) -> str:
     """performance.csv: a plain table (no comment lines) that spreadsheets and `rigtool
     import` read as they are (docs/artefacts.md)."""
     lines = [",".join(performance_header(cal.command_unit, _voltage_swept(cal)))]

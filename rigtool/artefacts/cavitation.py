@@ -11,13 +11,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-import rigtool
-from rigtool.analysis.cavitation import IN_SAMPLE_NOTE, CavitationResult
+from rigtool.analysis.cavitation import IN_SAMPLE_NOTE
 from rigtool.analysis.qctm_export import model_document
+from rigtool.analysis.results import CavitationResult
 from rigtool.artefacts.write import atomic_write, json_clean, json_text
 from rigtool.ids import utc_now
 from rigtool.models import MODEL_FILE, VARIANCE_FILE
 from rigtool.outpaths import run_folder
+from rigtool.version import __version__
 
 SUMMARY_FILE = "cavitation.json"
 TRAIN_CSV = "gp_training.csv"
@@ -44,7 +45,7 @@ def summary_document(res: CavitationResult, created: str) -> dict:
     ev = res.evaluation
     return json_clean({
         "format": "rigtool-cavitation", "format_version": 1,
-        "tool_version": rigtool.__version__, "created_utc": created,
+        "tool_version": __version__, "created_utc": created,
         "run_id": res.run_id, "base_run_id": res.base_run_id,
         "params": res.params.to_dict(), "betm": res.betm.to_dict(),
         "deep_errors_blocks": res.deep_errors, "deep_errors_samples": res.deep_errors_samples,
@@ -81,7 +82,7 @@ def training_table(res: CavitationResult) -> dict[str, np.ndarray]:
 
 def _header(res: CavitationResult, created: str) -> list[str]:
     prov = res.training.provenance
-    lines = [f"rigtool {rigtool.__version__} QCTM-GP training set of run {res.run_id}, "
+    lines = [f"rigtool {__version__} QCTM-GP training set of run {res.run_id}, "
              f"created {created}",
              f"runs: {', '.join(prov.get('run_ids', []))}; BETM base run: {res.base_run_id}",
              f"decimation: {prov.get('block_s')} s block means, {len(res.training)} of "
@@ -107,7 +108,7 @@ def write_cavitation_artefacts(res: CavitationResult, out_dir: str | Path,
     target.mkdir(parents=True, exist_ok=True)
     model = model_document(res.betm, res.gp, {
         "run_ids": res.training.provenance.get("run_ids", []), "base_run_id": res.base_run_id,
-        "created_utc": created, "tool_version": rigtool.__version__,
+        "created_utc": created, "tool_version": __version__,
         **json_clean({"interval_check": res.interval_check, "floor": res.floor})},
         window=res.params.window_blocks, block_s=res.params.train_block_s,
         lead=res.params.lead_blocks, bounds=res.bounds, domain=res.domain)

@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict
 from pathlib import Path
 
+from rigtool.analysis.compare import CompareResult, Correction
 from rigtool.artefacts.write import atomic_write, csv_cell, json_text
-from rigtool.compare import CompareResult, Correction
 
 
 def corrections_document(result: CompareResult) -> dict:

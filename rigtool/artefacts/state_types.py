@@ -27,19 +27,15 @@ from types import MappingProxyType
 from typing import Any
 
 from rigtool.analysis import (
-    betm,
-    calibrate,
-    cavitation,
     curves,
+    depth_fits,
     dynamics,
     events,
     fits,
     gp,
-    models,
-    quality,
+    results,
     steady,
     trainset,
-    voltage,
 )
 from rigtool.errors import StoreError
 from rigtool.models import betm as model_betm
@@ -48,14 +44,14 @@ from rigtool.models import domain
 Fields = dict[str, Any]
 
 TYPES: Mapping[str, type] = MappingProxyType({
-    "betm.EstimatorErrors/1": betm.EstimatorErrors,
-    "calibrate.Calibration/1": calibrate.Calibration,
-    "calibrate.CalibrationParams/1": calibrate.CalibrationParams,
-    "calibrate.DepthSection/1": calibrate.DepthSection,
-    "cavitation.CavitationParams/1": cavitation.CavitationParams,
-    "cavitation.CavitationResult/1": cavitation.CavitationResult,
-    "cavitation.ClassErrors/1": cavitation.ClassErrors,
-    "cavitation.Evaluation/1": cavitation.Evaluation,
+    "betm.EstimatorErrors/1": results.EstimatorErrors,
+    "calibrate.Calibration/1": results.CalibrationResult,
+    "calibrate.CalibrationParams/1": results.CalibrationParams,
+    "calibrate.DepthSection/1": results.DepthSection,
+    "cavitation.CavitationParams/1": results.CavitationParams,
+    "cavitation.CavitationResult/1": results.CavitationResult,
+    "cavitation.ClassErrors/1": results.ClassErrors,
+    "cavitation.Evaluation/1": results.Evaluation,
     "curves.Branch/1": curves.Branch,
     "curves.CommandCurve/1": curves.CommandCurve,
     "curves.CurveParams/1": curves.CurveParams,
@@ -73,16 +69,16 @@ TYPES: Mapping[str, type] = MappingProxyType({
     "model.Betm/1": model_betm.Betm,
     "model.Bounds/1": domain.Bounds,
     "model.Domain/1": domain.Domain,
-    "models.FitParams/1": models.FitParams,
-    "quality.Hysteresis/1": quality.Hysteresis,
-    "quality.Repeatability/1": quality.Repeatability,
-    "quality.TareDrift/1": quality.TareDrift,
+    "models.FitParams/1": depth_fits.FitParams,
+    "quality.Hysteresis/1": results.Hysteresis,
+    "quality.Repeatability/1": results.Repeatability,
+    "quality.TareDrift/1": results.TareDrift,
     "steady.ChannelStats/1": steady.ChannelStats,
     "steady.PointTable/1": steady.PointTable,
     "steady.SettlingCriterion/1": steady.SettlingCriterion,
     "trainset.TrainingSet/1": trainset.TrainingSet,
-    "voltage.VoltageLaw/1": voltage.VoltageLaw,
-    "voltage.VoltagePoint/1": voltage.VoltagePoint,
+    "voltage.VoltageLaw/1": results.VoltageLaw,
+    "voltage.VoltagePoint/1": results.VoltagePoint,
 })
 
 

@@ -13,8 +13,6 @@ from functools import cached_property
 
 import numpy as np
 
-import rigtool
-from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.dynamics import (
     CONSUMERS,
     QUADRATIC_SPEED,
@@ -23,8 +21,10 @@ from rigtool.analysis.dynamics import (
     first_order_tau,
     selected_tau,
 )
+from rigtool.analysis.results import CalibrationResult, DepthSection
 from rigtool.artefacts.write import csv_cell
 from rigtool.models.thrust_map import Table, ThrustMap, thrust_map
+from rigtool.version import __version__
 
 RAD_S_PER_RPM = 2.0 * math.pi / 60.0
 
@@ -163,7 +163,7 @@ class ExportInput:
     """Everything an artefact is made of: the calibration, the section it describes, the
     creation time, the dynamics (None: none identified or given) and the options."""
 
-    cal: Calibration
+    cal: CalibrationResult
     sec: DepthSection
     created: str
     dynamics: DynamicsSource | None
@@ -207,7 +207,7 @@ class ExportInput:
         depth = "not set" if sec.depth_m is None else f"{sec.depth_m:g} m"
         if sec.voltage_v is not None:
             depth += f", supply {sec.voltage_v:g} V"
-        return [f"rigtool {rigtool.__version__}: thruster calibration, depth {depth}. Generated: "
+        return [f"rigtool {__version__}: thruster calibration, depth {depth}. Generated: "
                 "make it again with rigtool export-cal rather than edit it.",
                 f"source run, run name, thruster, creation time, command unit: "
                 f"{', '.join(names)}.",
@@ -220,7 +220,7 @@ class ExportInput:
         return self.dynamics.params(self.coef("C_p_fwd"), self.coef("C_p_rev"))
 
 
-def deepest(cal: Calibration) -> DepthSection:
+def deepest(cal: CalibrationResult) -> DepthSection:
     """The section the vehicle artefacts describe: the deepest (or the only) depth and, in a
     voltage sweep, the middle supply voltage (as the Python API's default)."""
     known = [s.depth_m for s in cal.sections if s.depth_m is not None]

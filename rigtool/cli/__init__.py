@@ -7,10 +7,10 @@ import argparse
 import signal
 from collections.abc import Sequence
 
-from rigtool import __version__
 from rigtool.cli import calibrate, check, compare, export, importing, merge, runs, sim, sweep, watch
 from rigtool.cli.console import err
 from rigtool.errors import EXIT_FAILED, EXIT_INTERRUPTED, RigtoolError
+from rigtool.version import __version__
 
 # In the order `rigtool --help` lists them.
 COMMANDS = (sweep, watch, runs, calibrate, check, sim, export, merge, importing, compare)

@@ -13,7 +13,7 @@ from rigtool.dbpath import resolve_db_path
 from rigtool.store import Store
 
 if TYPE_CHECKING:
-    from rigtool.analysis.calibrate import Calibration
+    from rigtool.analysis.results import CalibrationResult
     from rigtool.artefacts.vehicle import ExportOptions
 
 VEHICLE_FORMATS = ("c-header", "ros2", "gazebo", "csv-lut", "ardupilot", "px4", "uuv",
@@ -123,7 +123,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_warnings(store: Store, run_id: str, cal: Calibration | None, notes: list[str]) -> None:
+def _print_warnings(store: Store, run_id: str, cal: CalibrationResult | None, notes: list[str]) -> None:
     """Print the run's warnings: the same list the report shows."""
     from rigtool.run_warnings import stored_run_warnings
 

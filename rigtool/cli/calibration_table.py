@@ -9,14 +9,14 @@ from typing import TYPE_CHECKING
 from rich.table import Table
 
 if TYPE_CHECKING:
-    from rigtool.analysis.calibrate import Calibration
     from rigtool.analysis.dynamics import Dynamics
+    from rigtool.analysis.results import CalibrationResult
 
 SummaryRow = tuple[str, float, float, float, str, str]
 NAN = math.nan
 
 
-def calibration_table(cal: Calibration, run_id: str) -> Table:
+def calibration_table(cal: CalibrationResult, run_id: str) -> Table:
     """The summary rows as a table; blank where a value or interval does not apply."""
     table = Table("quantity", "value", "95 % interval", "unit", "note",
                   title=f"calibration of run {run_id} ({cal.run_name})")
@@ -30,7 +30,7 @@ def _num(v: float) -> str:
     return "" if v != v else f"{v:.5g}"  # NaN -> blank
 
 
-def summary_rows(cal: Calibration) -> list[SummaryRow]:
+def summary_rows(cal: CalibrationResult) -> list[SummaryRow]:
     """(name, value, lo, hi, unit, note) rows; NaN where not applicable."""
     rows: list[SummaryRow] = []
     multi = len(cal.sections) > 1

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from rigtool import __version__
 from rigtool.importers.steps import ImportedPoints
 from rigtool.store import Store
 from rigtool.units import NEUTRAL_BY_UNIT
+from rigtool.version import __version__
 
 INCOMPLETE = ("incomplete import: rigtool import stopped before every point was written; "
               "re-import the file")

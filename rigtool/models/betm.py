@@ -3,7 +3,7 @@
 f_n = C_p |n| n (C_p per direction), f_i = s C_i (|I| - I_0)^(2/3) with s the sign of the speed
 (|I| - I_0 clamped at 0); both are fused with a prior N(u0, sigma0^2). The consistency test
 compares d = |f_n - f_i| / sqrt(sigma_n^2 + sigma_i^2) with gamma: when d > gamma the current
-estimate (the noisier one) is dropped for that sample. Fitting lives in rigtool.analysis.betm.
+estimate (the noisier one) is dropped for that sample. Fitting lives in rigtool.analysis.betm_fit.
 
 A Betm calibrated over supply voltages carries the voltage its C_n and C_i hold at and the
 exponent b of C_n(U) = k U^b; the current estimate then takes the bus voltage as an input,

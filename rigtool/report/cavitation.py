@@ -6,7 +6,8 @@ import math
 
 from matplotlib.figure import Figure
 
-from rigtool.analysis.cavitation import IN_SAMPLE_NOTE, CavitationResult
+from rigtool.analysis.cavitation import IN_SAMPLE_NOTE
+from rigtool.analysis.results import CavitationResult
 from rigtool.report import figures as fg
 
 

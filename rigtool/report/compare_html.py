@@ -8,13 +8,13 @@ import jinja2
 import numpy as np
 from matplotlib.figure import Figure
 
-import rigtool
+from rigtool.analysis.compare import CompareResult
 from rigtool.artefacts.write import atomic_write
-from rigtool.compare import CompareResult
 from rigtool.ids import utc_now
 from rigtool.report import figures as fg
 from rigtool.report.html import fmt_num
 from rigtool.units import unit_label
+from rigtool.version import __version__
 
 REPORT_FILE = "compare.html"
 SIZE = (7.2, 3.8)
@@ -77,7 +77,7 @@ def render_compare(result: CompareResult, image_format: str = "svg") -> str:
     env.filters["num"] = fmt_num
     return env.get_template("compare.html").render(
         result=result, unit=unit, figures=figures, generated=utc_now(),
-        version=rigtool.__version__)
+        version=__version__)
 
 
 def write_compare_report(result: CompareResult, out_dir: Path, image_format: str = "svg") -> Path:

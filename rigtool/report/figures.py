@@ -22,10 +22,10 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from rigtool.analysis.curves import CommandCurve
+from rigtool.analysis.efficiency import efficiency_n_per_w, efficiency_se_n_per_w
 from rigtool.analysis.fits import Coefficient
-from rigtool.analysis.quality import Hysteresis, TareDrift
+from rigtool.analysis.results import Hysteresis, TareDrift, VoltageLaw
 from rigtool.analysis.steady import PointTable
-from rigtool.analysis.voltage import VoltageLaw
 from rigtool.models import laws
 
 FWD = "#1f5fa8"
@@ -334,14 +334,14 @@ def efficiency(points: PointTable) -> Figure:
     """Thrust per electrical watt (g/W, with 95 % bars) and electrical power (W) vs thrust."""
     fig = figure(WIDE)
     eff_ax, pow_ax = fig.subplots(1, 2)
-    ok = (points.status == "ok") & ~points.dead & np.isfinite(points.efficiency_n_per_w)
+    ok = (points.status == "ok") & ~points.dead & np.isfinite(efficiency_n_per_w(points))
     f = points.thrust_corrected_n
     grams = 1000.0 / 9.80665
     for mask, color, label in ((ok & (f >= 0), FWD, "forward"), (ok & (f < 0), REV, "reverse")):
         if not mask.any():
             continue
-        eff_ax.errorbar(np.abs(f[mask]), grams * points.efficiency_n_per_w[mask],
-                        yerr=1.96 * grams * np.nan_to_num(points.efficiency_se_n_per_w[mask]),
+        eff_ax.errorbar(np.abs(f[mask]), grams * efficiency_n_per_w(points)[mask],
+                        yerr=1.96 * grams * np.nan_to_num(efficiency_se_n_per_w(points)[mask]),
                         fmt=".", color=color, label=label)
         pow_ax.plot(np.abs(f[mask]), points.power.mean[mask], ".", color=color, label=label)
     eff_ax.set_xlabel("|thrust| (N)")

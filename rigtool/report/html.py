@@ -13,12 +13,11 @@ import jinja2
 import numpy as np
 from markupsafe import Markup
 
-import rigtool
-from rigtool.analysis.calibrate import Calibration, DepthSection
 from rigtool.analysis.dynamics import Dynamics
+from rigtool.analysis.efficiency import efficiency_n_per_w
 from rigtool.analysis.fits import Coefficient
+from rigtool.analysis.results import CalibrationResult, DepthSection, VoltageLaw
 from rigtool.analysis.steady import PointTable
-from rigtool.analysis.voltage import VoltageLaw
 from rigtool.artefacts.write import atomic_write
 from rigtool.ids import utc_now
 from rigtool.outpaths import REPORT_FILE
@@ -26,6 +25,7 @@ from rigtool.report import figures as fg
 from rigtool.run_warnings import run_warnings
 from rigtool.store import Store
 from rigtool.units import unit_label
+from rigtool.version import __version__
 
 VENTILATION_KIND = "sim.ventilation"
 IMAGE_FORMATS = ("svg", "png")
@@ -56,7 +56,7 @@ class SectionView:
 
 
 def write_report(store: Store, run_id: str, out_dir: Path,
-                 calibration: Calibration | None = None, *, image_format: str = "svg",
+                 calibration: CalibrationResult | None = None, *, image_format: str = "svg",
                  cavitation: object | None = None, extra_warnings: Sequence[str] = ()) -> Path:
     """Write `out_dir`/report.html for `run_id` from its calibration results (None: the run has
     no points) and return the path."""
@@ -67,7 +67,7 @@ def write_report(store: Store, run_id: str, out_dir: Path,
     return atomic_write(out / REPORT_FILE, text)
 
 
-def render_report(store: Store, run_id: str, calibration: Calibration | None = None, *,
+def render_report(store: Store, run_id: str, calibration: CalibrationResult | None = None, *,
                   image_format: str = "svg", cavitation: object | None = None,
                   extra_warnings: Sequence[str] = ()) -> str:
     """The report of `run_id` as one HTML string; `extra_warnings` (e.g. the quasi-cavitation
@@ -108,7 +108,7 @@ def render_report(store: Store, run_id: str, calibration: Calibration | None = N
         warnings=run_warnings(run, events, cal, extra_warnings), events=_event_counts(events),
         cal=cal, sections=sections, drift=drift, voltages=voltages, dynamics=dynamics, unit=unit,
         generated=utc_now(),
-        version=rigtool.__version__)
+        version=__version__)
 
 
 def _template() -> jinja2.Template:
@@ -165,7 +165,7 @@ def fmt_unit(unit: str) -> Markup:
 
 # -- metadata, warnings, events -----------------------------------------------------------------
 
-def _meta_rows(run: dict, steps: list[dict], cal: Calibration | None) -> list[tuple[str, str]]:
+def _meta_rows(run: dict, steps: list[dict], cal: CalibrationResult | None) -> list[tuple[str, str]]:
     protocol = run.get("protocol") or {}
     meta = {**(protocol.get("metadata") or {}), **(run.get("metadata") or {})}
     rig = run.get("rig") or {}
@@ -250,7 +250,7 @@ def _event_counts(events: list[dict]) -> list[tuple[str, int]]:
 
 # -- per-depth sections -------------------------------------------------------------------------
 
-def _section(sec: DepthSection, cal: Calibration, unit: str, suffix: str,
+def _section(sec: DepthSection, cal: CalibrationResult, unit: str, suffix: str,
              fmt: str) -> SectionView:
     heading = "Results" if not suffix else f"Depth {sec.label}"
     view = SectionView(sec.label, heading, list(sec.fits.values()), _features(sec, unit),
@@ -272,7 +272,7 @@ def _section(sec: DepthSection, cal: Calibration, unit: str, suffix: str,
 def _efficiency_figure(sec: DepthSection, suffix: str, at: str, fmt: str) -> FigureItem:
     base = ("efficiency", f"fig-efficiency{suffix}", f"Efficiency and electrical power{at}")
     p = sec.points
-    if not (np.isfinite(p.efficiency_n_per_w) & (p.status == "ok") & ~p.dead).any():
+    if not (np.isfinite(efficiency_n_per_w(p)) & (p.status == "ok") & ~p.dead).any():
         return FigureItem(*base, "No efficiency figure: the run recorded no bus voltage and "
                           "current (electrical power V·|I| needs both).")
     return FigureItem(*base, "Thrust per electrical watt (g/W; bars: 95 % intervals) and "
@@ -319,7 +319,7 @@ def _features(sec: DepthSection, unit: str) -> list[tuple[str, str, str]]:
     return rows
 
 
-def _curve_figures(sec: DepthSection, cal: Calibration, unit: str, suffix: str, at: str,
+def _curve_figures(sec: DepthSection, cal: CalibrationResult, unit: str, suffix: str, at: str,
                    fmt: str) -> list[FigureItem]:
     c = sec.curve
     if c is None:
@@ -342,7 +342,7 @@ def _curve_figures(sec: DepthSection, cal: Calibration, unit: str, suffix: str, 
     return out
 
 
-def _speed_figures(sec: DepthSection, cal: Calibration, suffix: str, at: str,
+def _speed_figures(sec: DepthSection, cal: CalibrationResult, suffix: str, at: str,
                    fmt: str) -> list[FigureItem]:
     p, fits = sec.points, sec.fits
     ts = ("thrust-speed", f"fig-thrust-speed{suffix}", f"Thrust vs propeller speed{at}")
@@ -393,7 +393,7 @@ class VoltageView:
     figure: FigureItem
 
 
-def _voltage_view(law: VoltageLaw, cal: Calibration, i: int, fmt: str) -> VoltageView:
+def _voltage_view(law: VoltageLaw, cal: CalibrationResult, i: int, fmt: str) -> VoltageView:
     at = "" if law.depth_m is None else f" at {law.depth_m:g} m"
     mine = [(s.voltage_v, s.points) for s in cal.sections
             if s.depth_m == law.depth_m and s.voltage_v is not None]
@@ -424,7 +424,7 @@ class DynamicsView:
     verdict: str = ""  # identified or not, and the adequacy
 
 
-def _dynamics_view(store: Store, run_id: str, cal: Calibration, fmt: str) -> DynamicsView | None:
+def _dynamics_view(store: Store, run_id: str, cal: CalibrationResult, fmt: str) -> DynamicsView | None:
     from rigtool.analysis.dynamics import StepSeries
 
     d = cal.dynamics
@@ -467,7 +467,7 @@ def _imported(run: dict) -> bool:
     return isinstance(rig, dict) and (rig.get("resolved") or {}).get("kind") == "import"
 
 
-def _drift_figure(cal: Calibration, events: list[dict], fmt: str, *,
+def _drift_figure(cal: CalibrationResult, events: list[dict], fmt: str, *,
                   imported: bool = False) -> FigureItem:
     """The tare drift figure, or why there is none (with the protocol setting that gives one
     to a sweep; an imported run records no tares, so nothing is suggested)."""

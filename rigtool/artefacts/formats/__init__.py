@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
-from rigtool.analysis.calibrate import Calibration
+from rigtool.analysis.results import CalibrationResult
 from rigtool.artefacts.formats import (
     ardupilot,
     auv_controllers,
@@ -37,7 +37,7 @@ MODULES: dict[str, ModuleType] = {
 FORMATS: dict[str, str] = {name: m.FILE for name, m in MODULES.items()}
 
 
-def export_input(cal: Calibration, created_utc: str, dynamics: DynamicsSource | None = None,
+def export_input(cal: CalibrationResult, created_utc: str, dynamics: DynamicsSource | None = None,
                  options: ExportOptions | None = None) -> ExportInput:
     """What the artefacts of `cal` are made of (the deepest section)."""
     return ExportInput(cal, deepest(cal), created_utc, dynamics, options or ExportOptions())
@@ -56,7 +56,7 @@ def check_formats(formats: Sequence[str], x: ExportInput) -> None:
                          + "\n  ".join(missing))
 
 
-def write_vehicle_artefacts(cal: Calibration, out_dir: str | Path, formats: Sequence[str],
+def write_vehicle_artefacts(cal: CalibrationResult, out_dir: str | Path, formats: Sequence[str],
                             created_utc: str, dynamics: DynamicsSource | None = None,
                             options: ExportOptions | None = None) -> list[Path]:
     """Write the requested formats into `out_dir`/<run-id>/ and return their paths, or write

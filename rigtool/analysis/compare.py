@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from rigtool.analysis.results import CalibrationResult
 from rigtool.errors import UsageError
 
 BRANCHES = {"forward": 1, "reverse": -1}
@@ -219,15 +220,15 @@ def compare_curves(curves: list[ThrusterCurve], reference: str | None = None, *,
                          matches, max(spreads_before), max(spreads_after), floor_frac, warnings)
 
 
-def curve_from_calibration(cal: object, label: str | None = None) -> ThrusterCurve:
-    """Per-command mean thrust of a Calibration's largest depth section, with its zones."""
-    sec = max(cal.sections, key=lambda s: len(s.points))  # type: ignore[attr-defined]
+def curve_from_calibration(cal: CalibrationResult, label: str | None = None) -> ThrusterCurve:
+    """Per-command mean thrust of a calibration's largest depth section, with its zones."""
+    sec = max(cal.sections, key=lambda s: len(s.points))
     pts = sec.points
     ok = (pts.status == "ok") & np.isfinite(pts.thrust_corrected_n)
     cmd, inv = np.unique(pts.command[ok], return_inverse=True)
     thrust = np.bincount(inv, weights=pts.thrust_corrected_n[ok]) / np.bincount(inv)
     curve = sec.curve
-    name = label or cal.thruster_id or cal.run_name  # type: ignore[attr-defined]
-    return ThrusterCurve(cal.run_id, f"{name} ({cal.run_id[-6:]})", cmd, thrust,  # type: ignore[attr-defined]
+    name = label or cal.thruster_id or cal.run_name
+    return ThrusterCurve(cal.run_id, f"{name} ({cal.run_id[-6:]})", cmd, thrust,
                          list(curve.dead_zones) if curve else [],
                          list(curve.saturated) if curve else [])

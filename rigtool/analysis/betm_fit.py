@@ -1,4 +1,5 @@
-"""BETM: inverse-variance fusion of speed- and current-based thrust ([Luo2020], docs/references.md).
+"""Fitting the BETM (rigtool.models.betm) to a deep calibration: inverse-variance fusion of speed-
+and current-based thrust ([Luo2020], docs/references.md).
 
 f_n = C_p |n| n (C_p per direction), f_i = s C_i (I - I_0)^(2/3) with s the sign of the speed;
 both are fused with a prior N(u0, sigma0^2). The consistency test compares the normalised
@@ -11,11 +12,10 @@ measurement noise (see `split_variances`), because both residuals share the forc
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from rigtool.analysis.calibrate import Calibration, DepthSection
+from rigtool.analysis.results import CalibrationResult, DepthSection, EstimatorErrors
 from rigtool.errors import UsageError
 from rigtool.models.betm import Betm
 
@@ -36,7 +36,7 @@ def split_variances(e_n: np.ndarray, e_i: np.ndarray) -> tuple[float, float, flo
     return math.sqrt(s_n2), math.sqrt(s_i2), math.sqrt(m2)
 
 
-def deep_section(cal: Calibration) -> DepthSection:
+def deep_section(cal: CalibrationResult) -> DepthSection:
     """The deepest section of a calibration with BETM coefficients (C_p, C_n, C_i)."""
     need = ("C_p_fwd", "C_n", "I_0", "C_i_fwd_direct")
     ok = [s for s in cal.sections if all(k in s.fits for k in need)]
@@ -46,7 +46,7 @@ def deep_section(cal: Calibration) -> DepthSection:
     return max(ok, key=lambda s: -math.inf if s.depth_m is None else s.depth_m)
 
 
-def voltage_law_b(cal: Calibration, sec: DepthSection) -> float:
+def voltage_law_b(cal: CalibrationResult, sec: DepthSection) -> float:
     """Exponent b of the C_n(U) law at the section's depth (NaN: no voltage sweep there)."""
     if sec.voltage_v is None:
         return math.nan
@@ -102,24 +102,6 @@ def level_variances(betm: Betm, f: np.ndarray, speed_rpm: np.ndarray, current_a:
     return Betm(**{**betm.to_dict(), "sigma_n": s_n, "sigma_i": s_i, "sigma_meas": m,
                    "level_n": tuple(knots), "sigma_n_level": tuple(sn),
                    "sigma_i_level": tuple(si)})
-
-
-@dataclass
-class EstimatorErrors:
-    """Error summary of one thrust estimator against zero-corrected measured thrust."""
-
-    name: str
-    n: int
-    max_abs_n: float
-    p95_abs_n: float
-    rms_n: float
-    within_1n: float
-
-    @classmethod
-    def of(cls, name: str, err: np.ndarray) -> EstimatorErrors:
-        e = np.abs(err[np.isfinite(err)])
-        return cls(name, int(e.size), float(e.max()), float(np.quantile(e, 0.95)),
-                   float(np.sqrt(np.mean(e**2))), float(np.mean(e <= 1.0)))
 
 
 def compare_estimators(betm: Betm, f: np.ndarray, speed_rpm: np.ndarray,
