@@ -27,6 +27,7 @@ from rigtool.devices.scpi_supply import ScpiSupplyConfig
 from rigtool.devices.serial_stage import SerialStageConfig
 from rigtool.devices.stm32_bridge import Stm32BridgeConfig
 from rigtool.devices.vesc_can import VescCanConfig
+from rigtool.devices.visa_link import sim_file
 from rigtool.errors import UsageError
 from rigtool.protocol import SimulatorSpec
 from rigtool.thruster_profiles import profile_with_overrides
@@ -98,9 +99,15 @@ class Rig(BaseModel):
 def load_rig(path: str | Path) -> tuple[Rig, dict]:
     """Read and validate a rig file; ConfigError names file, line and field.
 
-    A relative `dbc:` path in the actuator section is taken relative to the rig file.
+    A relative `dbc:` path in the actuator section, and a relative instrument file of a
+    supply's `visa_library: file.yaml@sim`, are taken relative to the rig file.
     """
     rig, data = load_model(Path(path), Rig)
+    sim_yaml = sim_file(getattr(rig.supply, "visa_library", None) or "")
+    if sim_yaml and not Path(sim_yaml).is_absolute():
+        supply = rig.supply.model_copy(
+            update={"visa_library": f"{Path(path).parent / sim_yaml}@sim"})
+        rig = rig.model_copy(update={"supply": supply})
     dbc = getattr(rig.actuator, "dbc", None)
     if dbc and not Path(dbc).is_absolute():
         actuator = rig.actuator.model_copy(update={"dbc": str(Path(path).parent / dbc)})

@@ -127,6 +127,54 @@ def test_a_damaged_can_conf_is_a_usage_error(can_home, text):
         bus_settings(_vesc(channel="x"))
 
 
+@pytest.mark.parametrize("value", ["[1]", '"s"', "3", "{not json"])
+def test_a_can_config_variable_that_is_no_json_object_exits_2_naming_it(can_home, tmp_path,
+                                                                        monkeypatch, capsys,
+                                                                        value):
+    monkeypatch.setenv("CAN_CONFIG", value)
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("rigtool_rig: 1\nname: r\nactuator: {driver: vesc-can, interface: virtual}\n"
+                   "sensor: {driver: ati-netft, host: 127.0.0.1}\n")
+    assert main(["check", str(rig)]) == 2
+    err = capsys.readouterr().err
+    assert "environment variable CAN_CONFIG" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(("words", "expected"), [("no", False), ("off", False), ("0", False),
+                                                 ("False", False), ("yes", True), ("on", True)])
+def test_configured_flags_are_read_as_the_rig_file_reads_them(can_home, channel, words,
+                                                              expected):
+    can_home(f"[default]\ninterface = virtual\nchannel = {channel}\nfd = {words}\n"
+             f"receive_own_messages = {words}\ndata_bitrate = 2000000\n")
+    assert bus_settings(_vesc()).kwargs == {"bitrate": 500000, "fd": expected,
+                                            "receive_own_messages": expected,
+                                            "data_bitrate": 2000000}
+
+
+@pytest.mark.parametrize("value", ["250k", "fast", "-3", "0", "1e6"])
+def test_a_configured_bitrate_is_checked_naming_its_source(can_home, monkeypatch, value):
+    monkeypatch.setenv("CAN_BITRATE_lab", value)
+    with pytest.raises(UsageError, match=f"environment variable CAN_BITRATE_lab gives "
+                                         f"bitrate = '{value}'"):
+        bus_settings(_vesc(interface="virtual", channel="x", context="lab"))
+    monkeypatch.delenv("CAN_BITRATE_lab")
+    can_home(f"[lab]\nbitrate = {value}\n")
+    with pytest.raises(UsageError, match=r"section \[lab\] of python-can's config files .*"
+                                         f"bitrate = '{value}'"):
+        bus_settings(_vesc(interface="virtual", channel="x", context="lab"))
+
+
+@pytest.mark.parametrize(("config", "key"), [('{"fd": "maybe"}', "fd"),
+                                             ('{"data_bitrate": -1}', "data_bitrate"),
+                                             ('{"can_filters": [{"can_id": 1}]}', "can_filters"),
+                                             ('{"poll_interval": [1]}', "poll_interval"),
+                                             ('{"interface": 7}', "interface")])
+def test_can_config_values_are_typed_as_bus_args(can_home, monkeypatch, config, key):
+    monkeypatch.setenv("CAN_CONFIG", config)
+    with pytest.raises(UsageError, match=f"environment variable CAN_CONFIG gives {key} ="):
+        bus_settings(_vesc(channel="x"))
+
+
 def _link(config: VescCanConfig) -> tuple[CanLink, list[int]]:
     seen: list[int] = []
 
@@ -186,6 +234,10 @@ RIG = "rigtool_rig: 1\nname: r\nsensor: {{driver: ati-netft, host: 127.0.0.1}}\n
     ("  bus_args:\n    poll_interval: [1, 2]\n", 8, "actuator.bus_args.poll_interval",
      "valid"),
     ("  context: 'lab bench'\n", 7, "actuator.context", "pattern"),
+    ("  bus_args:\n    can_filters: [{can_id: 0x800, can_mask: 0x7FF, extended: false}]\n", 8,
+     "actuator.bus_args.can_filters.0.can_id", "11 bits"),
+    ("  bus_args:\n    can_filters: [{can_id: 0x100, can_mask: 0xFFF, extended: false}]\n",
+     8, "actuator.bus_args.can_filters.0.can_mask", "11 bits"),
 ])
 def test_rig_file_bus_mistakes_name_file_line_and_field(tmp_path, extra, line, field, message):
     path = tmp_path / "rig.yaml"

@@ -149,6 +149,63 @@ def test_rig_file_link_mistakes_name_file_and_line(tmp_path, supply, line, messa
     assert f"{path}:{line}: supply" in str(info.value) and message in str(info.value)
 
 
+@pytest.mark.parametrize("library", ["/tmp/libevil.so", "libc.so.6", "./visa.dll",
+                                     "x.yaml@py", "@sim\n", "evil.so@sim", "@ni"])
+def test_rig_file_visa_library_is_only_a_pyvisa_backend(tmp_path, library):
+    """A rig file names no native library: pyvisa would load it with ctypes and run it."""
+    path = tmp_path / "rig.yaml"
+    path.write_text(RIG.format(supply=f"  resource: '{SIM_RESOURCES[0]}'\n"
+                                      f"  visa_library: {library!r}\n"))
+    with pytest.raises(ConfigError) as info:
+        load_rig(path)
+    assert f"{path}:8: supply" in str(info.value) and "@py, @ivi, @sim" in str(info.value)
+
+
+def test_a_native_library_with_a_constructor_is_never_loaded(tmp_path, capsys):
+    """The attack: a shared object whose constructor writes a file, named by a rig file."""
+    cc = pytest.importorskip("shutil").which("cc")
+    if cc is None:
+        pytest.skip("no C compiler")
+    marker, source = tmp_path / "ran", tmp_path / "evil.c"
+    source.write_text('#include <stdio.h>\n__attribute__((constructor)) static void f(void)'
+                      f'{{ FILE *f = fopen("{marker}", "w"); if (f) fclose(f); }}\n')
+    subprocess.run([cc, "-shared", "-fPIC", "-o", tmp_path / "evil.so", source], check=True)
+    path = tmp_path / "rig.yaml"
+    path.write_text(RIG.format(supply=f"  resource: '{SIM_RESOURCES[0]}'\n"
+                                      f"  visa_library: '{tmp_path / 'evil.so'}'\n"))
+    assert main(["check", str(path), "--seconds", "0.1"]) == 2
+    assert not marker.exists() and "Traceback" not in capsys.readouterr().err
+
+
+def test_a_relative_sim_instrument_file_is_taken_relative_to_the_rig_file(tmp_path):
+    (tmp_path / "instruments.yaml").write_text(Path(SIM_LIBRARY[:-4]).read_text())
+    path = tmp_path / "rig.yaml"
+    path.write_text(RIG.format(supply=f"  resource: '{SIM_RESOURCES[0]}'\n"
+                                      "  visa_library: instruments.yaml@sim\n"))
+    config = load_rig(path)[0].supply
+    assert config.visa_library == f"{tmp_path / 'instruments.yaml'}@sim"
+    supply = ScpiSupply(config.model_copy(update=LIMITS))
+    assert supply.identity.startswith("PYVISA-SIM")
+    supply.close()
+
+
+def test_a_backend_failing_to_load_is_a_device_error_naming_the_resource(tmp_path):
+    broken = tmp_path / "broken.yaml@sim"  # no such instrument file: pyvisa-sim raises
+    with pytest.raises(DeviceError, match=rf"cannot open VISA resource '{SIM_RESOURCES[0]}'"):
+        ScpiSupply(ScpiSupplyConfig(driver="scpi-supply", resource=SIM_RESOURCES[0],
+                                    visa_library=str(broken), **LIMITS))
+
+
+@pytest.mark.parametrize("resource", ["TCPIP::host::\u096b\u0966\u0968\u096b::SOCKET",
+                                      "TCPIP::host::\u0665::SOCKET", "GPIB0::\u0665::INSTR",
+                                      "ASRL\u0663::INSTR"])
+def test_resource_digits_are_ascii_only(tmp_path, resource):
+    path = tmp_path / "rig.yaml"
+    path.write_text(RIG.format(supply=f"  resource: '{resource}'\n"))
+    with pytest.raises(ConfigError, match="is not a VISA resource string"):
+        load_rig(path)
+
+
 @pytest.mark.parametrize("resource", ["TCPIP::192.168.1.20::5025::SOCKET", "TCPIP::psu-3::INSTR",
                                       "TCPIP0::10.0.0.7::hislip0::INSTR",
                                       "USB0::0x2A8D::0x1102::MY123::INSTR",

@@ -17,8 +17,11 @@ values into the FeedbackBlock the engine reads.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
+import os
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -62,6 +65,16 @@ class CanFilter(BaseModel):
     can_id: CanId
     can_mask: CanId
     extended: StrictBool | None = None  # only frames of this id length (None: either)
+
+    @model_validator(mode="after")
+    def _fits_standard_ids(self) -> CanFilter:
+        if self.extended is False:
+            for name in ("can_id", "can_mask"):
+                if getattr(self, name) > 0x7FF:
+                    raise FieldError((name,), f"{name} 0x{getattr(self, name):X} does not fit "
+                                     "the 11 bits of a standard id (extended: false): "
+                                     "at most 0x7FF")
+        return self
 
 
 class BusArgs(BaseModel):
@@ -144,22 +157,108 @@ def bus_settings(config: CanBusFields) -> BusSettings:
 
 
 def _python_can_config(given: dict[str, Any], context: str | None) -> dict[str, Any]:
-    """python-can's own merge of `given` over its environment and config files."""
+    """python-can's own merge of `given` over its environment and config files, each value
+    it supplies checked with the types of the rig-file fields (a UsageError naming where the
+    value came from)."""
     import configparser
 
     import can
 
     try:
-        sources = [can.rc, can.util.load_environment_config(context),
-                   can.util.load_environment_config(), can.util.load_file_config(None, context),
-                   can.util.load_file_config(None)]
-        if "interface" not in given and not any(s.get("interface") or s.get("bustype")
-                                                for s in sources):
+        sources = _config_sources(context)
+        typed = _typed_config(given, sources)
+        if "interface" not in given and "interface" not in typed:
             given = {**given, "interface": DEFAULT_INTERFACE}
-        return dict(can.util.load_config(config=given, context=context))
+        resolved = dict(can.util.load_config(config=given, context=context))
     except (can.CanError, ValueError, TypeError, configparser.Error) as exc:
         ctx = f" (context {context!r})" if context else ""
         raise UsageError(f"python-can configuration{ctx} refused: {exc}") from None
+    resolved.update(typed)
+    return resolved
+
+
+def _config_sources(context: str | None) -> list[tuple[str, dict[str, Any]]]:
+    """python-can's configuration sources in its own order, each named for messages: can.rc,
+    the CAN_* variables (with the context's suffix first), the config files' sections."""
+    import can
+
+    files = ", ".join(can.util.CONFIG_FILES)
+    suffixes = ([f"_{context}"] if context else []) + [""]
+    sections = ([context] if context else []) + ["default"]
+    return ([("can.rc", dict(can.rc))]
+            + [item for suffix in suffixes for item in _environment(suffix)]
+            + [(f"section [{section}] of python-can's config files ({files})",
+                can.util.load_file_config(None, section)) for section in sections])
+
+
+def _environment(suffix: str) -> list[tuple[str, dict[str, Any]]]:
+    """The CAN_CONFIG<suffix> object and the CAN_INTERFACE/CHANNEL/BITRATE<suffix> variables
+    (which win over it, as in python-can)."""
+    name = f"CAN_CONFIG{suffix}"
+    text = os.environ.get(name)
+    found: list[tuple[str, dict[str, Any]]] = []
+    for key in ("interface", "channel", "bitrate"):
+        value = os.environ.get(f"CAN_{key.upper()}{suffix}")
+        if value:
+            found.append((f"environment variable CAN_{key.upper()}{suffix}", {key: value}))
+    if text is not None:
+        try:
+            data = json.loads(text)
+        except ValueError as exc:
+            raise UsageError(f"environment variable {name} is not JSON ({exc})") from None
+        if not isinstance(data, dict):
+            raise UsageError(f"environment variable {name} must be a JSON object of Bus "
+                             f"arguments, not {type(data).__name__} {text[:80]!r}")
+        found.append((f"environment variable {name}", data))
+    return found
+
+
+def _typed_config(given: dict[str, Any], sources: list[tuple[str, dict[str, Any]]]
+                  ) -> dict[str, Any]:
+    """The values python-can's configuration supplies for what `given` leaves out (the first
+    source naming a key wins), checked and typed as the rig file's fields are."""
+    typed: dict[str, Any] = {}
+    seen = set(given)
+    for where, values in sources:
+        for key, value in values.items():
+            name = "interface" if key == "bustype" else key
+            if name in seen:
+                continue
+            seen.add(name)
+            typed[name] = _typed_value(name, value, where)
+    typed.pop("channel", None)  # python-can's own reading of a channel is kept (digits: int)
+    return typed
+
+
+def _typed_value(key: str, value: Any, where: str) -> Any:
+    """One configured value as the rig-file field `key` types it; UsageError naming `where`."""
+    from can.util import cast_from_string
+    from pydantic import ValidationError
+
+    original = value
+    if isinstance(value, str):
+        if key in _BOOL_KEYS:
+            value = _BOOL_WORDS.get(value.strip().lower(), value)
+        elif key in _INT_KEYS:
+            value = int(value) if re.fullmatch(r"[0-9]{1,12}", value.strip()) else value
+        elif key not in ("interface", "channel"):
+            value = cast_from_string(value)
+    if key == "channel" and type(value) is int:
+        value = str(value)
+    model = CanBusFields if key in ("interface", "channel", "bitrate") else BusArgs
+    try:
+        checked = model.model_validate({key: value})
+    except ValidationError as exc:
+        problem = "; ".join(e["msg"] for e in exc.errors())
+        raise UsageError(f"python-can configuration: {where} gives {key} = {original!r}: "
+                         f"{problem}") from None
+    return checked.model_dump(exclude_none=True).get(key, value)
+
+
+_BOOL_KEYS = ("fd", "receive_own_messages")
+_INT_KEYS = ("bitrate", "data_bitrate")
+_BOOL_WORDS = {"1": True, "yes": True, "true": True, "on": True,
+               "0": False, "no": False, "false": False, "off": False}
 
 
 def check_keepalive(keepalive_s: float, command_timeout_s: float, drive: str) -> float:

@@ -33,7 +33,7 @@ from rigtool.bounds import Baudrate, PositiveSeconds
 from rigtool.config import FieldError
 from rigtool.devices.base import Device
 from rigtool.devices.framing import LineFramer
-from rigtool.devices.visa_link import VisaLink, check_resource, looks_like_resource
+from rigtool.devices.visa_link import VisaLink, check_library, check_resource, looks_like_resource
 from rigtool.errors import DeviceError, UsageError
 
 _MAX_LINE = 256
@@ -53,7 +53,8 @@ class ScpiSupplyConfig(BaseModel):
     url: str | None = Field(None, min_length=1)  # pyserial URL: /dev/ttyUSB0, socket://host:5025
     # or a VISA resource string (needs the `visa` extra): TCPIP::host::5025::SOCKET, USB0::...::INSTR
     resource: str | None = Field(None, min_length=1)
-    visa_library: str = Field("@py", min_length=1, max_length=4096)  # pyvisa backend: @py, x.yaml@sim
+    # pyvisa backend: @py, @ivi (the system's VISA), @sim, x.yaml@sim (relative: to the rig file)
+    visa_library: str = Field("@py", min_length=1, max_length=4096)
     baudrate: Baudrate = 9600  # serial ports only
     timeout_s: PositiveSeconds = 1.0  # reply timeout
     max_voltage_v: Volts = 60.0  # refuse setpoints above this (the thruster's rating)
@@ -72,6 +73,11 @@ class ScpiSupplyConfig(BaseModel):
     @classmethod
     def _visa_resource(cls, value: str | None) -> str | None:
         return None if value is None else check_resource(value)
+
+    @field_validator("visa_library")
+    @classmethod
+    def _visa_backend(cls, value: str) -> str:
+        return check_library(value)
 
     @model_validator(mode="after")
     def _one_link(self) -> ScpiSupplyConfig:

@@ -3,7 +3,8 @@ as a byte link for a line-based SCPI driver, through pyvisa (the optional `visa`
 
 pyvisa is imported when a link opens, never when rigtool.rig is imported. Reads are bounded:
 at most `max_bytes` per read, ending early at `\\n`. VISA errors become DeviceError naming
-the resource; a missing pyvisa (or backend) is a UsageError naming the extra.
+the resource; a missing pyvisa is a UsageError naming the extra. The backend is one of
+pyvisa's selectors (LIBRARY_FORMS), never a library path: a rig file does not load native code.
 """
 
 from __future__ import annotations
@@ -23,8 +24,12 @@ RESOURCE = re.compile(
     rf"|USB\d*::{_NUM}::{_NUM}::[A-Za-z0-9_.-]+(?:::\d+)?::(?:INSTR|RAW)"
     r"|ASRL(?:\d+|/[A-Za-z0-9_./-]+|COM\d+)::INSTR"
     r"|GPIB\d*::\d+(?:::\d+)?::INSTR",
-    re.IGNORECASE)
+    re.IGNORECASE | re.ASCII)  # ASCII digits only: `int()` would read other scripts' digits
 MAX_RESOURCE_CHARS = 256
+# pyvisa's backend selectors: pyvisa-py, pyvisa-sim (its default instruments or an instrument
+# YAML file), and the system's installed VISA that pyvisa finds itself
+LIBRARY_FORMS = "@py, @ivi, @sim or path/to/instruments.yaml@sim"
+_SIM_FILE = re.compile(r"[^\x00-\x1f\x7f]+\.ya?ml@sim")
 
 
 def check_resource(text: str) -> str:
@@ -42,6 +47,21 @@ def check_resource(text: str) -> str:
     return text
 
 
+def check_library(text: str) -> str:
+    """`text` if it is one of pyvisa's backend selectors (LIBRARY_FORMS); else ValueError. A
+    library path is refused: pyvisa would load it with ctypes, running its code."""
+    if text in ("@py", "@ivi", "@sim") or _SIM_FILE.fullmatch(text):
+        return text
+    raise ValueError(f"visa_library {text[:80]!r} is not a pyvisa backend; expected one of "
+                     f"{LIBRARY_FORMS} (the system's VISA library is found by @ivi, "
+                     "never given as a path)")
+
+
+def sim_file(text: str) -> str | None:
+    """The instrument YAML file of a `file.yaml@sim` selector, else None."""
+    return text[:-len("@sim")] if _SIM_FILE.fullmatch(text) else None
+
+
 def looks_like_resource(text: str) -> bool:
     """Whether `text` starts like a VISA resource string (a kind name and `::`)."""
     return re.match(r"(TCPIP|USB|ASRL|GPIB|VXI|PXI)[^:]*::", text, re.IGNORECASE) is not None
@@ -56,13 +76,18 @@ class VisaLink:
         except ImportError:
             raise UsageError(f"the VISA resource {resource!r} needs pyvisa and pyvisa-py: "
                              f"{EXTRA}") from None
+        try:
+            check_library(library)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
         self.resource = resource
         self._pyvisa = pyvisa
         try:
             self._rm = pyvisa.ResourceManager(library)
-        except (ValueError, OSError, ImportError) as exc:
-            raise UsageError(f"VISA library {library!r} for {resource!r} cannot be loaded "
-                             f"({exc}); for the pure-Python backend: {EXTRA}") from None
+        except Exception as exc:  # noqa: BLE001 - backends raise anything while loading
+            raise DeviceError(f"cannot open VISA resource {resource!r}: VISA backend "
+                              f"{library!r} cannot be loaded ({_describe(exc)}); for the "
+                              f"pure-Python backend: {EXTRA}") from None
         try:
             self._inst: Any = self._rm.open_resource(
                 resource, write_termination="", read_termination="\n",
