@@ -420,3 +420,35 @@ def test_servo_output_range_is_refused_beyond_what_the_servo_library_puts_out(ho
     refused = b"ERR out of range 544..2400\n"
     assert from_twin == [refused, b"OK 1500\n", b"OK 2400\n", refused, b"OK 2400\n", refused,
                          b"OK 544\n", refused, refused, b"OK 544\n"]
+
+
+CXX = shutil.which("g++")
+
+
+def build_arduino_sketch(tmp_path: Path, *defines: str) -> Path:
+    """The Arduino sketch's glue compiled for the host on stand-ins for Serial and Servo
+    (tests/arduino_stub: Servo clamps like the library), with the real core."""
+    stub = ROOT / "tests" / "arduino_stub"
+    core = tmp_path / "bridge_core.o"
+    subprocess.run([CC, *C_FLAGS, "-c", "bridge_core.c", "-o", str(core)], cwd=FW, check=True,
+                   capture_output=True, text=True)
+    out = tmp_path / "bridge_ino"
+    subprocess.run([CXX, "-std=c++11", "-Wall", "-Wextra", "-Werror", *defines, "-I", ".",
+                    "-I", str(stub), "-include", "Arduino.h", "-x", "c++", "arduino/bridge.ino",
+                    "-x", "none", str(stub / "main.cpp"), str(core), "-o", str(out)],
+                   cwd=FW, check=True, capture_output=True, text=True)
+    return out
+
+
+def test_the_arduino_servo_glue_answers_only_what_its_pins_carry(tmp_path):
+    if CC is None or CXX is None:
+        pytest.skip("no gcc and g++ on PATH")
+    sketch = build_arduino_sketch(tmp_path)
+    lines = "PING\nSET 1 19999\nGET 1\nSET 1 2000\nPW 2 543\nPW 2 2400\nGET 1\nGET 2\n"
+    done = subprocess.run([str(sketch)], input=lines, capture_output=True, text=True,
+                          timeout=10, check=True)
+    refused = "ERR out of range 544..2400"
+    assert done.stdout.splitlines() == [
+        "OK rigtool-bridge 1.0", refused, "OK 1500", "OK 2000", refused, "OK 2400", "OK 2000",
+        "OK 2400", "pin 9 2000", "pin 10 2400", "pin 11 1500", "pin 12 1500"]
+    build_arduino_sketch(tmp_path, "-DBRIDGE_ARDUINO_ANALOG")  # the analogWrite glue compiles
