@@ -16,6 +16,7 @@ import subprocess
 import sys
 import time
 import tty
+from fractions import Fraction
 from pathlib import Path
 
 import pytest
@@ -317,3 +318,137 @@ def test_seeded_hostile_lines_get_the_twins_replies(firmware):
     assert [(line, got) for line, got, want in zip(lines, from_firmware, from_twin, strict=True)
             if got != want] == []
     assert len(set(from_twin)) > 20  # the soup reaches many different answers
+
+
+# Timers whose tick is no whole number of nanoseconds: `PW` lands on exact halves of a count.
+INEXACT_TICKS = [(72_000_000, 47), (72_000_000, 79), (72_000_000, 95),
+                 (84_000_000, 7), (84_000_000, 15), (84_000_000, 55)]
+
+
+def pw_lines(clock_hz: int, psc: int, arr: int = 799) -> list[bytes]:
+    """PW values from 0 through the top of the range (ties included) for this timer."""
+    top_us = (2 * arr + 1) * (psc + 1) * 1_000_000 // (2 * clock_hz)  # ~ (ARR + 1/2) ticks
+    values = [*range(0, 40), *range(top_us - 3, top_us + 4), -1, -0]
+    return [f"PW 1 {v}\n".encode() for v in values] + [b"GET 1\n"]
+
+
+@pytest.mark.parametrize(("clock_hz", "psc"), INEXACT_TICKS)
+def test_pw_rounds_the_same_in_twin_and_firmware_at_inexact_ticks(host_binary, tmp_path,
+                                                                  clock_hz, psc):
+    lines = pw_lines(clock_hz, psc)
+    live = LiveTwin(ThrusterTwin(PROFILES["stm32-pwm"], seed=1)).start()
+    twin = Stm32BridgeTwin(live, timer_clock_hz=clock_hz, psc=psc).start()
+    try:
+        from_twin = converse(twin.pty_path, lines)
+    finally:
+        twin.stop()
+        live.stop()
+    served = serve_host(host_binary, tmp_path, "--clock-hz", str(clock_hz), "--psc", str(psc))
+    try:
+        from_firmware = converse(served.pty_path, lines)
+    finally:
+        served.stop()
+    assert [(line, got) for line, got, want in zip(lines, from_firmware, from_twin, strict=True)
+            if got != want] == []
+    # the doc's rule: counts = us * f_TIM / (10^6 (PSC+1)), nearest, exact halves to even
+    for line, got in zip(lines, from_twin, strict=False):
+        us = int(line.split()[2]) if line.startswith(b"PW") else None
+        if us is not None and us >= 0:
+            exact = Fraction(us * clock_hz, 1_000_000 * (psc + 1))
+            want = round(exact)  # Fraction rounds halves to even, exactly
+            assert got == (f"OK {want}\n".encode() if want <= 799
+                           else b"ERR out of range 0..799\n")
+    if (clock_hz, psc) == (72_000_000, 47):
+        replies = dict(zip(lines, from_twin, strict=True))
+        assert replies[b"PW 1 1\n"] == b"OK 2\n"  # 1.5 counts: the even neighbour
+        assert replies[b"PW 1 533\n"] == b"ERR out of range 0..799\n"  # 799.5 -> 800
+
+
+def cut_off_by_the_watchdog(path: str) -> list[bytes]:
+    """`SET 1 700` without its line end, silence past the watchdog, then the line end."""
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        tty.setraw(fd)
+        armed = exchange(fd, b"SET 1 300\n")
+        os.write(fd, b"SET 1 700")
+        time.sleep(WATCHDOG_S + 0.5)  # the watchdog trips to neutral meanwhile
+        after = exchange(fd, b"\nGET 1\n")  # the empty line is no line: GET's reply only
+        time.sleep(0.1)
+        late = os.read(fd, 256) if select.select([fd], [], [], 0.2)[0] else b""
+        return [armed, after, late]
+    finally:
+        os.close(fd)
+
+
+def test_a_watchdog_trip_discards_the_partial_line_in_twin_and_firmware(firmware):
+    live = LiveTwin(ThrusterTwin(PROFILES["stm32-pwm"], seed=1)).start()
+    twin = Stm32BridgeTwin(live, watchdog_ms=round(WATCHDOG_S * 1000)).start()
+    try:
+        from_twin = cut_off_by_the_watchdog(twin.pty_path)
+        assert twin.ccr[1] == 0 and len(twin.watchdog_trips) == 1
+    finally:
+        twin.stop()
+        live.stop()
+    assert from_twin == [b"OK 300\n", b"OK 0\n", b""]
+    assert cut_off_by_the_watchdog(firmware.pty_path) == from_twin
+    if firmware.trace is not None:
+        assert ["1", "700"] not in [r[2:4] for r in firmware.trace_lines()]
+
+
+# The Arduino Servo build: 1 us counts at 50 Hz, but the Servo library puts out 544..2400 us.
+SERVO_ARGS = ("--clock-hz", "1000000", "--psc", "0", "--arr", "19999", "--neutral", "1500",
+              "--ccr-min", "544", "--ccr-max", "2400")
+SERVO_LINES = [b"SET 1 19999\n", b"GET 1\n", b"SET 1 2400\n", b"SET 1 2401\n", b"GET 1\n",
+               b"PW 1 543\n", b"PW 1 544\n", b"SET 1 0\n", b"SET 1 -0\n", b"GET 1\n"]
+
+
+def test_servo_output_range_is_refused_beyond_what_the_servo_library_puts_out(host_binary,
+                                                                              tmp_path):
+    live = LiveTwin(ThrusterTwin(PROFILES["esc-1100-1900"], seed=1)).start()
+    twin = Stm32BridgeTwin(live, timer_clock_hz=1e6, psc=0, arr=19999,
+                           ccr_range=(544, 2400)).start()
+    try:
+        from_twin = converse(twin.pty_path, SERVO_LINES)
+    finally:
+        twin.stop()
+        live.stop()
+    served = serve_host(host_binary, tmp_path, *SERVO_ARGS)
+    try:
+        assert converse(served.pty_path, SERVO_LINES) == from_twin
+    finally:
+        served.stop()
+    refused = b"ERR out of range 544..2400\n"
+    assert from_twin == [refused, b"OK 1500\n", b"OK 2400\n", refused, b"OK 2400\n", refused,
+                         b"OK 544\n", refused, refused, b"OK 544\n"]
+
+
+CXX = shutil.which("g++")
+
+
+def build_arduino_sketch(tmp_path: Path, *defines: str) -> Path:
+    """The Arduino sketch's glue compiled for the host on stand-ins for Serial and Servo
+    (tests/arduino_stub: Servo clamps like the library), with the real core."""
+    stub = ROOT / "tests" / "arduino_stub"
+    core = tmp_path / "bridge_core.o"
+    subprocess.run([CC, *C_FLAGS, "-c", "bridge_core.c", "-o", str(core)], cwd=FW, check=True,
+                   capture_output=True, text=True)
+    out = tmp_path / "bridge_ino"
+    subprocess.run([CXX, "-std=c++11", "-Wall", "-Wextra", "-Werror", *defines, "-I", ".",
+                    "-I", str(stub), "-include", "Arduino.h", "-x", "c++", "arduino/bridge.ino",
+                    "-x", "none", str(stub / "main.cpp"), str(core), "-o", str(out)],
+                   cwd=FW, check=True, capture_output=True, text=True)
+    return out
+
+
+def test_the_arduino_servo_glue_answers_only_what_its_pins_carry(tmp_path):
+    if CC is None or CXX is None:
+        pytest.skip("no gcc and g++ on PATH")
+    sketch = build_arduino_sketch(tmp_path)
+    lines = "PING\nSET 1 19999\nGET 1\nSET 1 2000\nPW 2 543\nPW 2 2400\nGET 1\nGET 2\n"
+    done = subprocess.run([str(sketch)], input=lines, capture_output=True, text=True,
+                          timeout=10, check=True)
+    refused = "ERR out of range 544..2400"
+    assert done.stdout.splitlines() == [
+        "OK rigtool-bridge 1.0", refused, "OK 1500", "OK 2000", refused, "OK 2400", "OK 2000",
+        "OK 2400", "pin 9 2000", "pin 10 2400", "pin 11 1500", "pin 12 1500"]
+    build_arduino_sketch(tmp_path, "-DBRIDGE_ARDUINO_ANALOG")  # the analogWrite glue compiles

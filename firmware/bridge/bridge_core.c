@@ -86,8 +86,13 @@ static void reply_value(bridge *b, uint32_t v)
 static void reply_out_of_range(bridge *b)
 {
     char num[NUM_BUF];
-    format_u64(num, b->cfg.arr);
-    reply(b, "ERR out of range 0..", num);
+    char head[NUM_BUF + 24u];
+    size_t len = append(head, 0, sizeof head, "ERR out of range ");
+    format_u64(num, b->cfg.ccr_min);
+    len = append(head, len, sizeof head, num);
+    (void)append(head, len, sizeof head, "..");
+    format_u64(num, b->cfg.ccr_max);
+    reply(b, head, num);
 }
 
 /* Match the literal `word` at the cursor. */
@@ -206,7 +211,7 @@ static void command_output(bridge *b, int pulse, const cursor *c, const number *
         reply_out_of_range(b);
         return;
     }
-    if ((value->negative && ccr != 0u) || ccr > b->cfg.arr) {
+    if ((value->negative && ccr != 0u) || ccr < b->cfg.ccr_min || ccr > b->cfg.ccr_max) {
         reply_out_of_range(b);
         return;
     }
@@ -288,7 +293,8 @@ static void end_of_line(bridge *b, uint32_t now_ms)
 
 int bridge_init(bridge *b, const bridge_config *cfg, const bridge_hooks *hooks, uint32_t now_ms)
 {
-    if (cfg->timer_clock_hz == 0u || cfg->arr == 0u || cfg->neutral_ccr > cfg->arr || cfg->channels < 1u ||
+    if (cfg->timer_clock_hz == 0u || cfg->arr == 0u || cfg->ccr_max > cfg->arr ||
+        cfg->neutral_ccr < cfg->ccr_min || cfg->neutral_ccr > cfg->ccr_max || cfg->channels < 1u ||
         cfg->channels > BRIDGE_MAX_CHANNELS || hooks->set_compare == NULL || hooks->write == NULL) {
         return -1;
     }
@@ -363,6 +369,8 @@ void bridge_tick(bridge *b, uint32_t now_ms)
         bridge_all_neutral(b);
         b->watchdog_trips++;
         b->armed = 0u;
+        b->len = 0u;  /* a line cut off by the trip is discarded, never run after it */
+        b->overflow = 0u;
     }
     if (b->cfg.telemetry_ms != 0u && b->hooks.read_telemetry != NULL &&
         (int32_t)(now_ms - b->next_telemetry_ms) >= 0) {

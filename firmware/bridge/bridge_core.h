@@ -41,6 +41,8 @@ typedef struct {
     uint32_t watchdog_ms;     /* 0 = no watchdog */
     uint32_t telemetry_ms;    /* 0 = no telemetry lines */
     uint8_t channels;         /* 1..BRIDGE_MAX_CHANNELS */
+    uint32_t ccr_min;         /* the compare values the output can put out: ccr_min..ccr_max */
+    uint32_t ccr_max;         /* (a timer: 0..arr; Arduino Servo: 544..2400 us) */
 } bridge_config;
 
 typedef struct {
@@ -57,13 +59,15 @@ typedef struct {
 } bridge;
 
 /* Check `cfg`, keep the hooks and put every channel at neutral. 0 on success, -1 if the
- * config is inconsistent (no clock, arr 0, neutral above arr, channels outside 1..4, no hooks). */
+ * config is inconsistent (no clock, arr 0, not ccr_min <= neutral <= ccr_max <= arr, channels
+ * outside 1..4, no hooks). */
 int bridge_init(bridge *b, const bridge_config *cfg, const bridge_hooks *hooks, uint32_t now_ms);
 
 /* Take `n` received bytes; every complete line is answered before this returns. */
 void bridge_feed(bridge *b, const uint8_t *data, size_t n, uint32_t now_ms);
 
-/* Run the watchdog and telemetry; call it often (every millisecond or main-loop pass). */
+/* Run the watchdog and telemetry; call it often (every millisecond or main-loop pass). A
+ * watchdog trip also discards a partial line: bytes sent before the trip never run after it. */
 void bridge_tick(bridge *b, uint32_t now_ms);
 
 /* Every channel to neutral (STOP, the watchdog, and glue shutdown paths). */

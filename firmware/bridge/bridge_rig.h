@@ -34,5 +34,12 @@
 #ifndef BRIDGE_CHANNELS
 #define BRIDGE_CHANNELS 4u
 #endif
+/* The compare values the output can put out (a timer: all of 0..ARR). */
+#ifndef BRIDGE_CCR_MIN
+#define BRIDGE_CCR_MIN 0u
+#endif
+#ifndef BRIDGE_CCR_MAX
+#define BRIDGE_CCR_MAX BRIDGE_ARR
+#endif
 
 #endif

@@ -1,7 +1,8 @@
 """A line-protocol device served on a pseudo-terminal and on TCP at once, for the twins.
 
 `LineServer` owns the pty, the listening socket, the connected clients and one LineFramer
-per end; a twin gives it `on_line(end, raw_line)` and answers with `send(end, data)`. The
+per end (a line is kept to at most `max_line` + 1 bytes, its tail skipped, so a stream without
+line ends costs linear time and bounded memory); a twin gives it `on_line(end, raw_line)` and answers with `send(end, data)`. The
 pty path and the pyserial URL (`socket://host:port`) are what a rig file names.
 """
 
@@ -17,6 +18,9 @@ from collections.abc import Callable
 
 from rigtool.devices.framing import LineFramer
 
+# bytes of one line a twin keeps; a longer line reaches `on_line` cut to MAX_LINE + 1 bytes
+MAX_LINE = 4096
+
 
 def open_pty() -> tuple[int, int, str]:
     """A raw pseudo-terminal: (master fd, slave fd, slave path); the master is non-blocking."""
@@ -30,8 +34,10 @@ class LineServer:
     """Serve lines on a pty (`pty_path`) and on TCP (`url`) from one background thread."""
 
     def __init__(self, on_line: Callable[[object, bytes], None], name: str,
-                 host: str = "127.0.0.1", tick: Callable[[], None] | None = None) -> None:
+                 host: str = "127.0.0.1", tick: Callable[[], None] | None = None,
+                 max_line: int = MAX_LINE) -> None:
         self._on_line = on_line
+        self._max_line = max_line
         self._tick = tick
         self._master, self._slave, self.pty_path = open_pty()
         self._listener = socket.create_server((host, 0))  # loopback unless told otherwise
@@ -40,7 +46,7 @@ class LineServer:
         self._sel = selectors.DefaultSelector()
         self._sel.register(self._master, selectors.EVENT_READ, "pty")
         self._sel.register(self._listener, selectors.EVENT_READ, "listen")
-        self._framers: dict[object, LineFramer] = {"pty": LineFramer()}
+        self._framers: dict[object, LineFramer] = {"pty": self._framer()}
         self._clients: list[socket.socket] = []
         self._stop = threading.Event()
         self._disconnect = threading.Event()
@@ -66,6 +72,14 @@ class LineServer:
         """Fault: the device vanishes (pty and TCP endpoints close; the thread keeps ticking)."""
         self._disconnect.set()
         self._disconnected.wait(timeout=2.0)
+
+    def _framer(self) -> LineFramer:
+        return LineFramer(self._max_line, keep_overlong=True)
+
+    def discard_partial_lines(self) -> None:
+        """Forget every end's partial line (a firmware watchdog trip); call from `tick`."""
+        for framer in self._framers.values():
+            framer.clear()
 
     def ends(self) -> list[object]:
         """Every end a broadcast (telemetry) goes to: the pty and each TCP client."""
@@ -118,7 +132,9 @@ class LineServer:
                     if key.data != "pty":
                         self._drop(key.data)
                     continue
-                for raw in self._framers.setdefault(key.data, LineFramer()).feed(data)[0]:
+                if key.data not in self._framers:
+                    self._framers[key.data] = self._framer()
+                for raw in self._framers[key.data].feed(data)[0]:
                     self._on_line(key.data, raw)
             if self._tick is not None:
                 self._tick()

@@ -3,7 +3,8 @@
 It speaks the bridge line protocol (docs/drivers/stm32-bridge.md) or any dialect
 described by a `Dialect`, keeps a compare value (CCR) per timer channel, applies
 the thruster channel to a LiveTwin, and runs the firmware watchdog: when no line
-arrives for `watchdog_ms` every channel goes to neutral and the trip is recorded.
+arrives for `watchdog_ms` every channel goes to neutral, a partial line is discarded and the
+trip is recorded. `PW` converts microseconds with the firmware's integer rule (pulse_to_ccr).
 Fault switches: `garbage` (a junk line before every reply), `no_replies` (commands
 are applied but never answered) and `disconnect()` (the device vanishes).
 """
@@ -41,6 +42,14 @@ class Dialect:
     telemetry: str = "TEL {speed_rpm:.1f} {current_a:.3f} {voltage_v:.2f}"
 
 
+def pulse_to_ccr(us: int, timer_clock_hz: int, psc: int) -> int:
+    """Compare value for a pulse of `us` microseconds, as the firmware computes it (doc: PW):
+    us * f_TIM / (10^6 (PSC+1)) in exact integers, rounded to the nearest count, ties to even."""
+    q, r = divmod(us * timer_clock_hz, 1_000_000 * (psc + 1))
+    den = 1_000_000 * (psc + 1)
+    return q + (1 if 2 * r > den or (2 * r == den and q % 2) else 0)
+
+
 def command_pattern(fmt: str) -> re.Pattern[str]:
     """Regex that parses lines written with the format string `fmt`."""
     parts = re.split(r"(\{channel\}|\{value\})", fmt)
@@ -57,9 +66,10 @@ class Stm32BridgeTwin:
         *,
         channels: int = 4,
         thruster_channel: int = 1,
-        timer_clock_hz: float = 72e6,
+        timer_clock_hz: float = 72e6,  # a whole number of Hz, as the firmware's uint32
         psc: int | None = None,
         arr: int | None = None,
+        ccr_range: tuple[int, int] | None = None,
         watchdog_ms: int = 500,
         dialect: Dialect | None = None,
         telemetry_hz: float = 0.0,
@@ -73,7 +83,12 @@ class Stm32BridgeTwin:
         # counts profile: the source rig's timer; pulse profile: 1 us ticks at 50 Hz
         self.psc = psc if psc is not None else (71 if self.pulse_unit else 0)
         self.arr = arr if arr is not None else (19999 if self.pulse_unit else 799)
+        if timer_clock_hz != int(timer_clock_hz):
+            raise ValueError(f"timer_clock_hz {timer_clock_hz} is not a whole number of Hz")
+        self.timer_clock_hz = int(timer_clock_hz)
         self.tick_us = (self.psc + 1) / timer_clock_hz * 1e6
+        # the compare values the output can put out (the Arduino Servo build: 544..2400)
+        self.ccr_range = ccr_range or (0, self.arr)
         self.neutral_ccr = round(profile.neutral / self.tick_us if self.pulse_unit else profile.neutral)
         self.channels = range(1, channels + 1)
         self.thruster_channel = thruster_channel
@@ -95,7 +110,8 @@ class Stm32BridgeTwin:
         self._last_line_t = time.monotonic()
         self._armed = False
         self._next_tel = 0.0
-        self._server = LineServer(self._on_line, "stm32-bridge-twin", host, tick=self._tick)
+        self._server = LineServer(self._on_line, "stm32-bridge-twin", host, tick=self._tick,
+                                  max_line=MAX_LINE)
         self.pty_path, self.url = self._server.pty_path, self._server.url
         self.port = int(self.url.rsplit(":", 1)[1])
 
@@ -148,9 +164,12 @@ class Stm32BridgeTwin:
             return d.error.format(reason=f"no channel {channel}")
         if kind in ("set", "pulse"):
             value = int(groups["value"])
-            ccr = round(value / self.tick_us) if kind == "pulse" else value
-            if not 0 <= ccr <= self.arr:
-                return d.error.format(reason=f"out of range 0..{self.arr}")
+            ccr = abs(value) if kind == "pulse" else value
+            if kind == "pulse":
+                ccr = pulse_to_ccr(ccr, self.timer_clock_hz, self.psc) * (-1 if value < 0 else 1)
+            low, high = self.ccr_range
+            if not low <= ccr <= high:
+                return d.error.format(reason=f"out of range {low}..{high}")
             self._apply(channel, ccr)
             return d.ok_value.format(value=ccr)
         if kind == "get":
@@ -165,6 +184,7 @@ class Stm32BridgeTwin:
     def _watchdog(self, now: float) -> None:
         if self.watchdog_ms and self._armed and now - self._last_line_t > self.watchdog_ms / 1000:
             self._all_neutral()
+            self._server.discard_partial_lines()  # a line cut off by the trip never runs
             self.watchdog_trips.append(now)
             self._armed = False
 

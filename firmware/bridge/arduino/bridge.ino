@@ -6,7 +6,9 @@
 //  - Servo (default): ESC pulses with Servo::writeMicroseconds on pins 9, 10, 11, 12. The
 //    "timer" is 1 us per count at 50 Hz, so counts are microseconds. Rig file:
 //      command_unit: pulse_us, timer_clock_hz: 1000000, psc: 0, arr: 19999, neutral: 1500
-//    (f_PWM = 1 MHz / (1 * 20000) = 50 Hz). The Servo library clamps pulses to 544..2400 us.
+//    (f_PWM = 1 MHz / (1 * 20000) = 50 Hz). The Servo library puts out 544..2400 us only
+//    (MIN_PULSE_WIDTH..MAX_PULSE_WIDTH), so the core's output range is that: SET/PW outside it
+//    get `ERR out of range 544..2400`, never an `OK` for a pulse the pin does not carry.
 //  - analogWrite: duty CCR/255 on pins 5, 6 (976.6 Hz = 16 MHz / (64 * 256), the formula's
 //    f_TIM 16 MHz, PSC 63, ARR 255) and 9, 10 (490 Hz phase-correct). Rig file:
 //      command_unit: pwm_counts, timer_clock_hz: 16000000, psc: 63, arr: 255, neutral: 0
@@ -25,6 +27,8 @@ static const uint8_t PINS[4] = {5, 6, 9, 10};
 #define BRIDGE_PSC 0ul
 #define BRIDGE_ARR 19999ul
 #define BRIDGE_NEUTRAL_CCR 1500ul
+#define BRIDGE_CCR_MIN ((uint32_t)MIN_PULSE_WIDTH)  /* 544 us */
+#define BRIDGE_CCR_MAX ((uint32_t)MAX_PULSE_WIDTH)  /* 2400 us */
 static const uint8_t PINS[4] = {9, 10, 11, 12};
 static Servo servos[4];
 #endif
@@ -53,11 +57,12 @@ static void write_bytes(void *ctx, const char *bytes, size_t n)
 void setup()
 {
   static const bridge_config cfg = {BRIDGE_TIMER_CLOCK_HZ, BRIDGE_PSC, BRIDGE_ARR,
-                                    BRIDGE_NEUTRAL_CCR, BRIDGE_WATCHDOG_MS, 0, BRIDGE_CHANNELS};
+                                    BRIDGE_NEUTRAL_CCR, BRIDGE_WATCHDOG_MS, 0, BRIDGE_CHANNELS,
+                                    BRIDGE_CCR_MIN, BRIDGE_CCR_MAX};
   static const bridge_hooks hooks = {set_compare, write_bytes, NULL, NULL};
 #ifndef BRIDGE_ARDUINO_ANALOG
   for (uint8_t i = 0; i < BRIDGE_CHANNELS; i++) {
-    servos[i].attach(PINS[i]);
+    servos[i].attach(PINS[i], (int)BRIDGE_CCR_MIN, (int)BRIDGE_CCR_MAX);
   }
 #endif
   bridge_init(&core, &cfg, &hooks, millis());  // every channel at neutral before the port opens

@@ -123,18 +123,20 @@ static int parse_u32(const char *text, uint32_t *out)
 static int usage(void)
 {
     fprintf(stderr, "usage: bridge_host [--pty] [--trace FILE] [--clock-hz N] [--psc N] [--arr N]\n"
-                    "                   [--neutral N] [--watchdog-ms N] [--telemetry-ms N] [--channels N]\n");
+                    "                   [--neutral N] [--watchdog-ms N] [--telemetry-ms N] [--channels N]\n"
+                    "                   [--ccr-min N] [--ccr-max N]\n");
     return 2;
 }
 
 int main(int argc, char **argv)
 {
     bridge_config cfg = {BRIDGE_TIMER_CLOCK_HZ, BRIDGE_PSC, BRIDGE_ARR, BRIDGE_NEUTRAL_CCR,
-                         BRIDGE_WATCHDOG_MS, BRIDGE_TELEMETRY_MS, BRIDGE_CHANNELS};
+                         BRIDGE_WATCHDOG_MS, BRIDGE_TELEMETRY_MS, BRIDGE_CHANNELS,
+                         BRIDGE_CCR_MIN, BRIDGE_CCR_MAX};
     static bridge b;
     host_io io = {1, NULL, "boot"};
     bridge_hooks hooks = {set_compare, write_bytes, read_telemetry, NULL};
-    uint32_t channels = cfg.channels;
+    uint32_t channels = cfg.channels, ccr_max = UINT32_MAX, arr_given = 0;
     struct sigaction sa;
     int use_pty = 0, in_fd = 0, slave = -1, i;
 
@@ -158,7 +160,12 @@ int main(int argc, char **argv)
         }
         if (strcmp(opt, "--clock-hz") == 0) target = &cfg.timer_clock_hz;
         else if (strcmp(opt, "--psc") == 0) target = &cfg.psc;
-        else if (strcmp(opt, "--arr") == 0) target = &cfg.arr;
+        else if (strcmp(opt, "--arr") == 0) {
+            target = &cfg.arr;
+            arr_given = 1;
+        }
+        else if (strcmp(opt, "--ccr-min") == 0) target = &cfg.ccr_min;
+        else if (strcmp(opt, "--ccr-max") == 0) target = &ccr_max;
         else if (strcmp(opt, "--neutral") == 0) target = &cfg.neutral_ccr;
         else if (strcmp(opt, "--watchdog-ms") == 0) target = &cfg.watchdog_ms;
         else if (strcmp(opt, "--telemetry-ms") == 0) target = &cfg.telemetry_ms;
@@ -168,6 +175,9 @@ int main(int argc, char **argv)
         }
     }
     cfg.channels = (uint8_t)(channels > 255u ? 255u : channels);
+    if (ccr_max != UINT32_MAX || arr_given) {
+        cfg.ccr_max = ccr_max != UINT32_MAX ? ccr_max : cfg.arr;  /* default: the whole timer */
+    }
     if (cfg.psc > 65535u) {
         fprintf(stderr, "bridge_host: --psc must be at most 65535\n");
         return 2;
@@ -185,7 +195,7 @@ int main(int argc, char **argv)
     }
     if (bridge_init(&b, &cfg, &hooks, now_ms()) != 0) {
         fprintf(stderr, "bridge_host: inconsistent timer settings (need arr >= 1, "
-                        "neutral <= arr, channels 1..%u)\n", BRIDGE_MAX_CHANNELS);
+                        "ccr-min <= neutral <= ccr-max <= arr, channels 1..%u)\n", BRIDGE_MAX_CHANNELS);
         return 2;
     }
     memset(&sa, 0, sizeof sa);

@@ -220,7 +220,8 @@ int main(void)
 {
     static bridge b;
     const bridge_config cfg = {BRIDGE_TIMER_CLOCK_HZ, BRIDGE_PSC, BRIDGE_ARR, BRIDGE_NEUTRAL_CCR,
-                               BRIDGE_WATCHDOG_MS, 0u, BRIDGE_CHANNELS};
+                               BRIDGE_WATCHDOG_MS, 0u, BRIDGE_CHANNELS, BRIDGE_CCR_MIN,
+                               BRIDGE_CCR_MAX};
     const bridge_hooks hooks = {set_compare, write_bytes, NULL, NULL};
 
     HAL_Init();  /* SysTick at 1 kHz */
