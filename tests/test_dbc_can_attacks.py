@@ -201,3 +201,48 @@ def test_a_file_that_is_not_a_dbc_is_not_echoed(tmp_path):
     with pytest.raises(UsageError) as exc:
         DbcCanDriver(cfg)
     assert "s3cr3t" not in str(exc.value) and "is not a DBC file" in str(exc.value)
+
+
+# ----- S4: a drive deaf to neutral is not reported at neutral -----
+
+def _sweep(write_yaml, channel, tmp_path, twin, box, during) -> int:
+    """Sweep PROTOCOL on the twins; `during(twin)` runs once the first point is held."""
+    import threading
+
+    host, port = box.address
+    rig = odrive_rig(write_yaml, channel, node_id=NODE)
+    data = yaml.safe_load(rig.read_text())
+    data["sensor"].update(host=host, port=port, http_port=box.http_port)
+    rig.write_text(yaml.safe_dump(data, sort_keys=False))
+    act = threading.Timer(2.0, during, args=(twin,))
+    act.start()
+    try:
+        return main(["sweep", str(write_yaml(PROTOCOL)), "--rig", str(rig), "--db",
+                     str(tmp_path / "r.sqlite")])
+    finally:
+        act.cancel()
+
+
+@pytest.fixture
+def box(live):
+    from rigtool.sim.netft_twin import NetFTTwin
+    twin = NetFTTwin(live).start()
+    yield twin
+    twin.stop()
+
+
+def test_a_drive_deaf_to_neutral_exits_3_quoting_its_speed(twin, live, box, write_yaml, channel,
+                                                           tmp_path, capsys):
+    def deafen(t):
+        t.deaf = True  # the axis holds its last setpoint, whatever rigtool sends after
+
+    rc = _sweep(write_yaml, channel, tmp_path, twin, box, deafen)
+    err = capsys.readouterr().err
+    assert rc == 3, err
+    assert "THE ACTUATOR MAY NOT BE AT NEUTRAL: speed feedback still reads" in err
+    assert "actuator at neutral" not in err
+    from rigtool.store import Store
+    with Store(tmp_path / "r.sqlite") as store:
+        (run,) = store.runs()
+        failed = store.events(run["id"], "neutral_failed")
+    assert "may not be at neutral: speed feedback still reads" in failed[0]["detail"]["message"]

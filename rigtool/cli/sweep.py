@@ -97,7 +97,7 @@ def _report_outcome(outcome: Outcome, n_plan: int, store: Store) -> int:
         out.print(f"run {outcome.run_id} completed: {steps} stored in {store.path}")
     elif not outcome.neutral_ok:
         err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in {store.path}. "
-                  "ERROR: THE NEUTRAL COMMAND FAILED: check the thruster and cut its power.")
+                  f"ERROR: {outcome.neutral_note}: check the thruster and cut its power.")
     else:
         err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in "
                   f"{store.path}; actuator at neutral. Continue with: "
