@@ -37,6 +37,13 @@ from rigtool.units import FT_CHANNELS
 
 CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this often
 RAMP_DT_S = 0.05  # command update period while slewing
+# After the final neutral, an actuator's speed feedback must fall within NEUTRAL_CONFIRM_S:
+# to NEUTRAL_SPEED_RPM or below, or to NEUTRAL_FALL_FRAC of its first reading; else exit 3.
+NEUTRAL_CONFIRM_S = 2.0
+NEUTRAL_SPEED_RPM = 100.0
+NEUTRAL_FALL_FRAC = 0.5
+NEUTRAL_POLL_S = 0.02
+NEUTRAL_FAILED = "THE NEUTRAL COMMAND FAILED"
 FOLD_SAMPLES = 1_000_000  # settle, rest and tare readings beyond this are summed as they come
 FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
 
@@ -90,8 +97,9 @@ class Outcome:
     status: str
     reason: str | None
     steps_done: int
-    neutral_ok: bool = True  # False: the final neutral command could not be confirmed sent
+    neutral_ok: bool = True  # False: the final neutral command could not be confirmed
     interrupted: bool = False  # the operator's Ctrl-C (SIGINT) stopped the run
+    neutral_note: str = NEUTRAL_FAILED  # what went wrong with neutral, when not neutral_ok
 
     @property
     def exit_status(self) -> int:
@@ -221,13 +229,17 @@ class Engine:
             finally:
                 signals.closing = True
                 neutral_ok = self._safe_neutral()
+                spinning = self._spin_after_neutral() if neutral_ok else None
+                note = NEUTRAL_FAILED if spinning is None else (
+                    f"THE ACTUATOR MAY NOT BE AT NEUTRAL: {spinning}")
+                neutral_ok = neutral_ok and spinning is None
                 self._safe_supply()
                 self.reporter.finish()
-                self._close_run(status, reason, neutral_ok)
+                self._close_run(status, reason, neutral_ok, note)
                 if not neutral_ok and status == "failed":
-                    raise NeutralNotConfirmed(f"{reason}; THE NEUTRAL COMMAND FAILED: check the "
-                                              "thruster and cut its power")
-        return Outcome(self.run_id, status, reason, done, neutral_ok, interrupted)
+                    raise NeutralNotConfirmed(f"{reason}; {note}: check the thruster and cut "
+                                              "its power")
+        return Outcome(self.run_id, status, reason, done, neutral_ok, interrupted, note)
 
     # -- phases ---------------------------------------------------------------------------
     def _begin(self, t_offset_s: float) -> None:
@@ -364,6 +376,32 @@ class Engine:
                                "CHECK THE THRUSTER AND CUT ITS POWER IF IT IS STILL RUNNING.")
             return False
 
+    def _spin_after_neutral(self) -> str | None:
+        """With speed feedback, whether it fell after neutral was sent (see NEUTRAL_CONFIRM_S):
+        None when it did, else the speed it still reads. Feedback that cannot be read or
+        gives no speed is no evidence either way (None); never raises."""
+        act = self.rig.actuator
+        if "speed_rpm" not in act.info.feedback:
+            return None
+        t_sent = self.clock.now()
+        first = last = None
+        while True:
+            try:
+                fb = act.read_feedback()
+            except Exception:  # noqa: BLE001 - the run is ending; an unread actuator proves nothing
+                return None
+            speeds = fb.speed_rpm if fb.speed_rpm is not None else np.empty(0)
+            fresh = speeds[(fb.t_s >= t_sent) & np.isfinite(speeds)]
+            for speed in np.abs(fresh):
+                first = speed if first is None else first
+                if speed <= NEUTRAL_SPEED_RPM or speed <= NEUTRAL_FALL_FRAC * first:
+                    return None
+            last = fresh[-1] if fresh.size else last
+            if self.clock.now() - t_sent >= NEUTRAL_CONFIRM_S:
+                return None if last is None else (f"speed feedback still reads {last:.0f} r/min "
+                                                  f"{NEUTRAL_CONFIRM_S:g} s after neutral was sent")
+            self.clock.sleep(NEUTRAL_POLL_S)
+
     def _safe_supply(self) -> None:
         """Leave the supply as the rig file asks (output off or a safe voltage), once the
         thruster is at neutral; never raises. Only a supply this run set is touched."""
@@ -379,11 +417,14 @@ class Engine:
             with contextlib.suppress(StoreError):
                 self._event("supply_unsafe", {"message": str(exc)})
 
-    def _close_run(self, status: str, reason: str | None, neutral_ok: bool = True) -> None:
+    def _close_run(self, status: str, reason: str | None, neutral_ok: bool = True,
+                   note: str = NEUTRAL_FAILED) -> None:
         """Record how the run ended; a store that fails here must not mask the original error."""
         try:
             if not neutral_ok:
-                self._event("neutral_failed", {"message": "the final neutral command failed"})
+                message = ("the final neutral command failed" if note == NEUTRAL_FAILED
+                           else note[0] + note[1:].lower())
+                self._event("neutral_failed", {"message": message})
             counters = self.rig.counters()
             if counters:
                 self._event("transport_counters", counters)

@@ -14,11 +14,11 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import DepthM
 from rigtool.clock import RealClock, VirtualClock
-from rigtool.config import load_model
+from rigtool.config import load_model, locate
 from rigtool.devices.ascii_gauge import AsciiGaugeConfig
 from rigtool.devices.axes import rotation_deg, wrench_transform
 from rigtool.devices.base import Actuator, ActuatorInfo, Clock, DepthStage, ForceSensor, Supply
-from rigtool.devices.dbc_can import DbcCanConfig
+from rigtool.devices.dbc_can import DbcCanConfig, DbcMismatch
 from rigtool.devices.depth import ManualDepth, PresetDepth
 from rigtool.devices.manual_supply import ManualSupply
 from rigtool.devices.netft import NetFTConfig
@@ -28,7 +28,7 @@ from rigtool.devices.serial_stage import SerialStageConfig
 from rigtool.devices.stm32_bridge import Stm32BridgeConfig
 from rigtool.devices.vesc_can import VescCanConfig
 from rigtool.devices.visa_link import sim_file
-from rigtool.errors import UsageError
+from rigtool.errors import ConfigError, UsageError
 from rigtool.protocol import SimulatorSpec
 from rigtool.thruster_profiles import profile_with_overrides
 from rigtool.units import FT_CHANNELS
@@ -100,7 +100,8 @@ def load_rig(path: str | Path) -> tuple[Rig, dict]:
     """Read and validate a rig file; ConfigError names file, line and field.
 
     A relative `dbc:` path in the actuator section, and a relative instrument file of a
-    supply's `visa_library: file.yaml@sim`, are taken relative to the rig file.
+    supply's `visa_library: file.yaml@sim`, are taken relative to the rig file. A dbc-can
+    mapping is checked against its DBC here, so a mismatch names its line.
     """
     rig, data = load_model(Path(path), Rig)
     sim_yaml = sim_file(getattr(rig.supply, "visa_library", None) or "")
@@ -112,6 +113,12 @@ def load_rig(path: str | Path) -> tuple[Rig, dict]:
     if dbc and not Path(dbc).is_absolute():
         actuator = rig.actuator.model_copy(update={"dbc": str(Path(path).parent / dbc)})
         rig = rig.model_copy(update={"actuator": actuator})
+    if isinstance(rig.actuator, DbcCanConfig):
+        try:
+            actuator_info(rig.actuator)
+        except DbcMismatch as exc:
+            loc = ("actuator", *exc.loc)
+            raise ConfigError([f"{locate(Path(path), loc)}: {'.'.join(loc)}: {exc}"]) from None
     return rig, data
 
 

@@ -186,7 +186,8 @@ def test_wrong_node_raises_on_open(twin, open_driver):
 def test_a_node_id_beyond_11_bits_is_a_usage_error(channel):
     cfg = DbcCanConfig(driver="dbc-can", interface="virtual", channel=channel,
                        mapping="odrive_velocity", node_id=64)  # fmt: skip
-    pattern = r"node_id 64 puts Axis0_Get_Encoder_Estimates at frame id 0x809, beyond the 11-bit"
+    pattern = (r"node_id 64 puts Axis0_Set_Input_Vel at frame id 0x80d, beyond the 11-bit range "
+               r"\(node_id 0..63 with node_id_shift 5\)")
     with pytest.raises(UsageError, match=pattern):
         DbcCanDriver(cfg)
 

@@ -95,8 +95,9 @@ def _report_outcome(outcome: Outcome, n_plan: int, store: Store) -> int:
     if outcome.status == "completed" and outcome.neutral_ok:
         out.print(f"run {outcome.run_id} completed: {steps} stored in {store.path}")
     elif not outcome.neutral_ok:
-        err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in {store.path}. "
-                  "ERROR: THE NEUTRAL COMMAND FAILED: check the thruster and cut its power.")
+        why = f": {outcome.reason}" if outcome.reason else ""
+        err.print(f"run {outcome.run_id} {outcome.status}{why}; {steps} kept in {store.path}. "
+                  f"ERROR: {outcome.neutral_note}: check the thruster and cut its power.")
     else:
         err.print(f"run {outcome.run_id} {outcome.status}: {outcome.reason}; {steps} kept in "
                   f"{store.path}; actuator at neutral. Continue with: "

@@ -11,7 +11,9 @@ with WATCHDOG_TIMER_EXPIRED when no frame reaches it for that long.
 
 Fault switches: `silent` (transmits nothing), `deaf` (receives nothing), `garbage` (adds
 truncated encoder frames and error frames), `fault_code` (an Axis_Error value: the axis
-drops to IDLE, the motor stops, closed loop is refused until it is cleared).
+drops to IDLE, the motor stops, closed loop is refused until it is cleared),
+`no_heartbeat` (heartbeats stop, encoder frames go on), `vel_estimate` (a value, e.g.
+NaN, sent as Vel_Estimate instead of the speed).
 """
 
 from __future__ import annotations
@@ -61,6 +63,8 @@ class OdriveTwin(CanBusTwin):
         self.axis_state = IDLE
         self.axis_error = 0
         self.input_vel_turns_s = 0.0
+        self.no_heartbeat = False  # fault switch: stop the heartbeat only
+        self.vel_estimate: float | None = None  # fault switch: report this Vel_Estimate
         self.requested_states: list[int] = []  # every Axis_Requested_State received
         self.input_vels: list[float] = []  # every Input_Vel received (turns/s)
         self._pos_turns = 0.0
@@ -152,14 +156,15 @@ class OdriveTwin(CanBusTwin):
             if block is not None:
                 vel_turns_s = float(block.speed_rpm[-1]) / 60.0
                 self._pos_turns += vel_turns_s * (now - last_t)
+                reported = vel_turns_s if self.vel_estimate is None else self.vel_estimate
                 data = self._send("Axis0_Get_Encoder_Estimates",
-                                  {"Pos_Estimate": self._pos_turns, "Vel_Estimate": vel_turns_s})
+                                  {"Pos_Estimate": self._pos_turns, "Vel_Estimate": reported})
                 if self.garbage and data is not None:
                     self._send_frame(self._id("Axis0_Get_Encoder_Estimates"), data[:3],
                                      extended=False)
                     self._send_frame(0x20000000 | 0x80, bytes(8), extended=True, error=True)
             last_t = now
-            if tick % beat_every == 0:
+            if tick % beat_every == 0 and not self.no_heartbeat:
                 self._send("Axis0_Heartbeat", {
                     "Axis_Error": self._error(), "Axis_State": self.axis_state,
                     "Motor_Error_Flag": 0, "Encoder_Error_Flag": 0,
