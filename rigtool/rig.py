@@ -119,6 +119,8 @@ def load_rig(path: str | Path) -> tuple[Rig, dict]:
         except DbcMismatch as exc:
             loc = ("actuator", *exc.loc)
             raise ConfigError([f"{locate(Path(path), loc)}: {'.'.join(loc)}: {exc}"]) from None
+        except UsageError as exc:  # e.g. a neutral outside the command range
+            raise ConfigError([f"{locate(Path(path), ('actuator',))}: actuator: {exc}"]) from None
     return rig, data
 
 

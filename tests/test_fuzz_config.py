@@ -153,8 +153,8 @@ actuator:
   bitrate: 500000
   node_id: 1
   command: {message: SERVO_CONTROL, signal: SpeedCmd_pct, unit: percent, scale: 1, min: -100, max: 100}
-  feedback: {speed_rpm: {message: SERVO_STATUS, signal: Speed_rpm, scale: 1}}
-  fault: {message: SERVO_STATUS, signal: Fault, ok: 0}
+  feedback: {speed_rpm: {message: SERVO_STATUS, signal: ActualSpeed_rpm, scale: 1}}
+  fault: {message: SERVO_STATUS, signal: FaultCode, ok: 0}
   enable: {message: SERVO_ENABLE, signal: Enable, on_start: 1, on_close: 0}
   neutral: 0
   command_timeout_s: 0.5

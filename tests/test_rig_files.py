@@ -53,8 +53,11 @@ def test_simulator_and_hardware_are_exclusive(write_yaml):
 
 
 def test_relative_dbc_path_is_taken_from_the_rig_folder(write_yaml, tmp_path):
+    (tmp_path / "my.dbc").write_text('VERSION ""\n\nBU_: HOST SERVO\n\n'
+                                     'BO_ 512 Control: 2 HOST\n'
+                                     ' SG_ Speed : 0|16@1- (1,0) [-3000|3000] "rpm" SERVO\n')
     text = ("name: r\nactuator:\n  driver: dbc-can\n  interface: virtual\n  channel: x\n"
             "  dbc: my.dbc\n  command: {message: Control, signal: Speed, unit: rpm}\n"
             "sensor: {driver: ati-netft, host: h}\n")
-    rig, _ = load_rig(write_yaml(text, "rig.yaml"))
+    rig, _ = load_rig(write_yaml(text, "rig.yaml"))  # the DBC is read (and checked) here
     assert rig.actuator.dbc == str(tmp_path / "my.dbc")
