@@ -154,7 +154,7 @@ class Engine:
         self.reporter = reporter or SilentReporter()
         self.confirm = confirm
         self.clock = rig.clock
-        self.limits = LimitMonitor(protocol.limits)
+        self.limits = LimitMonitor(protocol.limits, self.clock.now)
         self.follow = FollowMonitor(rig.actuator.info,
                                     getattr(rig.actuator, "expected_speed_rpm", None))
         self.bus = BusVoltageMonitor(protocol.voltage.tolerance_frac if protocol.voltage else 0.25)
