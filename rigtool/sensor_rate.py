@@ -92,7 +92,7 @@ def dry_run_rate(protocol: Protocol, rig: Rig) -> str:
     if rig.simulator is not None:
         return f"{sensor_timing(protocol, None).describe()} (the twin samples at the rate asked)"
     driver = getattr(rig.sensor, "driver", "?")
-    where = ("the box's RDT rate (netftapi2.xml)" if driver == "ati-netft"
+    where = ("the box's RDT rate (netftapi2.xml), checked over 0.5 s" if driver == "ati-netft"
              and getattr(rig.sensor, "counts_per_force", None) is None
              else "measured over 0.5 s")
     return (f"{protocol.timing.acquire.n_samples} samples at {protocol.timing.acquire.rate_hz:g} Hz "

@@ -218,6 +218,9 @@ HOSTILE = [
     ("max_torque_nm: .inf", "max_torque_nm"),
     ("max_temperature_c: -300", "max_temperature_c"),
     ("debounce_samples: -2", "debounce_samples"),
+    ("debounce_samples: true", "debounce_samples"),
+    ("max_temperature_c: '70'", "max_temperature_c"),
+    ("max_thrust_n: '20'", "max_thrust_n"),
     ("torque_channel: fx", "torque_channel"),
     ("min_bus_v: 50\n  max_bus_v: 40", "min_bus_v"),
 ]
