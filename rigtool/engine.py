@@ -162,7 +162,7 @@ class Engine:
         self.reporter = reporter or SilentReporter()
         self.confirm = confirm
         self.clock = rig.clock
-        self.limits = LimitMonitor(protocol.limits)
+        self.limits = LimitMonitor(protocol.limits, self.clock.now)
         self.follow = FollowMonitor(rig.actuator.info,
                                     getattr(rig.actuator, "expected_speed_rpm", None))
         self.bus = BusVoltageMonitor(protocol.voltage.tolerance_frac if protocol.voltage else 0.25)
@@ -247,14 +247,18 @@ class Engine:
         self._command = self.rig.actuator.info.neutral
         self._t0 = self.clock.now() - t_offset_s
         self._event("run_start", {"rig": self.rig.description, "n_steps": len(self.plan)})
-        if self.timing.how != "as planned":
-            t = self.timing
+        t, note = self.timing, self.rig.sensor_rate_note
+        if note:
+            self.reporter.note(f"warning: {note}")
+            self._event("warning", {"message": note})
+        if t.how != "as planned" or t.sensor_rate_hz != t.protocol_rate_hz or note:
             self.reporter.note(f"sensor rate: {t.describe()}")
             self._event("sensor_rate", {"how": t.how, "sensor_rate_hz": t.sensor_rate_hz,
                                         "protocol_rate_hz": t.protocol_rate_hz,
                                         "stored_rate_hz": t.stored_rate_hz,
                                         "decimate": t.decimate, "n_stored": t.n_stored,
-                                        "acquire_s": t.acquire_s, "message": t.describe()})
+                                        "acquire_s": t.acquire_s, "message": t.describe(),
+                                        "note": note})
         if self.protocol.timing.tare == "at_start":
             self._tare("at_start")
 

@@ -158,13 +158,15 @@ class TimingRefused(ValueError):
 class SensorTiming:
     """The acquisition a sweep actually makes with its sensor (docs/protocols.md, "Sensor rate").
 
-    `how`: "as planned" (the sensor samples at the protocol's rate), "decimated" (a sensor at
-    an integer multiple of it: each `decimate` samples are averaged into one stored sample),
+    `how`: "as planned" (the sensor samples at the protocol's rate, within RATE_MATCH_FRAC),
+    "decimated" (a sensor at an integer multiple of it, within RATE_MATCH_FRAC: each
+    `decimate` samples are averaged into one stored sample),
     or "duration" (any other rate: the protocol's acquisition time at the sensor's rate).
     """
 
     protocol_rate_hz: float
-    sensor_rate_hz: float  # the rate samples are read at; every duration is counted in it
+    sensor_rate_hz: float  # the sensor's real rate; every duration is counted in it, and
+    # the stored rate is it / decimate: what is stored is what was acquired
     decimate: int  # sensor samples per stored sample
     n_read: int  # sensor samples read per point
     how: str
@@ -191,7 +193,9 @@ class SensorTiming:
         plan = (f"{self.n_stored} samples at {self.stored_rate_hz:g} Hz "
                 f"({self.n_stored / self.stored_rate_hz:g} s) per point")
         if self.how == "as planned":
-            return plan
+            return plan if self.sensor_rate_hz == self.protocol_rate_hz else (
+                f"{plan}: the sensor's rate, within {RATE_MATCH_FRAC:.0%} of the protocol's "
+                f"{self.protocol_rate_hz:g} Hz")
         if self.how == "decimated":
             return (f"{plan}: the sensor's {self.sensor_rate_hz:g} Hz averaged {self.decimate} "
                     "to 1")
@@ -204,12 +208,14 @@ def sensor_timing(protocol: Protocol, sensor_rate_hz: float | None) -> SensorTim
     asked, like the twin); TimingRefused when that rate cannot meet the protocol."""
     acquire = protocol.timing.acquire
     proto, n = acquire.rate_hz, acquire.n_samples
-    if sensor_rate_hz is None or abs(sensor_rate_hz / proto - 1) <= RATE_MATCH_FRAC:
+    if sensor_rate_hz is None:
         return SensorTiming(proto, proto, 1, n, "as planned")
+    if abs(sensor_rate_hz / proto - 1) <= RATE_MATCH_FRAC:  # the protocol's count, its rate
+        return SensorTiming(proto, sensor_rate_hz, 1, n, "as planned")
     ratio = sensor_rate_hz / proto
     k = round(ratio)
     if k >= 2 and abs(ratio / k - 1) <= RATE_MATCH_FRAC:
-        return SensorTiming(proto, k * proto, k, n * k, "decimated")
+        return SensorTiming(proto, sensor_rate_hz, k, n * k, "decimated")
     n_read = max(1, round(n / proto * sensor_rate_hz))
     if n_read < MIN_POINT_SAMPLES:
         raise TimingRefused(("timing", "acquire", "rate_hz"), (

@@ -253,8 +253,10 @@ class Limits(_Strict):
 
     Each limit counts its own readings for `debounce_samples`: force samples for thrust and
     torque, feedback frames for current, speed, bus voltage, power and temperature (and one
-    reading of a measuring supply counts as one frame of the bus and power limits)."""
+    reading of a measuring supply counts as one frame of the bus and power limits). Strict
+    types: `true` is not a count and '70' is not a number."""
 
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
     max_thrust_n: Annotated[float, Field(gt=0, le=MAX_THRUST_N, allow_inf_nan=False)] | None = None
     max_current_a: Annotated[float, Field(gt=0, le=MAX_CURRENT_A, allow_inf_nan=False)] | None = None
     max_speed_rpm: Annotated[float, Field(gt=0, le=MAX_SPEED_RPM, allow_inf_nan=False)] | None = None

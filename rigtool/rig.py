@@ -144,6 +144,7 @@ class RigSet:
     transform: np.ndarray | None = None  # 6x6 wrench transform of a mounted sensor
     supply: Supply | None = None  # sets the supply voltage, when the protocol sweeps it
     sensor_rate_hz: float | None = None  # the sensor's own rate; None: it samples as asked
+    sensor_rate_note: str | None = None  # why that rate is not the one the sensor states
 
     def annotations(self) -> list[dict]:
         """Ground-truth events a simulator knows (e.g. ventilation), to store with the run."""

@@ -66,20 +66,29 @@ def protocol_limits(limits: Limits) -> list[_Limit]:
 SUPPLY_DEBOUNCE = 2  # a supply is read at most every BUS_CHECK_S: two readings in a row trip
 
 
+NO_READING_S = 3.0  # a limit whose source gives blocks without one valid reading this long trips
+
+
 class LimitMonitor:
     """Trips (raises SafetyTrip) when a quantity is beyond its limit for `debounce` readings in a row.
 
     Each quantity is counted in its own readings, per source: force samples for thrust and
     torque, feedback frames for current, speed, bus voltage, power and temperature, and one
     reading per supply measurement (source "supply"; those are at least `BUS_CHECK_S` apart,
-    so `SUPPLY_DEBOUNCE` of them in a row trip, or `debounce` if smaller).
+    so `SUPPLY_DEBOUNCE` of them in a row trip, or `debounce` if smaller). Only a valid
+    reading within the limit restarts the count: a block without readings (a slow source) or
+    with NaN ones (a railed thermistor) leaves it as it is. A source that keeps delivering
+    blocks with no valid reading for `NO_READING_S` (on the `now` clock) trips too: a lost
+    sensor must not turn its limit off.
     """
 
-    def __init__(self, limits: Limits) -> None:
+    def __init__(self, limits: Limits, now: Callable[[], float] | None = None) -> None:
         self.debounce = limits.debounce_samples
         self.limits = protocol_limits(limits)
         self.checks = {lim.quantity for lim in self.limits}
+        self._now = now
         self._carry: dict[tuple[str, str], int] = {}
+        self._invalid_since: dict[tuple[str, str], float] = {}
 
     def check(self, values: dict[str, np.ndarray | None], source: str = "") -> None:
         """Judge one block of readings from `source` (the quantities it lacks are None)."""
@@ -88,15 +97,33 @@ class LimitMonitor:
             if v is None:
                 continue
             v = np.asarray(v, dtype=float)
+            v = v[~np.isnan(v)]
             key = (lim.field, source)
-            mask = lim.outside(v)
-            if not mask.any():
-                self._carry[key] = 0
+            if v.size == 0:
+                self._no_reading(lim, key, source)
                 continue
-            longest, self._carry[key] = _run_lengths(mask, self._carry.get(key, 0))
+            self._invalid_since.pop(key, None)
+            longest, self._carry[key] = _run_lengths(lim.outside(v), self._carry.get(key, 0))
             if longest >= (min(self.debounce, SUPPLY_DEBOUNCE) if source == "supply"
                            else self.debounce):
                 self._trip(lim, v, longest, source)
+
+    def _no_reading(self, lim: _Limit, key: tuple[str, str], source: str) -> None:
+        """A block with no valid reading: trip once they have lasted `NO_READING_S`."""
+        if self._now is None:
+            return
+        now = self._now()
+        since = self._invalid_since.setdefault(key, now)
+        if now - since >= NO_READING_S:
+            by = f" from the {source}" if source else ""
+            raise SafetyTrip(f"limit trip: {lim.field}: no valid reading of {lim.quantity}{by} "
+                             f"for {now - since:.1f} s (a lost or railed sensor; limit "
+                             f"{NO_READING_S:g} s)",
+                             {"check": "limit", "limit": lim.field, "quantity": lim.quantity,
+                              "value": None, "threshold": lim.threshold,
+                              "unit": UNITS.get(lim.quantity, ""), "readings": 0,
+                              "source": source or None, "reason": "no valid reading",
+                              "seconds": now - since})
 
     @staticmethod
     def _trip(lim: _Limit, v: np.ndarray, longest: int, source: str) -> None:
@@ -113,6 +140,7 @@ class LimitMonitor:
 
     def reset(self) -> None:
         self._carry = {}
+        self._invalid_since = {}
 
 
 FOLLOW_WINDOW_S = 0.2  # feedback is judged as means over windows this long

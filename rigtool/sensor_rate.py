@@ -1,20 +1,24 @@
 """The force sensor's real sample rate, found before a sweep starts, and the timing it allows.
 
-A driver that knows its rate says so (`rate_hz`, e.g. the Net F/T box's RDT rate); one that
-samples at the rate asked (`follows_rate`, the twin) needs nothing; any other is measured
-from the times of about `PROBE_S` of its samples.
+A driver that samples at the rate asked (`follows_rate`, the twin) needs nothing; any other
+is measured from the times of about `PROBE_S` of its samples.
+A driver that knows its rate (`rate_hz`, e.g. the Net F/T box's RDT rate from its XML) is
+measured too: when the two disagree by more than RATE_MATCH_FRAC the measured rate is used,
+with a note the run records. Every rate must be finite and within MIN_RATE_HZ..MAX_RATE_HZ.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
+from rigtool.bounds import MAX_RATE_HZ, MIN_RATE_HZ
 from rigtool.config import locate
 from rigtool.devices.base import ForceSensor
 from rigtool.errors import ConfigError, DeviceError
-from rigtool.plan import SensorTiming, TimingRefused, sensor_timing
+from rigtool.plan import RATE_MATCH_FRAC, SensorTiming, TimingRefused, sensor_timing
 from rigtool.protocol import Protocol
 from rigtool.rig import Rig, RigSet
 
@@ -23,17 +27,38 @@ PROBE_BLOCK = 16  # samples per read while probing
 MAX_PROBE_READS = 10_000
 
 
-def native_rate_hz(sensor: ForceSensor, asked_hz: float) -> float | None:
-    """The rate `sensor` delivers samples at when asked for `asked_hz`; None if it follows it."""
+def native_rate_hz(sensor: ForceSensor, asked_hz: float) -> tuple[float | None, str | None]:
+    """The rate `sensor` delivers samples at when asked for `asked_hz` (None if it follows
+    it), and a note when the rate it states was not the rate it streams at."""
     if getattr(sensor, "follows_rate", False):
-        return None
+        return None, None
+    name = getattr(sensor, "name", type(sensor).__name__)
     known = getattr(sensor, "rate_hz", None)
-    if known:
-        return float(known)
+    if known is not None:
+        _check_rate(name, "stated", float(known))
+    measured = _check_rate(name, "measured", measured_rate_hz(sensor, asked_hz))
+    if known is None:
+        return measured, None
+    if abs(measured / float(known) - 1) <= RATE_MATCH_FRAC:
+        return float(known), None
+    return measured, (f"{name}: the sensor states {float(known):g} Hz but streams at "
+                      f"{measured:.6g} Hz (measured over {PROBE_S:g} s): the measured rate "
+                      "is used")
+
+
+def _check_rate(name: str, how: str, rate_hz: float) -> float:
+    """`rate_hz` if it is a sample rate rigtool can use; else a DeviceError naming it."""
+    if not (math.isfinite(rate_hz) and MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
+        raise DeviceError(f"{name}: {how} sample rate {rate_hz!r} Hz is not a usable rate "
+                          f"(finite, {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz)")
+    return rate_hz
+
+
+def measured_rate_hz(sensor: ForceSensor, asked_hz: float) -> float:
+    """The rate of `sensor`'s samples over about `PROBE_S` of them."""
     times: list = []
     for _ in range(MAX_PROBE_READS):
-        t = sensor.read(PROBE_BLOCK, asked_hz).t_s
-        times.extend(t.tolist())
+        times.extend(sensor.read(PROBE_BLOCK, asked_hz).t_s.tolist())
         if len(times) > 2 and times[-1] - times[0] >= PROBE_S:
             return fitted_rate_hz(np.asarray(times))
     span = times[-1] - times[0] if times else 0.0
@@ -51,13 +76,14 @@ def fitted_rate_hz(t_s: np.ndarray) -> float:
 def check_sensor_rate(protocol: Protocol, path: Path, rigset: RigSet) -> SensorTiming:
     """Find the sensor's rate, keep it on `rigset` for the engine, and refuse (file:line of
     the protocol field) a protocol whose timing it cannot meet."""
-    rate = native_rate_hz(rigset.sensor, protocol.timing.acquire.rate_hz)
+    rate, note = native_rate_hz(rigset.sensor, protocol.timing.acquire.rate_hz)
     try:
         timing = sensor_timing(protocol, rate)
     except TimingRefused as exc:
         field = ".".join(exc.field)
         raise ConfigError([f"{locate(path, exc.field)}: {field}: {exc}"]) from None
     rigset.sensor_rate_hz = rate
+    rigset.sensor_rate_note = note
     return timing
 
 
@@ -66,7 +92,7 @@ def dry_run_rate(protocol: Protocol, rig: Rig) -> str:
     if rig.simulator is not None:
         return f"{sensor_timing(protocol, None).describe()} (the twin samples at the rate asked)"
     driver = getattr(rig.sensor, "driver", "?")
-    where = ("the box's RDT rate (netftapi2.xml)" if driver == "ati-netft"
+    where = ("the box's RDT rate (netftapi2.xml), checked over 0.5 s" if driver == "ati-netft"
              and getattr(rig.sensor, "counts_per_force", None) is None
              else "measured over 0.5 s")
     return (f"{protocol.timing.acquire.n_samples} samples at {protocol.timing.acquire.rate_hz:g} Hz "

@@ -118,11 +118,44 @@ def test_every_new_limit_is_debounced_in_its_own_readings(quantity, field, value
     mon = LimitMonitor(limits)
     mon.check({quantity: np.array(values, dtype=float)}, source)  # runs of 2 and 1: no trip
     mon.check({quantity: np.array([np.nan] * 8)}, source)  # missing readings never trip
+    mon.check({quantity: np.array(values[:1], dtype=float)}, source)  # one within: count restarts
     mon.check({quantity: np.array(values[:2], dtype=float)}, "supply")  # counted apart
     with pytest.raises(SafetyTrip) as trip:  # 2 at the end of one block + 1: 3 in a row
         mon.check({quantity: np.array(values[1:3], dtype=float)}, source)
         mon.check({quantity: np.array(values[1:2], dtype=float)}, source)
     assert trip.value.detail["limit"] == field and trip.value.detail["readings"] == 3
+
+
+def test_blocks_without_valid_readings_keep_the_count():
+    """A slow source (blocks with no reading) or NaN readings do not restart the count."""
+    mon = LimitMonitor(Limits(max_temperature_c=35, debounce_samples=3))
+    mon.check({"temperature_c": np.array([80.0])}, "actuator")
+    mon.check({"temperature_c": np.array([])}, "actuator")
+    mon.check({"temperature_c": np.array([80.0, np.nan])}, "actuator")
+    mon.check({"temperature_c": np.array([np.nan])}, "actuator")
+    with pytest.raises(SafetyTrip) as trip:
+        mon.check({"temperature_c": np.array([80.0])}, "actuator")
+    assert trip.value.detail["readings"] == 3
+
+
+def test_a_source_without_valid_readings_trips_after_the_bound():
+    """Blocks with no valid reading for NO_READING_S trip, naming the limit; one valid
+    reading restarts that time."""
+    from rigtool.safety import NO_READING_S
+
+    clock = [0.0]
+    mon = LimitMonitor(Limits(max_temperature_c=35), lambda: clock[0])
+    for t in np.arange(0.0, NO_READING_S, 0.1):
+        clock[0] = float(t)
+        mon.check({"temperature_c": np.array([np.nan, np.nan])}, "actuator")
+    mon.check({"temperature_c": np.array([20.0])}, "actuator")  # back: the time restarts
+    for t in np.arange(NO_READING_S, 2 * NO_READING_S - 0.05, 0.1):
+        clock[0] = float(t)
+        mon.check({"temperature_c": np.array([])}, "actuator")
+    clock[0] = 2 * NO_READING_S + 0.01
+    with pytest.raises(SafetyTrip, match="max_temperature_c: no valid reading") as trip:
+        mon.check({"temperature_c": np.array([])}, "actuator")
+    assert trip.value.detail["reason"] == "no valid reading"
 
 
 NO_FEEDBACK = """\
@@ -185,6 +218,9 @@ HOSTILE = [
     ("max_torque_nm: .inf", "max_torque_nm"),
     ("max_temperature_c: -300", "max_temperature_c"),
     ("debounce_samples: -2", "debounce_samples"),
+    ("debounce_samples: true", "debounce_samples"),
+    ("max_temperature_c: '70'", "max_temperature_c"),
+    ("max_thrust_n: '20'", "max_thrust_n"),
     ("torque_channel: fx", "torque_channel"),
     ("min_bus_v: 50\n  max_bus_v: 40", "min_bus_v"),
 ]
@@ -254,10 +290,24 @@ limits:
 """
 
 
+SLOW_BENCH_PROTOCOL = BENCH_PROTOCOL.replace("[0, 300, 300, 300]", "[0, 300, 300, 300, 300]").replace(
+    "{samples: 300, rate_hz: 1000}", "{seconds: 2, rate_hz: 1000}")
+
+
 @pytest.mark.slow
-def test_thermistor_telemetry_from_the_bridge_trips_the_temperature_limit(tmp_path, capsys):
+@pytest.mark.parametrize("telemetry_hz, adc_max, protocol_text, reason", [
+    (50, 4095, BENCH_PROTOCOL, None),
+    # one frame every 0.5 s: the blocks between frames hold none and must not reset the count
+    (2, 4095, SLOW_BENCH_PROTOCOL, None),
+    # every count beyond a 10-count full scale: railed, no temperature at all
+    (50, 10, SLOW_BENCH_PROTOCOL, "no valid reading"),
+])
+def test_thermistor_telemetry_from_the_bridge_trips_the_temperature_limit(
+        telemetry_hz, adc_max, protocol_text, reason, tmp_path, capsys):
     """The STM32 bridge twin on TCP prints the motor's thermistor as ADC counts (Beta 3950,
-    10 k divider); the rig file's `thermistor:` converts them; the motor heats at 300 counts."""
+    10 k divider); the rig file's `thermistor:` converts them; the motor heats at 300 counts.
+    Slow telemetry still trips in time; a railed thermistor stops the run, it does not turn
+    the limit off."""
     import dataclasses
 
     from rigtool.sim.live import LiveTwin
@@ -270,7 +320,7 @@ def test_thermistor_telemetry_from_the_bridge_trips_the_temperature_limit(tmp_pa
                                   feedback=("speed_rpm", "current_a", "voltage_v", "temperature_c"))
     thermistor = Thermistor(beta_k=3950)
     live = LiveTwin(ThrusterTwin(profile, seed=5)).start()
-    fw = Stm32BridgeTwin(live, telemetry_hz=50, thermistor=thermistor, dialect=Dialect(
+    fw = Stm32BridgeTwin(live, telemetry_hz=telemetry_hz, thermistor=thermistor, dialect=Dialect(
         telemetry="TEL {speed_rpm:.1f} {current_a:.3f} {voltage_v:.2f} {thermistor_counts}")).start()
     box = NetFTTwin(live).start()
     try:
@@ -282,18 +332,21 @@ def test_thermistor_telemetry_from_the_bridge_trips_the_temperature_limit(tmp_pa
             "rigtool_rig: 1\nname: hot-bench\nthrust: {channel: fz, sign: -1}\n"
             f"actuator: {{driver: stm32-bridge, url: '{fw.url}', timeout_s: 0.5,\n"
             f"  telemetry_regex: '{regex}',\n"
-            "  thermistor: {beta_k: 3950, r0_ohm: 10000, series_ohm: 10000, adc_max: 4095}}\n"
+            f"  thermistor: {{beta_k: 3950, r0_ohm: 10000, series_ohm: 10000, adc_max: {adc_max}}}}}\n"
             f"sensor: {{driver: ati-netft, host: {host}, port: {port}, "
             f"http_port: {box.http_port}}}\n")
         protocol = tmp_path / "p.yaml"
-        protocol.write_text(BENCH_PROTOCOL)
+        protocol.write_text(protocol_text)
         db = tmp_path / "db.sqlite"
         assert main(["sweep", str(protocol), "--rig", str(rig), "--db", str(db)]) == 1
         store = Store(db)
         run_id = store.resolve_run_id("last")
         trip = store.events(run_id, "limit_trip")[0]["detail"]
         assert trip["limit"] == "max_temperature_c" and trip["source"] == "actuator"
-        assert trip["value"] > 35 and trip["readings"] >= 3
+        if reason is None:
+            assert trip["value"] > 35 and trip["readings"] >= 3
+        else:
+            assert trip["reason"] == reason and "no valid reading" in trip["message"]
         assert fw.ccr[fw.thruster_channel] == fw.neutral_ccr  # at neutral
         assert "max_temperature_c" in capsys.readouterr().err
     finally:

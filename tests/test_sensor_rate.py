@@ -14,6 +14,7 @@ from rigtool.devices.ascii_gauge import AsciiGauge
 from rigtool.devices.depth import PresetDepth
 from rigtool.devices.netft import NetFTSensor
 from rigtool.engine import Engine, decimated
+from rigtool.errors import DeviceError
 from rigtool.plan import TimingRefused, expand, sensor_timing
 from rigtool.protocol import load_protocol
 from rigtool.rig import RigSet
@@ -48,7 +49,10 @@ def test_timing_per_case(write_yaml):
     protocol, _ = _protocol(write_yaml)  # 500 samples at 500 Hz: 1 s
     same = sensor_timing(protocol, None)
     assert (same.how, same.sensor_rate_hz, same.n_read, same.decimate) == ("as planned", 500, 500, 1)
-    assert sensor_timing(protocol, 505.0).how == "as planned"  # within 2 %: the protocol's
+    near = sensor_timing(protocol, 505.0)  # within 2 %: the protocol's count at the real rate
+    assert (near.how, near.n_stored, near.stored_rate_hz) == ("as planned", 500, 505.0)
+    off = sensor_timing(protocol, 1010.0)  # 1 % fast: stored at what was acquired, 505 Hz
+    assert (off.how, off.decimate, off.n_stored, off.stored_rate_hz) == ("decimated", 2, 500, 505.0)
     fast = sensor_timing(protocol, 1000.0)
     assert (fast.how, fast.decimate, fast.n_read, fast.n_stored, fast.stored_rate_hz) == (
         "decimated", 2, 1000, 500, 500.0)
@@ -115,11 +119,67 @@ def test_a_1khz_netft_under_a_500hz_protocol_is_averaged_over_the_whole_duration
         box.stop()
     assert timing.how == "decimated" and timing.decimate == 2
     for step in store.steps(run_id):
-        assert step["rate_hz"] == 500.0 and step["n"] == 500
+        assert step["rate_hz"] == pytest.approx(500.0, rel=0.02) and step["n"] == 500
+        assert step["rate_hz"] == timing.stored_rate_hz
         assert _acquired_s(store, run_id, step) == pytest.approx(1.0, abs=0.05)
         assert step["t_end_s"] - step["t_acquire_s"] >= 0.95
     event = store.events(run_id, "sensor_rate")[0]["detail"]
     assert event["how"] == "decimated" and event["sensor_rate_hz"] == pytest.approx(1000, rel=0.02)
+
+
+def _twin_box(live, xml_rate: str | None, monkeypatch) -> NetFTTwin:
+    """A Net F/T twin streaming at the live twin's rate whose XML states `xml_rate`."""
+    if xml_rate is not None:
+        stated = NetFTTwin.netftapi2_xml
+        monkeypatch.setattr(NetFTTwin, "netftapi2_xml", lambda self: stated(self).replace(
+            f"<comrdtrate>{self.live.rate_hz:g}</comrdtrate>", f"<comrdtrate>{xml_rate}</comrdtrate>"))
+    return NetFTTwin(live).start()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("live_hz, xml_rate, stored_hz, note", [
+    (1000.0, "500", 500.0, True),  # the XML is wrong: the measured 1 kHz is averaged 2 to 1
+    (1010.0, None, 505.0, False),  # 1 % fast and says so: stored at 505 Hz, as acquired
+    (990.0, None, 495.0, False),
+])
+def test_a_netft_rate_is_checked_and_stored_as_acquired(live_hz, xml_rate, stored_hz, note,
+                                                        write_yaml, db_path, monkeypatch):
+    """Before: the XML's rate was trusted (500 stated, 1 kHz streamed: each point 0.5 s)
+    and a box 1 % off stored its points at the protocol's 500 Hz."""
+    from rigtool.sim.live import LiveTwin
+    from rigtool.sim.physics import ThrusterTwin
+    from rigtool.thruster_profiles import PROFILES
+
+    live = LiveTwin(ThrusterTwin(PROFILES["can-bldc"], seed=1), rate_hz=live_hz).start()
+    box = _twin_box(live, xml_rate, monkeypatch)
+    try:
+        host, port = box.address
+        config = {"driver": "ati-netft", "host": host, "port": port, "http_port": box.http_port}
+        protocol, path = _protocol(write_yaml)
+        store, run_id, timing = _sweep(protocol, path, NetFTSensor(config), live, db_path)
+    finally:
+        box.stop()
+        live.stop()
+    assert timing.decimate == 2
+    event = store.events(run_id, "sensor_rate")[0]["detail"]
+    assert event["sensor_rate_hz"] == pytest.approx(live_hz, rel=0.01)
+    for step in store.steps(run_id):
+        assert step["rate_hz"] == pytest.approx(stored_hz, rel=0.005) and step["n"] == 500
+        assert _acquired_s(store, run_id, step) == pytest.approx(500 / stored_hz, abs=0.05)
+    warned = [e["detail"]["message"] for e in store.events(run_id, "warning")]
+    assert any("states 500 Hz but streams at" in m for m in warned) == note
+
+
+@pytest.mark.parametrize("rate", ["nan", "inf", "-5", "0", "1e9"])
+def test_a_hostile_rdt_rate_is_a_clear_error(rate, live):
+    """comrdtrate nan/inf was a traceback, 1e9 a 2,000,000:1 decimation that hung the run."""
+    from rigtool.devices.netft import parse_netftapi2
+
+    box = NetFTTwin(live)
+    xml = box.netftapi2_xml().replace(f"<comrdtrate>{live.rate_hz:g}</comrdtrate>",
+                                      f"<comrdtrate>{rate}</comrdtrate>")
+    with pytest.raises(DeviceError, match=f"comrdtrate '{rate}' is not a usable RDT rate"):
+        parse_netftapi2(xml, "http://box/netftapi2.xml")
 
 
 @pytest.mark.slow

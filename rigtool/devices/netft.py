@@ -62,7 +62,13 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from rigtool.bounds import MAX_SAMPLES_PER_POINT, PositiveScale, PositiveSeconds
+from rigtool.bounds import (
+    MAX_RATE_HZ,
+    MAX_SAMPLES_PER_POINT,
+    MIN_RATE_HZ,
+    PositiveScale,
+    PositiveSeconds,
+)
 from rigtool.devices import mmsg
 from rigtool.devices.base import Device, ForceBlock
 from rigtool.devices.buffer import SampleBuffer
@@ -177,7 +183,10 @@ def parse_netftapi2(xml_text: str | bytes, source: str = "netftapi2.xml") -> Net
     try:
         rate = float(values["comrdtrate"]) if values.get("comrdtrate") else None
     except ValueError:
-        rate = None
+        rate = None  # unreadable: the rate is measured
+    if rate is not None and not (math.isfinite(rate) and MIN_RATE_HZ <= rate <= MAX_RATE_HZ):
+        raise DeviceError(f"{source}: comrdtrate {values['comrdtrate']!r} is not a usable RDT "
+                          f"rate (finite, {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz)")
     return NetFTCalibration(cpf / fu, cpt / tu, source, rate, values["scfgfu"], values["scfgtu"])
 
 
