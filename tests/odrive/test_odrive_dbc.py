@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import time
-import uuid
 
 import cantools
 import numpy as np
@@ -24,9 +23,9 @@ from rigtool.rig import load_rig
 from rigtool.sim.odrive_twin import ODRIVE_DBC, OdriveTwin
 from rigtool.thruster_profiles import PROFILES
 
-from .helpers import drain, wait_for
+from ..helpers import drain, wait_for
+from .conftest import NODE
 
-NODE = 3
 IDLE, CLOSED_LOOP_CONTROL = 1, 8
 VENDOR_SHA256 = "4db07a4cef0ee1a87cfbfc779cabd7db3176072c688a694e3b8842c2dd9bcb55"
 MAX_SPEED = PROFILES["can-bldc"].max_speed_rpm
@@ -37,35 +36,6 @@ def decode(msg) -> tuple[str, dict]:
     """A recorded frame as the vendor DBC reads it: (message name, raw signal values)."""
     message = VENDOR.get_message_by_frame_id(msg.arbitration_id)
     return message.name, message.decode(bytes(msg.data), decode_choices=False)
-
-
-@pytest.fixture
-def channel() -> str:
-    return f"odrive-{uuid.uuid4().hex[:10]}"
-
-
-@pytest.fixture
-def twin(live, channel):
-    twin = OdriveTwin(live, channel=channel, node_id=NODE).start()
-    yield twin
-    twin.stop()
-
-
-@pytest.fixture
-def open_driver(channel):
-    """Factory for odrive_velocity drivers on the test's channel; all closed at teardown."""
-    drivers = []
-
-    def _open(**fields) -> DbcCanDriver:
-        cfg = {"driver": "dbc-can", "interface": "virtual", "channel": channel,
-               "mapping": "odrive_velocity", "node_id": NODE, "timeout_s": 0.5, **fields}
-        driver = DbcCanDriver(DbcCanConfig(**cfg))
-        drivers.append(driver)
-        return driver
-
-    yield _open
-    for driver in drivers:
-        driver.close()
 
 
 def test_the_vendor_file_is_shipped_unmodified():

@@ -8,8 +8,6 @@ axis that leaves closed loop without an error (W1) must each stop or refuse, nev
 
 from __future__ import annotations
 
-import uuid
-
 import pytest
 import yaml
 from pydantic import ValidationError
@@ -18,12 +16,12 @@ from rigtool.cli import main
 from rigtool.devices.dbc_can import DbcCanConfig, DbcCanDriver, DbcMismatch
 from rigtool.errors import ConfigError, DeviceError, UsageError
 from rigtool.rig import load_rig
-from rigtool.sim.odrive_twin import CLOSED_LOOP_CONTROL, IDLE, OdriveTwin
+from rigtool.sim.odrive_twin import CLOSED_LOOP_CONTROL, IDLE
 
-from .conftest import ROOT
-from .helpers import drain, wait_for
+from ..conftest import ROOT
+from ..helpers import drain, wait_for
+from .conftest import NODE
 
-NODE = 3
 PROTOCOL = """\
 rigtool_protocol: 1
 name: odrive-attack
@@ -38,33 +36,6 @@ timing:
   tare_s: 0.2
 limits: {max_thrust_n: 90, max_speed_rpm: 2000, slew_per_s: 3000}
 """
-
-
-@pytest.fixture
-def channel() -> str:
-    return f"odrive-atk-{uuid.uuid4().hex[:10]}"
-
-
-@pytest.fixture
-def twin(live, channel):
-    twin = OdriveTwin(live, channel=channel, node_id=NODE).start()
-    yield twin
-    twin.stop()
-
-
-@pytest.fixture
-def open_driver(channel):
-    drivers = []
-
-    def _open(**fields) -> DbcCanDriver:
-        cfg = {"driver": "dbc-can", "interface": "virtual", "channel": channel,
-               "mapping": "odrive_velocity", "node_id": NODE, "timeout_s": 0.5, **fields}
-        drivers.append(DbcCanDriver(DbcCanConfig(**cfg)))
-        return drivers[-1]
-
-    yield _open
-    for driver in drivers:
-        driver.close()
 
 
 def odrive_rig(write_yaml, channel: str, **actuator) -> str:
