@@ -15,9 +15,12 @@ _ESCAPED = frozenset([chr(c) for c in range(0x20)] + list("\"#%'*/:=?\\\x7f{[]^ 
 
 
 def encode_value(value: str | None) -> str:
-    """`value` as the text after `key=` in a folder name; None and "" as HIVE_NULL."""
+    """`value` as the text after `key=` in a folder name; None and "" as HIVE_NULL, and the
+    text HIVE_NULL itself with its first `_` encoded (DuckDB reads it back as text)."""
     if value is None or value == "":
         return HIVE_NULL
+    if value == HIVE_NULL:
+        return "%5F" + value[1:]
     return "".join(f"%{ord(c):02X}" if c in _ESCAPED else c for c in value)
 
 
