@@ -8,6 +8,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import re
 import signal
 import sqlite3
 import subprocess
@@ -268,3 +269,24 @@ def test_a_second_exporter_is_refused_while_one_writes(lab, capsys):
         assert _export(out, db) == 1
     assert "another rigtool export is writing" in capsys.readouterr().err
     assert _export(out, db) == 0
+
+
+def test_the_documented_duckdb_and_pyarrow_reads_work(lab):
+    """docs/sql.md's DuckDB view and queries and its pyarrow snippet, run on a dataset."""
+    _, db, ids, out = lab
+    text = (Path(__file__).resolve().parents[1] / "docs" / "sql.md").read_text()
+    section = text[text.index("## The lab dataset"):]
+    (sql,) = [b for b in re.findall(r"```sql\n(.*?)```", section, re.S) if "CREATE VIEW" in b]
+    con = duckdb.connect()
+    view, curve, noise = [s for s in sql.replace("DIR", str(out)).split(";") if s.strip()]
+    con.execute(view)
+    rows = con.execute(curve).fetchall()
+    assert {(t, r) for t, r, _, _ in rows} == {("bow-1", ids[0]), ("stern-2", ids[1])}
+    assert len(rows) == 2 * 9
+    per_point = con.execute(noise).fetchall()
+    assert sum(n for *_, n, _ in per_point) == sum(n for n, _ in _store_counts(db).values())
+    (code,) = [b for b in re.findall(r"```python\n(.*?)```", section, re.S) if "ds.dataset" in b]
+    scope: dict = {}
+    exec(compile(code.replace('"DIR"', repr(str(out))), "docs/sql.md", "exec"), scope)
+    bow = scope["bow"].to_pandas()
+    assert set(bow.run_id) == {ids[0]} and len(bow) == _store_counts(db)[ids[0]][0]

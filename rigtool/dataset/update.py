@@ -21,7 +21,7 @@ from rigtool.dataset.files import (
 from rigtool.dataset.hive import segment
 from rigtool.dataset.manifest import MANIFEST, Entry, read_manifest, write_manifest
 from rigtool.dataset.partition import DATA_FILE, DATASET_VERSION, SCHEMA, write_partition
-from rigtool.errors import UsageError
+from rigtool.errors import RigtoolError, UsageError
 from rigtool.ids import utc_now
 from rigtool.store import RunRecord, Store
 from rigtool.version import __version__
@@ -41,18 +41,27 @@ class Summary:
 
 
 def export_dataset(store: Store, folder: Path) -> Summary:
-    """Update the dataset in `folder` from `store` (see the module docstring)."""
+    """Update the dataset in `folder` from `store` (see the module docstring). Runs are
+    planned and checked before the folder is made or anything is written in it."""
     _check_folder(folder)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except (FileExistsError, NotADirectoryError):
-        raise UsageError(f"--all {folder}: a part of the path is a file; give a folder for "
-                         "the dataset") from None
-    with exclusive(folder):
-        old = read_manifest(folder)
-        if old is None:  # marks the folder as a dataset before any partition is written
-            write_manifest(folder, {}, _schema_names(), DATASET_VERSION)
-        return _Update(store, folder, old or {}).run()
+    old = read_manifest(folder) if folder.is_dir() else None
+    with store.snapshot():
+        update = _Update(store, folder, old or {})
+        todo = update.plan()
+        for record, _ in todo:  # a damaged run is refused before any file is written
+            store.check_run(record.id)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except (FileExistsError, NotADirectoryError):
+            raise UsageError(f"--all {folder}: a part of the path is a file; give a folder "
+                             "for the dataset") from None
+        with exclusive(folder):
+            if read_manifest(folder) != old:
+                raise RigtoolError(f"another rigtool export changed {folder} meanwhile; run "
+                                   "this one again")
+            if old is None:  # marks the folder as a dataset before any partition is written
+                write_manifest(folder, {}, _schema_names(), DATASET_VERSION)
+            return update.write(todo)
 
 
 def _check_folder(folder: Path) -> None:
@@ -62,7 +71,7 @@ def _check_folder(folder: Path) -> None:
     if (folder.is_dir() and not (folder / MANIFEST).is_file()
             and any(p.name != LOCK for p in folder.iterdir())):
         raise UsageError(f"--all {folder}: the folder holds files but no rigtool dataset "
-                             f"({MANIFEST}); give an empty or new folder")
+                         f"({MANIFEST}); give an empty or new folder")
 
 
 def _schema_names() -> dict[str, str]:
@@ -85,7 +94,7 @@ def partition_file(folder: Path, run_id: str, thruster_id: str | None) -> Path:
 
 
 class _Update:
-    """One export: plan from fingerprints, check, write the changed runs, save the manifest."""
+    """One export: plan from fingerprints, write the changed runs, save the manifest."""
 
     def __init__(self, store: Store, folder: Path, old: dict[str, Entry]) -> None:
         self.store, self.folder, self.old = store, folder, old
@@ -93,15 +102,13 @@ class _Update:
         self.summary = Summary()
         self.saved_at = time.monotonic()
 
-    def run(self) -> Summary:
-        with self.store.snapshot():
-            todo = self._plan()
-            for record, _ in todo:  # a damaged run is refused before any file is written
-                self.store.check_run(record.id)
-            for record, fingerprint in todo:
-                self._write(record, fingerprint)
-                if time.monotonic() - self.saved_at > CHECKPOINT_S:
-                    self._save()
+    def write(self, todo: list[tuple[RunRecord, dict]]) -> Summary:
+        """Write the planned runs, then the calibrations table and the manifest if anything
+        changed."""
+        for record, fingerprint in todo:
+            self._write(record, fingerprint)
+            if time.monotonic() - self.saved_at > CHECKPOINT_S:
+                self._save()
         changed = (bool(todo) or self.runs != self.old
                    or not (self.folder / CALIBRATIONS_FILE).is_file())
         if changed:
@@ -113,7 +120,7 @@ class _Update:
         self.summary.rows = sum(e.rows for e in self.runs.values())
         return self.summary
 
-    def _plan(self) -> list[tuple[RunRecord, dict]]:
+    def plan(self) -> list[tuple[RunRecord, dict]]:
         """The runs to write with their fingerprints; the others carried over as they are."""
         todo = []
         here = set()
