@@ -6,15 +6,14 @@ coefficients ride in the file's footer metadata."""
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from rigtool.dataset.calibrations import calibration_rows
 from rigtool.errors import DataError
-from rigtool.export import CALIBRATION_COLUMNS, _coefficient_rows
 from rigtool.store import MISSING_INT, SAMPLE_COLUMNS, RunRecord, Store
 
 DATASET_VERSION = 1  # the layout and schema below; a new one rewrites every partition
@@ -29,7 +28,6 @@ POINT_FIELDS = {"step_idx": ("step_idx", pa.int64()), "point_command": ("command
 SAMPLE_FIELDS = {c: pa.int64() if c == "seq" else pa.float64() for c in SAMPLE_COLUMNS[1:]}
 SCHEMA = pa.schema([*RUN_FIELDS.items(), *((k, t) for k, (_, t) in POINT_FIELDS.items()),
                     *SAMPLE_FIELDS.items()])
-CALIBRATION_KEYS = CALIBRATION_COLUMNS[3:]  # created_utc ... n: run_id, thruster_id, rig aside
 
 
 def write_partition(store: Store, record: RunRecord, path: Path) -> int:
@@ -46,20 +44,6 @@ def write_partition(store: Store, record: RunRecord, path: Path) -> int:
             writer.write_table(_rows(chunk, points, record, schema))
             rows += len(chunk["step_idx"])
     return rows
-
-
-def calibration_rows(store: Store, run_id: str) -> list[list]:
-    """The run's latest calibration as rows of CALIBRATION_KEYS (one per coefficient of each
-    section, as calibrations tables have them); none when the run was never calibrated."""
-    cal = store.latest_calibration(run_id)
-    if cal is None:
-        return []
-    return [[cal["created_utc"], cal["out_dir"], *(_finite(v) for v in row)]
-            for row in _coefficient_rows(cal["summary"])]
-
-
-def _finite(value: object) -> object:
-    return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
 def _rows(chunk: dict[str, np.ndarray], points: dict[str, np.ndarray], record: RunRecord,
