@@ -290,3 +290,46 @@ def test_the_documented_duckdb_and_pyarrow_reads_work(lab):
     exec(compile(code.replace('"DIR"', repr(str(out))), "docs/sql.md", "exec"), scope)
     bow = scope["bow"].to_pandas()
     assert set(bow.run_id) == {ids[0]} and len(bow) == _store_counts(db)[ids[0]][0]
+
+
+def test_a_run_that_changed_thruster_moves_and_an_empty_run_is_an_empty_partition(lab, capsys):
+    """A copy of a run in another database with another thruster id (crafted or edited):
+    the run's partition moves, the old folder goes. A run with no points: a file of no rows
+    in the same schema."""
+    tmp, db, ids, out = lab
+    con = sqlite3.connect(db)
+    con.execute("UPDATE runs SET metadata_json = json_set(metadata_json, '$.thruster_id', "
+                "'port-3') WHERE id = ?", (ids[1],))
+    con.execute("PRAGMA foreign_keys = ON")
+    con.execute("DELETE FROM steps WHERE run_id = ?", (ids[0],))  # its blocks cascade
+    con.commit()
+    con.close()
+    assert _export(out, db) == 0
+    assert not (out / "thruster_id=stern-2").exists()
+    assert (out / "thruster_id=port-3" / f"run_id={ids[1]}" / "samples.parquet").is_file()
+    assert _duckdb_counts(out) == {ids[1]: _store_counts(db)[ids[1]]}
+    empty = ds.dataset(out / "thruster_id=bow-1", format="parquet", partitioning="hive")
+    assert empty.count_rows() == 0 and "thrust_n" in empty.schema.names
+    assert json.loads((out / "_rigtool_manifest.json").read_text())["runs"][ids[0]]["rows"] == 0
+
+
+def test_a_planted_symlink_is_refused_and_nothing_is_written_outside(lab, capsys):
+    tmp, db, _, out = lab
+    elsewhere = tmp / "elsewhere"
+    elsewhere.mkdir()
+    (out / "thruster_id=new-1").symlink_to(elsewhere, target_is_directory=True)
+    new = _sweep(tmp, db, 40, "new-1", SMALL_PROTOCOL)
+    capsys.readouterr()
+    assert _export(out, db) == 2
+    assert "is a symlink" in capsys.readouterr().err
+    assert list(elsewhere.iterdir()) == []
+    victim = tmp / "victim.txt"
+    victim.write_text("precious")
+    (out / "thruster_id=new-1").unlink()
+    part = out / "thruster_id=new-1" / f"run_id={new}"
+    part.mkdir(parents=True)
+    (part / ".samples.parquet.tmp").symlink_to(victim)  # a temporary name, planted
+    assert _export(out, db) == 0
+    assert (part / "samples.parquet").is_file() and not (part / ".samples.parquet.tmp").exists()
+    assert victim.read_text() == "precious"
+    assert _duckdb_counts(out) == _store_counts(db)

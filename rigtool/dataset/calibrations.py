@@ -111,10 +111,11 @@ def _stored_rows(path: Path) -> list[list]:
         meta = pq.read_schema(path).metadata or {}
         rows = json.loads(meta.get(b"rigtool_calibration", b"[]"))
     except (OSError, pa.ArrowException, ValueError, RecursionError) as exc:
-        raise DataError(f"dataset file {path}: unreadable ({str(exc)[:120]}); export to a new "
-                        "folder") from None
+        raise DataError(f"dataset file {path}: unreadable ({str(exc)[:120]}); delete its "
+                        "partition folder and export again") from None
     if not isinstance(rows, list) or not all(
             isinstance(r, list) and len(r) == len(CALIBRATION_KEYS) for r in rows):
         raise DataError(f"dataset file {path}: its calibration footer is not rows of "
-                        f"{len(CALIBRATION_KEYS)} values; export to a new folder")
+                        f"{len(CALIBRATION_KEYS)} values; delete its partition folder and "
+                        "export again")
     return rows

@@ -25,6 +25,7 @@ def replace_atomically(path: Path, write: Callable[[Path], object]) -> None:
     """Write `path` through `write(temp path)`, flush it to disk, and rename it over `path`: a
     crash at any moment leaves the old file or the new one, never half of one."""
     tmp = temp_name(path)
+    tmp.unlink(missing_ok=True)  # a leftover, or a planted symlink the writer would follow
     try:
         write(tmp)
         with tmp.open("rb+") as fh:
@@ -57,11 +58,15 @@ def exclusive(folder: Path) -> Iterator[None]:
 
 
 def partition_dir(root: Path, *segments: str) -> Path:
-    """`root`/segments, made if missing, refused when a symlink there leads out of `root`."""
-    folder = root.joinpath(*segments)
-    folder.mkdir(parents=True, exist_ok=True)
-    if not folder.resolve().is_relative_to(root.resolve()):
-        raise UsageError(f"{folder} leads outside {root} (a symlink?); export to another folder")
+    """`root`/segments, each folder made if missing; a symlink among them is refused, so no
+    folder is ever made or written outside `root`."""
+    folder = root
+    for name in segments:
+        folder = folder / name
+        if folder.is_symlink():
+            raise UsageError(f"{folder} is a symlink; a dataset's partition folders must be "
+                             "folders: remove it or export to another folder")
+        folder.mkdir(exist_ok=True)
     return folder
 
 
