@@ -1,26 +1,18 @@
-"""`_calibrations.pq`: the latest calibration's coefficients of every run in the dataset, one
-row per coefficient and section, with the section's depth, supply voltage, role and whether it
-is the API's main one. Each partition file's footer carries its run's rows; the table is
-gathered from the footers, so it covers runs exported from every database. Its name keeps it
-out of the samples table: no `.parquet` ending, a leading `_`."""
+"""A run's latest calibration as rows of the dataset's calibrations table: one per coefficient
+and section, with the section's depth, supply voltage, role (deep or shallow) and whether it is
+the one the API and the vehicle artefacts use by default."""
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterator
-from pathlib import Path
 
 import pyarrow as pa
-import pyarrow.parquet as pq
 
 from rigtool.analysis.results import DEEP_DEPTH_M
 from rigtool.api import deepest_depth, middle_voltage
-from rigtool.dataset.files import replace_atomically
-from rigtool.errors import DataError
 from rigtool.store import Store
 
-CALIBRATIONS_FILE = "_calibrations.pq"
 _TEXT = pa.string()
 _TYPES = {"run_id": _TEXT, "thruster_id": _TEXT, "rig": _TEXT, "created_utc": _TEXT,
           "out_dir": _TEXT, "depth_m": pa.float64(), "supply_voltage_v": pa.float64(),
@@ -29,22 +21,6 @@ _TYPES = {"run_id": _TEXT, "thruster_id": _TEXT, "rig": _TEXT, "created_utc": _T
           "n": pa.int64()}
 SCHEMA = pa.schema(list(_TYPES.items()))
 CALIBRATION_KEYS = tuple(_TYPES)[3:]  # a footer row: created_utc ... n (the run's keys aside)
-
-
-def write_calibrations(folder: Path, files: dict[str, tuple[Path, str | None, str | None]]
-                       ) -> None:
-    """Rebuild the table from `files` (run id -> partition file, thruster id, rig)."""
-    rows: list[list] = []
-    for run_id, (path, thruster_id, rig) in sorted(files.items()):
-        rows += [[run_id, thruster_id, rig, *row] for row in _stored_rows(path)]
-    try:
-        table = pa.Table.from_pylist([dict(zip(_TYPES, r, strict=True)) for r in rows],
-                                     schema=SCHEMA)
-    except (pa.ArrowException, TypeError, ValueError) as exc:
-        raise DataError(f"dataset {folder}: a partition's calibration footer holds a value of "
-                        f"the wrong type ({str(exc)[:120]}); export to a new folder") from None
-    replace_atomically(folder / CALIBRATIONS_FILE,
-                       lambda tmp: pq.write_table(table, tmp, compression="zstd"))
 
 
 def calibration_rows(store: Store, run_id: str) -> list[list]:
@@ -103,19 +79,3 @@ def _role(depth: float | None, deep_m: float) -> str:
 def _coefficient(c: dict) -> tuple:
     """value, lo, hi, unit and n of a stored coefficient."""
     return c.get("value"), c.get("lo"), c.get("hi"), c.get("unit"), c.get("n")
-
-
-def _stored_rows(path: Path) -> list[list]:
-    """The coefficient rows a partition file's footer carries, their shape checked."""
-    try:
-        meta = pq.read_schema(path).metadata or {}
-        rows = json.loads(meta.get(b"rigtool_calibration", b"[]"))
-    except (OSError, pa.ArrowException, ValueError, RecursionError) as exc:
-        raise DataError(f"dataset file {path}: unreadable ({str(exc)[:120]}); delete its "
-                        "partition folder and export again") from None
-    if not isinstance(rows, list) or not all(
-            isinstance(r, list) and len(r) == len(CALIBRATION_KEYS) for r in rows):
-        raise DataError(f"dataset file {path}: its calibration footer is not rows of "
-                        f"{len(CALIBRATION_KEYS)} values; delete its partition folder and "
-                        "export again")
-    return rows

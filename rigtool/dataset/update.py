@@ -10,7 +10,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rigtool.dataset.calibrations import CALIBRATIONS_FILE, write_calibrations
 from rigtool.dataset.files import (
     LOCK,
     exclusive,
@@ -21,6 +20,7 @@ from rigtool.dataset.files import (
 from rigtool.dataset.hive import segment
 from rigtool.dataset.manifest import MANIFEST, Entry, read_manifest, write_manifest
 from rigtool.dataset.partition import DATA_FILE, DATASET_VERSION, SCHEMA, write_partition
+from rigtool.dataset.tables import CALIBRATIONS_FILE, RUNS_FILE, write_tables
 from rigtool.errors import RigtoolError, UsageError
 from rigtool.ids import utc_now
 from rigtool.store import RunRecord, Store
@@ -110,11 +110,12 @@ class _Update:
             if time.monotonic() - self.saved_at > CHECKPOINT_S:
                 self._save()
         changed = (bool(todo) or self.runs != self.old
-                   or not (self.folder / CALIBRATIONS_FILE).is_file())
+                   or not (self.folder / CALIBRATIONS_FILE).is_file()
+                   or not (self.folder / RUNS_FILE).is_file())
         if changed:
-            write_calibrations(self.folder, {
-                run_id: (partition_file(self.folder, run_id, e.thruster_id), e.thruster_id,
-                         e.rig) for run_id, e in self.runs.items()})
+            write_tables(self.folder, {
+                run_id: (partition_file(self.folder, run_id, e.thruster_id), e)
+                for run_id, e in self.runs.items()})
             self._save()
         self.summary.runs = len(self.runs)
         self.summary.rows = sum(e.rows for e in self.runs.values())
