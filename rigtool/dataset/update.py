@@ -131,9 +131,9 @@ class _Update:
             record = self.store.run_record(run_id)
             fingerprint.update(dataset_version=DATASET_VERSION, thruster_id=record.thruster_id,
                                rig=record.rig_name)
-            path = partition_file(self.folder, run_id, record.thruster_id)
-            entry = self.old.get(run_id)
-            intact = entry is not None and _intact(path, entry)
+            entry = self.old.get(run_id)  # its file is where the entry's thruster id puts it
+            intact = entry is not None and _intact(
+                partition_file(self.folder, run_id, entry.thruster_id), entry)
             if intact and entry.fingerprint == fingerprint:
                 self.runs[run_id] = Entry(**{**entry.__dict__, "in_last_source": True})
                 self.summary.unchanged += 1
