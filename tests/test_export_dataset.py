@@ -181,7 +181,14 @@ def test_an_id_too_long_for_a_folder_is_refused_before_anything_is_written(tmp_p
     assert _export(out, db) == 2
     err = capsys.readouterr().err
     assert "thruster_id is 300 bytes as a folder name" in err and "Traceback" not in err
-    assert not list(out.rglob("*.parquet"))
+    assert not out.exists()
+    con = sqlite3.connect(db)  # a crafted thruster id that is no text: a lone surrogate
+    con.execute("""UPDATE runs SET metadata_json = '{"thruster_id": "\\ud800"}'""")
+    con.commit()
+    con.close()
+    assert _export(out, db) == 2
+    err = capsys.readouterr().err
+    assert "is not valid text" in err and "Traceback" not in err and not out.exists()
 
 
 def _export_process(out: Path, db: Path, fsize: int, crash: bool) -> subprocess.CompletedProcess:

@@ -140,7 +140,8 @@ class _Update:
                 continue
             if intact:  # listed as it is on disk until its new file replaces it
                 self.runs[run_id] = entry
-            todo.append((record, fingerprint))
+            partition_file(self.folder, run_id, record.thruster_id)  # an id no folder takes:
+            todo.append((record, fingerprint))  # refused before anything is written
         for run_id, entry in self.old.items():
             if run_id not in here and _intact(
                     partition_file(self.folder, run_id, entry.thruster_id), entry):
