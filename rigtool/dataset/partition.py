@@ -39,26 +39,29 @@ def write_partition(store: Store, record: RunRecord, path: Path) -> int:
                                               allow_nan=False)}
     schema = SCHEMA.with_metadata(meta)
     rows = 0
-    with pq.ParquetWriter(str(path), schema, compression="zstd") as writer:
+    by_point = {k: _arrow(points[src], t) for k, (src, t) in POINT_FIELDS.items()}
+    texts = [f.name for f in SCHEMA if f.type == pa.string()]  # dictionaries pay off there
+    with pq.ParquetWriter(str(path), schema, compression="zstd", use_dictionary=texts) as writer:
         for chunk in store.iter_samples(record.id):
-            writer.write_table(_rows(chunk, points, record, schema))
+            writer.write_table(_rows(chunk, points["step_idx"], by_point, record, schema))
             rows += len(chunk["step_idx"])
     return rows
 
 
-def _rows(chunk: dict[str, np.ndarray], points: dict[str, np.ndarray], record: RunRecord,
-          schema: pa.Schema) -> pa.Table:
-    """A chunk of samples as dataset rows: the run's columns, its point's, its own."""
+def _rows(chunk: dict[str, np.ndarray], known: np.ndarray, by_point: dict[str, pa.Array],
+          record: RunRecord, schema: pa.Schema) -> pa.Table:
+    """A chunk of samples as dataset rows: the run's columns, its point's (taken from
+    `by_point`, the run's points in the order of `known` step indices), its own."""
     idx = chunk["step_idx"]
-    known = points["step_idx"]
     at = np.minimum(np.searchsorted(known, idx), max(len(known) - 1, 0))
     if len(idx) and (len(known) == 0 or (known[at] != idx).any()):
         raise DataError(f"run {record.id}: samples of a point the run does not hold")
     n = len(idx)
     run = {"rig": record.rig_name, "run_status": record.status,
            "command_unit": record.command_unit}
-    columns = [pa.array(np.full(n, run[k], dtype=object), type=t) for k, t in RUN_FIELDS.items()]
-    columns += [_arrow(points[src][at], t) for src, t in POINT_FIELDS.values()]
+    take = pa.array(at)
+    columns = [pa.repeat(pa.scalar(run[k], type=t), n) for k, t in RUN_FIELDS.items()]
+    columns += [by_point[k].take(take) for k in POINT_FIELDS]
     columns += [_arrow(chunk[k], t) for k, t in SAMPLE_FIELDS.items()]
     return pa.Table.from_arrays(columns, schema=schema)
 
