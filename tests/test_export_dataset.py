@@ -344,3 +344,20 @@ def test_a_planted_symlink_is_refused_and_nothing_is_written_outside(lab, capsys
     assert (part / "samples.parquet").is_file() and not (part / ".samples.parquet.tmp").exists()
     assert victim.read_text() == "precious"
     assert _duckdb_counts(out) == _store_counts(db)
+
+
+@pytest.mark.parametrize("plant", ["fifo", "symlink"])
+def test_a_planted_lock_file_is_refused_without_hanging(lab, capsys, plant):
+    tmp, db, _, out = lab
+    lock = out / "_rigtool_export.lock"
+    lock.unlink()
+    victim = tmp / "victim.txt"
+    victim.write_text("precious")
+    if plant == "fifo":
+        os.mkfifo(lock)  # opening it to write would wait for a reader for ever
+    else:
+        lock.symlink_to(victim)
+    assert _export(out, db) == 2
+    err = capsys.readouterr().err
+    assert "export lock" in err or "is not a file" in err
+    assert victim.read_text() == "precious"

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import stat
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -48,13 +49,23 @@ def _fsync_dir(folder: Path) -> None:
 @contextlib.contextmanager
 def exclusive(folder: Path) -> Iterator[None]:
     """Hold the dataset folder's export lock: a second export into it is refused, not mixed."""
-    with (folder / LOCK).open("a") as fh:
+    path = folder / LOCK
+    try:  # never through a planted symlink, never blocking on a planted FIFO
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot be opened as the export lock ({exc.strerror}); "
+                         "remove it") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise UsageError(f"{path} is not a file; remove it")
         try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise RigtoolError(f"another rigtool export is writing {folder}; try again when it "
                                "has finished") from None
         yield
+    finally:
+        os.close(fd)
 
 
 def partition_dir(root: Path, *segments: str) -> Path:
