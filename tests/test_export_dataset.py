@@ -361,3 +361,25 @@ def test_a_planted_lock_file_is_refused_without_hanging(lab, capsys, plant):
     err = capsys.readouterr().err
     assert "export lock" in err or "is not a file" in err
     assert victim.read_text() == "precious"
+
+
+def test_the_manifest_checkpoints_what_a_failed_export_already_wrote(lab, capsys, monkeypatch):
+    """With a checkpoint after every run, an export that fails on its second new run (a folder
+    where its file must go) has the first in the manifest: the next export writes only the
+    second."""
+    from rigtool.dataset import update
+
+    tmp, db, ids, out = lab
+    first, second = _sweep(tmp, db, 50, "bow-1"), _sweep(tmp, db, 51, "bow-1")
+    blocker = out / "thruster_id=bow-1" / f"run_id={second}" / "samples.parquet"
+    (blocker / "x").mkdir(parents=True)
+    monkeypatch.setattr(update, "CHECKPOINT_S", 0.0)
+    assert _export(out, db) == 1
+    assert "rigtool: error:" in capsys.readouterr().err
+    runs = json.loads((out / "_rigtool_manifest.json").read_text())["runs"]
+    assert first in runs and second not in runs
+    (blocker / "x").rmdir()
+    blocker.rmdir()
+    assert _export(out, db) == 0
+    assert "1 run(s) written, 3 unchanged" in capsys.readouterr().out
+    assert _duckdb_counts(out) == _store_counts(db)
