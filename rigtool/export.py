@@ -1,5 +1,5 @@
-"""`rigtool export`: a run's points, samples and events as CSV or Parquet; `--all`: every run
-of a database as one Parquet dataset (docs/sql.md).
+"""`rigtool export RUN`: a run's points, samples and events as CSV or Parquet (`--all`, the
+lab's Parquet dataset, is rigtool.dataset).
 
 Every table starts with run_id, thruster_id and rig, so files from many runs and rigs stack;
 the other column names are the Python API's. Parquet is built from numpy columns, zstd
@@ -16,12 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rigtool.analysis.results import DEEP_DEPTH_M
-from rigtool.api import deepest_depth, middle_voltage
 from rigtool.artefacts.encode import csv_safe_text
 from rigtool.artefacts.write import atomic_write
 from rigtool.errors import UsageError
-from rigtool.outpaths import inside, safe_component
+from rigtool.outpaths import inside
 from rigtool.store import MISSING_INT, RunRecord, Store
 
 FORMATS = ("csv", "parquet")
@@ -51,29 +49,6 @@ def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> li
             else:
                 atomic_write(path, lambda p, chunks=chunks: _write_parquet(p, chunks, record))
             written.append(path)
-    return written
-
-
-def export_all(store: Store, out_dir: Path) -> list[Path]:
-    """Every run as a Parquet dataset in `out_dir`: runs.parquet, calibrations.parquet and one
-    file per run in points/, samples/ and events/. Returns the paths written."""
-    written = []
-    with store.snapshot():
-        records = [store.run_record(r) for r in store.run_ids()]
-        for rec in records:
-            store.check_run(rec.id)  # a damaged run is refused before any file is written
-        for table in TABLES:
-            folder = out_dir / table
-            folder.mkdir(parents=True, exist_ok=True)
-            for rec in records:
-                path = inside(folder, f"{safe_component(rec.id)}.parquet")
-                chunks = _table(store, rec, table)
-                written.append(atomic_write(
-                    path, lambda p, c=chunks, r=rec: _write_parquet(p, c, r)))
-        written.append(atomic_write(out_dir / "runs.parquet", lambda p: _write_parquet(
-            p, [_runs_table(store, records)], None)))
-        written.append(atomic_write(out_dir / "calibrations.parquet", lambda p: _write_parquet(
-            p, [_calibrations_table(store, records)], None)))
     return written
 
 
@@ -111,100 +86,6 @@ def _with_keys(chunk: Chunk, record: RunRecord) -> Chunk:
     n = len(next(iter(chunk.values())))
     keys = {"run_id": record.id, "thruster_id": record.thruster_id, "rig": record.rig_name}
     return {**{k: np.full(n, v, dtype=object) for k, v in keys.items()}, **chunk}
-
-
-def _runs_table(store: Store, records: list[RunRecord]) -> Chunk:
-    counts = {r["id"]: r["n_steps"] for r in store.runs(limit=len(records) or 1)}
-
-    def col(values: list, dtype: object = object) -> np.ndarray:
-        return np.array(values, dtype=dtype)
-
-    return {
-        "run_id": col([r.id for r in records]),
-        "thruster_id": col([r.thruster_id for r in records]),
-        "rig": col([r.rig_name for r in records]),
-        "name": col([r.name for r in records]),
-        "status": col([r.status for r in records]),
-        "created_utc": col([r.created_utc for r in records]),
-        "finished_utc": col([r.finished_utc for r in records]),
-        "command_unit": col([r.command_unit for r in records]),
-        "neutral": col([r.neutral for r in records], float),
-        "n_planned": col([r.n_planned for r in records], np.int64),
-        "n_points": col([counts.get(r.id, 0) for r in records], np.int64),
-        "tool_version": col([r.tool_version for r in records]),
-        "metadata_json": col([json.dumps(r.metadata) for r in records]),
-        "protocol_json": col([json.dumps(r.protocol) for r in records]),
-    }
-
-
-CALIBRATION_COLUMNS = ("run_id", "thruster_id", "rig", "created_utc", "out_dir", "depth_m",
-                       "supply_voltage_v", "role", "main_section", "coefficient", "value", "lo",
-                       "hi", "unit", "n")
-LAW_TERMS = {"k": "C_n_law_k", "b": "C_n_law_b", "k_inverse": "C_n_law_k_inverse"}
-
-
-def _calibrations_table(store: Store, records: list[RunRecord]) -> Chunk:
-    """One row per coefficient of each run's latest calibration (long format): every depth
-    and supply-voltage section, then the C_n(U) law terms of a voltage sweep."""
-    rows: list[tuple] = []
-    for rec in records:
-        cal = store.latest_calibration(rec.id)
-        if cal is not None:
-            keys = (rec.id, rec.thruster_id, rec.rig_name, cal["created_utc"], cal["out_dir"])
-            rows += [(*keys, *row) for row in _coefficient_rows(cal["summary"])]
-    out = {}
-    for i, name in enumerate(CALIBRATION_COLUMNS):
-        values = [r[i] for r in rows]
-        if name in TEXT_COLUMNS:
-            out[name] = np.array(values, dtype=object)
-        elif name == "main_section":
-            out[name] = np.array(values, dtype=bool)
-        elif name == "n":
-            out[name] = np.array([MISSING_INT if v is None else v for v in values], np.int64)
-        else:
-            out[name] = np.array([np.nan if v is None else v for v in values], dtype=float)
-    return out
-
-
-def _coefficient_rows(summary: dict) -> Iterator[tuple]:
-    """(depth, voltage, role, main section, coefficient, value, lo, hi, unit, n) of every
-    coefficient a stored calibration summary holds."""
-    depths = summary.get("depths") or []
-    deep = (summary.get("analysis") or {}).get("deep_depth_m")
-    deep = DEEP_DEPTH_M if deep is None else deep
-    main = _main_section(depths)
-    for i, section in enumerate(depths):
-        depth = section.get("depth_m")
-        head = (depth, section.get("supply_voltage_v"), _role(depth, deep), i == main)
-        for name, c in (section.get("coefficients") or {}).items():
-            yield (*head, name, *_coefficient(c))
-    main_depth = None if main is None else depths[main].get("depth_m")
-    for law in summary.get("voltage_laws") or []:
-        depth = law.get("depth_m")
-        head = (depth, None, _role(depth, deep), main is not None and depth == main_depth)
-        for term, name in LAW_TERMS.items():
-            if law.get(term) is not None:
-                yield (*head, name, *_coefficient(law[term]))
-
-
-def _main_section(depths: list[dict]) -> int | None:
-    """The section the Python API and the vehicle artefacts use by default (the deepest
-    depth, the middle supply voltage there); None without sections."""
-    if not depths:
-        return None
-    depth = deepest_depth([d.get("depth_m") for d in depths])
-    here = [i for i, d in enumerate(depths) if d.get("depth_m") == depth]
-    return here[middle_voltage([depths[i].get("supply_voltage_v") for i in here])]
-
-
-def _role(depth: float | None, deep_m: float) -> str:
-    """`shallow` where the propeller may ventilate (as calibrate decides), else `deep`."""
-    return "shallow" if depth is not None and depth < deep_m else "deep"
-
-
-def _coefficient(c: dict) -> tuple:
-    """value, lo, hi, unit and n of a stored coefficient."""
-    return c.get("value"), c.get("lo"), c.get("hi"), c.get("unit"), c.get("n")
 
 
 def _cells(values: np.ndarray) -> list:

@@ -1,4 +1,4 @@
-"""`export --all` keeps the axes of a calibration (issue item 10): calibrations.parquet has the
+"""`export --all` keeps the axes of a calibration (issue item 10): _calibrations.pq has the
 supply voltage, the section's role (deep or shallow) and the API's main section, carries the
 C_n(U) law of a voltage sweep with its intervals, and docs/sql.md's "C_p forward of every
 thruster" returns each thruster's own coefficient, one row per thruster. Through the CLI and
@@ -57,7 +57,7 @@ def dataset(tmp_path_factory):
            "shallow": _sweep(tmp, db, "shallow", "bow-1", 4243, [0.3]),
            "stern": _sweep(tmp, db, "stern", "stern-2", 4244, [0.9])}
     assert main(["export", "--all", str(tmp / "ds"), "--db", str(db)]) == 0
-    table = pq.read_table(tmp / "ds" / "calibrations.parquet")
+    table = pq.read_table(tmp / "ds" / "_calibrations.pq")
     return tmp, db, ids, table
 
 
@@ -116,7 +116,8 @@ def test_the_voltage_law_rows_carry_k_and_b_with_intervals(dataset):
 def _own_coefficients(dataset) -> tuple[dict, int]:
     """What the pandas form of the documented query gives: thruster -> (run, value, role)."""
     tmp, _, _, _ = dataset
-    (code,) = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "sql.md").read_text(), re.S)
+    (code,) = [c for c in re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "sql.md").read_text(),
+                                     re.S) if "own = " in c]
     scope: dict = {}
     exec(compile(code.replace("DIR", str(tmp / "ds")), "docs/sql.md", "exec"), scope)
     own = scope["own"]

@@ -156,7 +156,7 @@ RANKS = {
                   "rigtool.progress", "rigtool.check", "rigtool.importers",
                   "rigtool.limit_sources", "rigtool.sensor_rate"),
     "interfaces": ("rigtool", "rigtool.__main__", "rigtool.cli", "rigtool.api",
-                   "rigtool.watch", "rigtool.export"),
+                   "rigtool.watch", "rigtool.export", "rigtool.dataset"),
 }
 ORDER = list(RANKS)
 

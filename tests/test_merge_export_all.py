@@ -4,6 +4,7 @@ point by point and sample by sample."""
 from __future__ import annotations
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
@@ -63,22 +64,20 @@ def test_merge_then_export_all_round_trips_every_point_and_sample(two_rigs, caps
 
     assert main(["export", "--all", str(tmp / "dataset"), "--db", lab]) == 0
     data = tmp / "dataset"
-    points = ds.dataset(data / "points", format="parquet").to_table().to_pandas()
-    samples = ds.dataset(data / "samples", format="parquet").to_table(
+    ids_as_text = ds.partitioning(pa.schema([("thruster_id", pa.string()),
+                                             ("run_id", pa.string())]), flavor="hive")
+    samples = ds.dataset(data, format="parquet", partitioning=ids_as_text).to_table(
         columns=["run_id", "thrust_n", "step_idx", "rig"]).to_pandas()
-    events = ds.dataset(data / "events", format="parquet").to_table().to_pandas()
-    for run_id, (n_points, n_samples, thrust, n_events) in expected.items():
+    for run_id, (n_points, n_samples, thrust, _) in expected.items():
         mine = samples[samples.run_id == run_id]
-        assert (points.run_id == run_id).sum() == n_points
+        assert mine.step_idx.nunique() == n_points
         assert len(mine) == n_samples and round(mine.thrust_n.sum(), 6) == thrust
-        assert (events.run_id == run_id).sum() == n_events
-    runs = pq.read_table(data / "runs.parquet").to_pandas()
-    assert sorted(runs.run_id) == sorted(ids) and len(set(runs.rig)) == 2  # two rigs
-    cals = pq.read_table(data / "calibrations.parquet").to_pandas()
+    assert sorted(set(samples.run_id)) == sorted(ids) and samples.rig.nunique() == 2  # two rigs
+    cals = pq.read_table(data / "_calibrations.pq").to_pandas()
     assert set(cals.run_id) == {ids[0]} and "C_p_fwd" in set(cals.coefficient)
-    meta = pq.read_schema(data / "samples" / f"{ids[0]}.parquet").metadata
-    assert b"rigtool_run" in meta and str(pq.read_schema(
-        data / "samples" / f"{ids[0]}.parquet").field("thrust_n").type) == "double"
+    (part,) = data.glob(f"thruster_id=*/run_id={ids[0]}/samples.parquet")
+    meta = pq.read_schema(part).metadata
+    assert b"rigtool_run" in meta and str(pq.read_schema(part).field("thrust_n").type) == "double"
 
 
 def test_merged_runs_calibrate_as_before(two_rigs, capsys):

@@ -21,13 +21,14 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run", nargs="?", help=RUN_HELP)
     p.add_argument("--format", choices=("csv", "parquet"),
                    help="file format (default: csv; parquet with --all)")
-    p.add_argument("--all", metavar="DIR", help="write every run as a Parquet dataset in DIR: "
-                   "runs, calibrations, and points/samples/events per run (docs/sql.md)")
+    p.add_argument("--all", metavar="DIR", help="bring the Hive-partitioned Parquet dataset in "
+                   "DIR up to date: a partition per run (thruster_id=/run_id=), only changed "
+                   "runs rewritten, a manifest (docs/sql.md)")
     p.set_defaults(func=cmd_export)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from rigtool.export import export_all, export_run
+    from rigtool.export import export_run
 
     if (args.run is None) == (args.all is None):
         raise UsageError("give a run to export, or --all DIR for every run")
@@ -35,9 +36,14 @@ def cmd_export(args: argparse.Namespace) -> int:
         if args.all is not None:
             if args.format == "csv":
                 raise UsageError("--all writes a Parquet dataset: drop --format csv")
+            from rigtool.dataset.update import export_dataset
+
             with stage(f"exporting every run of {store.path} to {args.all}"):
-                paths = export_all(store, Path(args.all))
-            out.print(f"{len(paths)} files in {args.all} (docs/sql.md shows how to query them)")
+                done = export_dataset(store, Path(args.all))
+            kept = f", {len(done.kept)} kept (not in this database)" if done.kept else ""
+            out.print(f"{args.all}: {len(done.written)} run(s) written, {done.unchanged} "
+                      f"unchanged{kept}; {done.runs} run(s), {done.rows:,} sample rows "
+                      "(docs/sql.md shows how to query them)")
             return 0
         run_id = store.resolve_run_id(args.run)
         with stage(f"exporting run {run_id}"):

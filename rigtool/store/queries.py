@@ -234,6 +234,26 @@ class RunQueries:
             "(SELECT count(*) FROM steps s WHERE s.run_id = r.id) AS n_steps "
             "FROM runs r ORDER BY r.id DESC LIMIT ?", [limit])
 
+    def run_fingerprints(self) -> list[dict]:
+        """Per run, oldest first, what tells whether it changed since an export: status, end
+        and stop reason; points (count, last index, samples); calibrations (count, newest);
+        events (count). Content only, no row ids, so two databases' copies of a run agree."""
+        self._read.find_bad(None, "runs", ("id", "status", "finished_utc", "stop_reason"), "1",
+                            ())
+        self._read.find_bad(None, "steps", ("idx", "n"), "1", ())
+        self._read.find_bad(None, "calibrations", ("created_utc",), "1", ())
+        return self._read.listing(
+            "SELECT r.id AS run_id, r.status, r.finished_utc, r.stop_reason, "
+            "coalesce(s.points, 0) AS points, s.last_idx, coalesce(s.samples, 0) AS samples, "
+            "coalesce(c.calibrations, 0) AS calibrations, c.calibrated_utc, "
+            "coalesce(e.events, 0) AS events FROM runs r "
+            "LEFT JOIN (SELECT run_id, count(*) AS points, max(idx) AS last_idx, "
+            "sum(n) AS samples FROM steps GROUP BY run_id) s ON s.run_id = r.id "
+            "LEFT JOIN (SELECT run_id, count(*) AS calibrations, max(created_utc) AS "
+            "calibrated_utc FROM calibrations GROUP BY run_id) c ON c.run_id = r.id "
+            "LEFT JOIN (SELECT run_id, count(*) AS events FROM events GROUP BY run_id) e "
+            "ON e.run_id = r.id ORDER BY r.id", [])
+
     def steps(self, run_id: str) -> list[dict]:
         """A run's stored points, every column checked (counters_json as stored text)."""
         return self._step_rows(run_id, tuple(STEP_COLUMNS))
