@@ -284,6 +284,9 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
     """Weights w with thrust_n ~ w . (fx..tz) + c, by least squares on a few spread-out points.
 
     The rig file's axis convention is not needed: the stored thrust and F/T channels define it.
+    The points are read one at a time (twice: which channels hold data, then the fit), and
+    the least squares problem is reduced to its triangular factor point by point, so memory
+    is bounded by one point.
     """
     rows = sorted((r for r in step_rows if r["thrust_n_mean"] is not None),
                   key=lambda r: r["thrust_n_mean"])
@@ -291,16 +294,32 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
         return None
     pick = np.unique(np.linspace(0, len(rows) - 1, min(_AXIS_FIT_STEPS, len(rows))).astype(int))
     ids = [int(rows[i]["id"]) for i in pick]
-    parts = [store.step_samples(i, (*FT_CHANNELS, "thrust_n")) for i in ids]
-    data = np.concatenate([np.column_stack(list(p.values())) for p in parts])
-    if data.size == 0:
+
+    def points() -> Iterator[np.ndarray]:
+        for i in ids:
+            part = store.step_samples(i, (*FT_CHANNELS, "thrust_n"))
+            yield np.column_stack(list(part.values())).reshape(-1, 7)
+
+    finite, n_rows = np.ones(6, bool), 0
+    for data in points():
+        finite &= np.isfinite(data[:, :6]).all(axis=0)
+        n_rows += data.shape[0]
+    if n_rows == 0:
         return None
-    cols = np.flatnonzero(usable & np.isfinite(data[:, :6]).all(axis=0))
-    ok = np.isfinite(data[:, 6]) & np.isfinite(data[:, cols]).all(axis=1)
-    if cols.size == 0 or ok.sum() <= cols.size + 1:
+    cols = np.flatnonzero(usable & finite)
+    if cols.size == 0:
         return None
-    design = np.column_stack([data[ok][:, cols], np.ones(ok.sum())])
-    coef, *_ = np.linalg.lstsq(design, data[ok, 6], rcond=None)
+    factor, n_ok = np.empty((0, cols.size + 2)), 0
+    for data in points():
+        ok = np.isfinite(data[:, 6]) & np.isfinite(data[:, cols]).all(axis=1)
+        rows_ok = np.column_stack([data[ok][:, cols], np.ones(ok.sum()), data[ok, 6]])
+        factor = np.linalg.qr(np.vstack([factor, rows_ok]), mode="r")
+        n_ok += int(ok.sum())
+    if n_ok <= cols.size + 1:
+        return None
+    # The cut-off lstsq takes by default for the whole (n_ok x k) problem, not the factor's.
+    rcond = np.finfo(float).eps * max(n_ok, cols.size + 1)
+    coef, *_ = np.linalg.lstsq(factor[:, :-1], factor[:, -1], rcond=rcond)
     weights = np.zeros(6)
     weights[cols] = coef[:-1]
     return weights

@@ -38,7 +38,9 @@ def point_pass(run: RunData, criterion: SettlingCriterion) -> tuple[SteadyWindow
     strides = _Strided(run.source.sample_count())
     parts, counts = [], []
     for block in run.source.blocks():
-        parts.append(steady_windows(block.samples, criterion))
+        windows = steady_windows(block.samples, criterion)
+        windows.in_window = windows.in_window[:0]  # per sample: not kept past its block
+        parts.append(windows)
         counts.append(np.diff(block.samples.offsets))
         strides.add(block.samples)
     windows = concat_windows(parts)
@@ -66,7 +68,7 @@ class _Strided:
                 continue
             v = x[np.isfinite(x)]
             start = (-self.seen[name]) % self.stride
-            self.picked[name].append(v[start::self.stride])
+            self.picked[name].append(v[start::self.stride].copy())  # not a view of the block
             if self.seen[name] <= RESOLUTION_SAMPLES:
                 self.all[name].append(v)
             self.seen[name] += v.size
@@ -91,7 +93,7 @@ def _strided_again(run: RunData, name: str, stride: int) -> np.ndarray:
     for block in run.source.blocks((name,)):
         x = getattr(block.samples, name)
         v = x[np.isfinite(x)]
-        picked.append(v[(-seen) % stride::stride])
+        picked.append(v[(-seen) % stride::stride].copy())
         seen += v.size
     return np.concatenate(picked) if picked else np.empty(0)
 
