@@ -36,13 +36,13 @@ from rigtool.store import Store  # noqa: E402
 POINTS = 400
 LEAN_FROM = 50_000_000  # runs this large are built without the all-zero F/T channels
 RUNNER = ("import resource, sys; from rigtool.cli import main; rc = main(sys.argv[1:]); "
-          "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); "
-          "sys.exit(rc)")
+          "u = resource.getrusage(resource.RUSAGE_SELF); "
+          "print(u.ru_maxrss, u.ru_utime + u.ru_stime, file=sys.stderr); sys.exit(rc)")
 BARE_PASS = """\
 import resource, sys, time
 import numpy as np
 from rigtool.store import Store
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 with Store(sys.argv[1], read_only=True) as store:
     run = store.resolve_run_id("last")
     n, f = [], []
@@ -55,8 +55,8 @@ n, f = np.array(n), np.array(f)
 for side in (n > 0, n < 0):
     x = np.abs(n[side]) * n[side]
     c = float(x @ f[side] / (x @ x))
-print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
-      file=sys.stderr)
+u = resource.getrusage(resource.RUSAGE_SELF)
+print(time.perf_counter() - t0, u.ru_maxrss, time.process_time() - c0, file=sys.stderr)
 """
 SWEEP_PROTOCOL = """\
 rigtool_protocol: 1
@@ -80,21 +80,28 @@ COMMANDS = {
 }
 
 
-def _run(args: list[str]) -> tuple[float, float]:
-    """(wall seconds, peak RSS in MB) of one rigtool command in its own process."""
+CPU: dict[tuple[int, str], float] = {}  # CPU seconds (user + system) by (size, command)
+
+
+def _run(args: list[str], key: tuple[int, str]) -> tuple[float, float]:
+    """(wall seconds, peak RSS in MB) of one rigtool command in its own process (its CPU
+    seconds go to CPU: on a loaded machine they tell more than the wall time)."""
     t0 = time.perf_counter()
     out = subprocess.run([sys.executable, "-c", RUNNER, *args], capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if out.returncode:
         raise SystemExit(f"rigtool {' '.join(args)} failed:\n{out.stderr[-2000:]}")
-    return wall, int(out.stderr.strip().splitlines()[-1]) / 1024.0
+    rss, cpu = out.stderr.strip().splitlines()[-1].split()
+    CPU[key] = float(cpu)
+    return wall, int(rss) / 1024.0
 
 
-def _bare_pass(db: Path) -> tuple[float, float]:
+def _bare_pass(db: Path, n: int) -> tuple[float, float]:
     """(seconds inside the process, peak RSS in MB) of the bare pass over the last run."""
     out = subprocess.run([sys.executable, "-c", BARE_PASS, str(db)], capture_output=True,
                          text=True, check=True)
-    seconds, rss = out.stderr.strip().splitlines()[-1].split()
+    seconds, rss, cpu = out.stderr.strip().splitlines()[-1].split()
+    CPU[n, "bare pass"] = float(cpu)
     return float(seconds), int(rss) / 1024.0
 
 
@@ -133,17 +140,19 @@ def main() -> int:
                 if name == "sweep" and n > args.max_sweep:
                     row[name] = None
                     continue
-                row[name] = _run([a.format(tmp=tmp, n=n, db=db) for a in cmd])
+                row[name] = _run([a.format(tmp=tmp, n=n, db=db) for a in cmd], (n, name))
                 for leftover in (Path(tmp) / f"merged{n}.sqlite", Path(tmp) / "exp",
                                  Path(tmp) / f"sweep{n}.sqlite"):
                     if name in ("merge", "export", "sweep"):
                         shutil.rmtree(leftover, ignore_errors=True) if leftover.is_dir() \
                             else leftover.unlink(missing_ok=True)
-            row["bare pass"] = _bare_pass(db)
+            row["bare pass"] = _bare_pass(db, n)
             results[n] = row
             print(f"{n / 1e6:5.1f} M samples: " + "  ".join(
                 f"{k} {'skipped (too long on the twin)' if v is None else f'{v[0]:6.2f} s {v[1]:6.0f} MB'}"
                 for k, v in row.items()), flush=True)
+            print("      CPU seconds: " + "  ".join(f"{k} {v:.2f}" for (m, k), v in CPU.items()
+                                                    if m == n), flush=True)
     for a, b in zip(sizes, sizes[1:], strict=False):
         added = b - a
         parts = []
@@ -177,6 +186,9 @@ def _verdicts(results: dict[int, dict[str, tuple[float, float] | None]]) -> int:
         wall, bare = cal[12_000_000][0], results[12_000_000]["bare pass"][0]  # type: ignore[index]
         verdict(wall <= 6 * bare, f"calibrate at 12 M {wall:.2f} s (whole process) = "
                 f"{wall / bare:.1f} x the bare pass {bare:.2f} s (goal <= 6 x)")
+        cpu, cpu_bare = CPU[12_000_000, "calibrate"], CPU[12_000_000, "bare pass"]
+        print(f"      in CPU seconds: calibrate {cpu:.2f} (whole process) = "
+              f"{cpu / cpu_bare:.1f} x the bare pass's {cpu_bare:.2f}")
     return 1 if failed else 0
 
 

@@ -232,8 +232,8 @@ class SampleSource:
         n_rows, row = len(idx), 0
         for chunk in self.store.iter_point_samples(self.run_id, tuple(stored.values()),
                                                    self.batch):
-            at = np.minimum(np.searchsorted(idx, chunk["step_idx"]), max(n_rows - 1, 0))
-            known = (idx[at] == chunk["step_idx"]) if n_rows else np.zeros(at.size, bool)
+            at = _rows_of(idx, chunk["step_idx"])
+            known = at >= 0
             if not known.all():
                 at = at[known]
                 chunk = {k: v[known] for k, v in chunk.items()}
@@ -247,6 +247,18 @@ class SampleSource:
             empty = {k: np.empty(0) for k in stored.values()}
             yield PointBlock(row, _block_samples(empty, stored, np.empty(0, np.int64),
                                                  n_rows - row, self.torque))
+
+
+def _rows_of(idx: np.ndarray, step_idx: np.ndarray) -> np.ndarray:
+    """The steps row of each sample (-1: a point not in `idx`); `step_idx` comes in runs of
+    one point, so each run is looked up once."""
+    if not step_idx.size or not idx.size:
+        return np.full(step_idx.size, -1)
+    starts = np.concatenate(([0], np.flatnonzero(np.diff(step_idx)) + 1))
+    first = step_idx[starts]
+    at = np.minimum(np.searchsorted(idx, first), idx.size - 1)
+    at = np.where(idx[at] == first, at, -1)
+    return np.repeat(at, np.diff(np.append(starts, step_idx.size)))
 
 
 def _block_samples(chunk: dict[str, np.ndarray], stored: dict[str, str], point: np.ndarray,

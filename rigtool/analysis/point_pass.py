@@ -168,12 +168,13 @@ class SpreadPass:
         rows = block.first_row + s.point
         pos = np.arange(s.point.size) - s.offsets[s.point]
         in_window = pos >= self.first[rows]
-        which = self.section_of[rows]
-        for k in np.unique(which[in_window]):
+        point_section = self.section_of[block.rows]
+        for k in np.unique(point_section):
             sec = self.sections[k] if k >= 0 else None
             if sec is None or not sec.requests:
                 continue
-            pick = in_window & (which == k)
+            pick = in_window if (point_section == k).all() else (
+                in_window & (point_section[s.point] == k))
             local = self.local[rows[pick]]
             channels = [_column(s, name, pick) for name in SPREAD_FIELDS]
             for r in sec.requests:

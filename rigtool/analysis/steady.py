@@ -352,8 +352,11 @@ def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points:
         mean = np.bincount(pid, weights=xv, minlength=n_points) / cnt
         dev = np.where(ok, xv - mean[pid], 0.0)
         c0 = np.bincount(pid, weights=dev * dev, minlength=n_points)
-        same = pid[1:] == pid[:-1]
-        c1 = np.bincount(pid[:-1][same], weights=(dev[1:] * dev[:-1])[same], minlength=n_points)
+        # Lag-1 products within each point: one across a point boundary counts 0 (sums of
+        # the same terms as over the pairs within points).
+        lag = dev[1:] * dev[:-1]
+        lag[pid[1:] != pid[:-1]] = 0.0
+        c1 = np.bincount(pid[:-1], weights=lag, minlength=n_points)
         var = c0 / (cnt - 1)
         std = np.sqrt(var)
         r1 = ar1_coefficient(c1 / c0, MAX_R1_SAMPLES)
