@@ -96,16 +96,14 @@ def _peak_bytes(store, run_id, batch):
         tracemalloc.stop()
 
 
-def test_memory_follows_the_block_not_the_run(can_run, tmp_path):
-    store, run_id = can_run
-    longer = Store(tmp_path / "longer.sqlite")  # the same points, eight times over
-    plan = sweep(np.arange(-100.0, 100.1, 10.0), depths=(0.5, 1.0), repeats=8, updown=True)
-    long_id = write_run(longer, can_samples, "percent", plan, n_samples=PER_POINT, seed=4)
-    _calibrate(store, run_id, PER_POINT)  # warm: imports and caches outside the count
-    short_peak = _peak_bytes(store, run_id, PER_POINT)
-    long_peak = _peak_bytes(longer, long_id, PER_POINT)
-    n_samples = longer.sample_count(long_id)
-    assert n_samples == 8 * store.sample_count(run_id)
-    # Whole-run arrays took 132 bytes a sample: eight times the run, not eight times the memory.
-    assert long_peak < 0.2 * 132 * n_samples, (long_peak, n_samples)
-    assert long_peak < 2.0 * short_peak, (long_peak, short_peak)
+def test_memory_follows_the_block_not_the_run(tmp_path):
+    store = Store(tmp_path / "long-points.sqlite")
+    per_point = 5000
+    plan = sweep(np.arange(-100.0, 100.1, 10.0), depths=(0.5, 1.0))
+    run_id = write_run(store, can_samples, "percent", plan, n_samples=per_point, seed=4)
+    _calibrate(store, run_id, per_point)  # warm: imports and caches outside the count
+    by_point = _peak_bytes(store, run_id, per_point)
+    whole = _peak_bytes(store, run_id, 10**9)
+    # One point a block holds a 42nd of the samples; what is left is per point, or a
+    # constant (the at most 200 000 values a channel's printed step is looked for in).
+    assert by_point < 0.35 * whole, (by_point, whole)
