@@ -4,8 +4,8 @@ each command a process, with its wall time and peak memory, and the bare pass ti
 same run.
 
 The sweep is `rigtool sweep --sim` of a 400-point protocol on the twin (more samples per
-point as the run grows; skipped above --max-sweep samples, said so). The other commands work
-on the synthetic Luo-style sweep of bench_calibrate.py (400 points), written through the
+point as the run grows; skipped above --max-sweep samples, 1.2 M by default, said so). The
+other commands work on the synthetic Luo-style sweep of bench_calibrate.py (400 points), written through the
 Store (at 75 M without its five all-zero F/T channels, to keep the disk use at ~5 GB); merge
 copies the run into an empty database. The bare pass reads each point's four channels
 (`sample_arrays(run, steps=[i])`), averages the second half and fits thrust ~ C|n|n per
@@ -71,12 +71,12 @@ timing:
   tare: at_start
 limits: {{max_thrust_n: 200}}
 """
-COMMANDS = {
-    "sweep": ["sweep", "{tmp}/scaling-{n}.yaml", "--sim", "--db", "{tmp}/sweep{n}.sqlite"],
+COMMANDS = {  # the ratios' commands first: on a slow machine the rest may not be waited for
     "calibrate": ["calibrate", "last", "--out", "{tmp}/cal", "--db", "{db}"],
+    "merge": ["merge", "{db}", "-o", "{tmp}/merged{n}.sqlite"],
     "report": ["report", "last", "--out", "{tmp}/cal", "--db", "{db}"],
     "export": ["export", "last", "--format", "parquet", "--out", "{tmp}/exp", "--db", "{db}"],
-    "merge": ["merge", "{db}", "-o", "{tmp}/merged{n}.sqlite"],
+    "sweep": ["sweep", "{tmp}/scaling-{n}.yaml", "--sim", "--db", "{tmp}/sweep{n}.sqlite"],
 }
 
 
@@ -114,8 +114,8 @@ def main() -> int:
     parser.add_argument("--big", action="store_true",
                         help="1.2, 12 and 75 M samples (tens of minutes, ~15 GB of disk)")
     parser.add_argument("--sizes", help="comma-separated sample counts instead (e.g. 1.2e6,12e6)")
-    parser.add_argument("--max-sweep", type=_size, default=12_000_000,
-                        help="largest run swept on the twin (default 12e6)")
+    parser.add_argument("--max-sweep", type=_size, default=1_200_000,
+                        help="largest run swept on the twin (default 1.2e6)")
     parser.add_argument("--dir", type=Path, help="keep the built runs here and reuse them")
     args = parser.parse_args()
     sizes = ([_size(s) for s in args.sizes.split(",")] if args.sizes else
@@ -141,12 +141,17 @@ def main() -> int:
                     row[name] = None
                     continue
                 row[name] = _run([a.format(tmp=tmp, n=n, db=db) for a in cmd], (n, name))
+                print(f"   {n / 1e6:g} M {name}: {row[name][0]:.2f} s, {row[name][1]:.0f} MB, "
+                      f"{CPU[n, name]:.2f} CPU s", flush=True)
+                if name == "calibrate":
+                    row["bare pass"] = _bare_pass(db, n)
+                    print(f"   {n / 1e6:g} M bare pass: {row['bare pass'][0]:.2f} s, "
+                          f"{CPU[n, 'bare pass']:.2f} CPU s", flush=True)
                 for leftover in (Path(tmp) / f"merged{n}.sqlite", Path(tmp) / "exp",
                                  Path(tmp) / f"sweep{n}.sqlite"):
                     if name in ("merge", "export", "sweep"):
                         shutil.rmtree(leftover, ignore_errors=True) if leftover.is_dir() \
                             else leftover.unlink(missing_ok=True)
-            row["bare pass"] = _bare_pass(db, n)
             results[n] = row
             print(f"{n / 1e6:5.1f} M samples: " + "  ".join(
                 f"{k} {'skipped (too long on the twin)' if v is None else f'{v[0]:6.2f} s {v[1]:6.0f} MB'}"
