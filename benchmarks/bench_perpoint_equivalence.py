@@ -21,6 +21,7 @@ import math
 import os
 import shutil
 import signal
+import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -33,6 +34,7 @@ CYCLE = ("quick-demo", "stm32-pwm", "dynamics-steps", "esc-1100-1900", "voltage-
          "luo2020-baseline", "luo2020-cavitation", "dynamics-steps-esc")
 BASE_OF = {"luo2020-cavitation": "luo2020-baseline"}
 RESUMED = "quick-demo"  # the protocol of the run stopped and resumed
+STOP_AFTER = 5  # points stored before it is stopped
 IGNORED = {"created_utc", "tool_version", "run_id", "out_dir", "calibrated_utc"}
 
 
@@ -54,10 +56,29 @@ def sweep(tree: Path, db: Path, name: str, seed: int, resume: bool = False) -> N
         env = {**os.environ, "PYTHONPATH": str(tree)}
         proc = subprocess.Popen([sys.executable, "-m", "rigtool", *args], env=env,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(4.0)
+        _wait_for_points(db, STOP_AFTER)
         proc.send_signal(signal.SIGINT)
         proc.wait()
-        rigtool(tree, "sweep", "--resume", "last", "--db", str(db), check=False)
+        rigtool(tree, "sweep", "--resume", "last", "--db", str(db))
+        with sqlite3.connect(db) as conn:
+            resumed = conn.execute("SELECT count(*) FROM events WHERE kind = 'resumed'"
+                                   ).fetchone()[0]
+        if not resumed:
+            raise SystemExit(f"{name} seed {seed}: the sweep ended before it was interrupted")
+
+
+def _wait_for_points(db: Path, n: int, timeout_s: float = 600.0) -> None:
+    """Wait until the sweep writing `db` has stored `n` points."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        try:
+            with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as conn:
+                if conn.execute("SELECT count(*) FROM steps").fetchone()[0] >= n:
+                    return
+        except sqlite3.Error:
+            pass
+        time.sleep(0.2)
+    raise SystemExit(f"no {n} points in {db} after {timeout_s:g} s")
 
 
 def calibrate(tree: Path, db: Path, out: Path) -> tuple[Path, str]:
@@ -142,6 +163,7 @@ def main() -> int:
                         help="source tree of the reference rigtool (e.g. a worktree of main)")
     parser.add_argument("--seeds", type=int, default=12)
     parser.add_argument("--first-seed", type=int, default=61001)
+    parser.add_argument("--only", type=int, help="only the run of this seed")
     parser.add_argument("--tol", type=float, default=1e-9, help="relative difference reported")
     args = parser.parse_args()
     total_worst, failed = 0.0, 0
@@ -151,6 +173,8 @@ def main() -> int:
             name = CYCLE[k % len(CYCLE)]
             resume = k == len(CYCLE)  # the ninth run: stopped and resumed
             name = RESUMED if resume else name
+            if args.only is not None and seed != args.only:
+                continue
             work = Path(tmp) / str(seed)
             work.mkdir()
             db = work / "run.sqlite"

@@ -5,9 +5,9 @@ same run.
 
 The sweep is `rigtool sweep --sim` of a 400-point protocol on the twin (more samples per
 point as the run grows; skipped above --max-sweep samples, 1.2 M by default, said so). The
-other commands work on the synthetic Luo-style sweep of bench_calibrate.py (400 points), written through the
-Store (at 75 M without its five all-zero F/T channels, to keep the disk use at ~5 GB); merge
-copies the run into an empty database. The bare pass reads each point's four channels
+other commands work on the synthetic Luo-style sweep of bench_calibrate.py (400 points),
+written through the Store (at 75 M without its five all-zero F/T channels, to keep the disk
+use at ~5 GB); merge copies the run into an empty database. The bare pass reads each point's four channels
 (`sample_arrays(run, steps=[i])`), averages the second half and fits thrust ~ C|n|n per
 direction; its time is taken inside its process (no start-up), calibrate's is the whole
 process. For each size the script prints time and peak RSS per command; between sizes the
