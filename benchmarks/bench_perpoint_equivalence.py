@@ -19,7 +19,6 @@ import csv
 import json
 import math
 import os
-import shutil
 import signal
 import sqlite3
 import subprocess
@@ -180,7 +179,8 @@ def main() -> int:
             db = work / "run.sqlite"
             t0 = time.perf_counter()
             sweep(HERE, db, name, seed, resume)
-            shutil.copy(db, work / "ref.sqlite")
+            with sqlite3.connect(db) as src, sqlite3.connect(work / "ref.sqlite") as dst:
+                src.backup(dst)  # a consistent copy, write-ahead log included
             ref, ref_err = calibrate(args.reference, work / "ref.sqlite", work / "ref")
             new, new_err = calibrate(HERE, db, work / "new")
             diff = Diff(args.tol)
