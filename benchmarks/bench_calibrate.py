@@ -35,10 +35,12 @@ RUN_NAME = "bench-calibrate"
 COLUMNS = ("step_id", "t_s", "thrust_n", "speed_rpm", "current_a")
 
 
-def build_run(store: Store, n_points: int, n_samples: int, seed: int = 1) -> str:
-    """A Luo-style sweep: +-100 % command, f = C_p|n|n, I = C_n|n|^3 + I_0, noise and drift."""
+def build_run(store: Store, n_points: int, n_samples: int, seed: int = 1,
+              rate: float = 1000.0, lean: bool = False) -> str:
+    """A Luo-style sweep: +-100 % command, f = C_p|n|n, I = C_n|n|^3 + I_0, noise and drift,
+    sampled at `rate` Hz; `lean`: without the five F/T channels that are all zeros (less disk
+    for the largest runs)."""
     rng = np.random.default_rng(seed)
-    rate = 1000.0
     commands = np.linspace(-100.0, 100.0, n_points)
     protocol = {"command": {"unit": "percent"},
                 "metadata": {"propeller_diameter_m": 0.12, "water_density_kg_m3": 1000.0}}
@@ -61,6 +63,9 @@ def build_run(store: Store, n_points: int, n_samples: int, seed: int = 1) -> str
         samples = {"t_s": t + 0.5 + tt, "fx": -thrust, "fy": zeros, "fz": zeros, "tx": zeros,
                    "ty": zeros, "tz": zeros, "thrust_n": thrust, "speed_rpm": n,
                    "current_a": current, "voltage_v": zeros + 48.0, "command": zeros + c}
+        if lean:
+            for name in ("fy", "fz", "tx", "ty", "tz"):
+                del samples[name]
         step = StepRecord(i, float(c), "percent", 1.0, 0, "up", t, t + 0.5,
                           t + 0.5 + n_samples / rate, 0.5, True, rate)
         store.add_step(run_id, step, samples)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rigtool.analysis.dataset import RunData
+from rigtool.analysis.dataset import RunData, Samples
 
 
 @dataclass
@@ -40,11 +40,22 @@ class Blocks:
 
 
 def block_means(run: RunData, block_s: float = 0.2) -> Blocks:
-    """Means over consecutive `block_s` blocks inside each point (a partial last block is dropped)."""
-    s = run.samples
-    off = s.offsets
+    """Means over consecutive `block_s` blocks inside each point (a partial last block is
+    dropped), read one block of points at a time."""
     rows: dict[str, list[np.ndarray]] = {k: [] for k in (
         "t_s", "t0_s", "t1_s", "thrust_n", "speed_rpm", "current_a", "point", "t_in_point_s")}
+    for chunk in run.source.blocks(("t_s", "thrust_n", "speed_rpm", "current_a")):
+        _point_blocks(chunk.samples, chunk.first_row, block_s, rows)
+    cat = {k: (np.concatenate(v) if v else np.empty(0)) for k, v in rows.items()}
+    point = cat.pop("point").astype(int)
+    return Blocks(**cat, point=point, depth_m=run.steps.depth_m[point],
+                  command=run.steps.command[point], block_s=block_s)
+
+
+def _point_blocks(s: Samples, first_row: int, block_s: float,
+                  rows: dict[str, list[np.ndarray]]) -> None:
+    """Append the block means of the points of `s` (steps rows from `first_row`) to `rows`."""
+    off = s.offsets
     for p in range(len(off) - 1):
         a, b = int(off[p]), int(off[p + 1])
         if b - a < 2:
@@ -67,12 +78,8 @@ def block_means(run: RunData, block_s: float = 0.2) -> Blocks:
         rows["thrust_n"].append(mean(s.thrust_n))
         rows["speed_rpm"].append(mean(s.speed_rpm))
         rows["current_a"].append(mean(s.current_a))
-        rows["point"].append(np.full(nb, p))
+        rows["point"].append(np.full(nb, first_row + p))
         rows["t_in_point_s"].append(tb.mean(axis=1) - t[0])
-    cat = {k: (np.concatenate(v) if v else np.empty(0)) for k, v in rows.items()}
-    point = cat.pop("point").astype(int)
-    return Blocks(**cat, point=point, depth_m=run.steps.depth_m[point],
-                  command=run.steps.command[point], block_s=block_s)
 
 
 def in_intervals(t: np.ndarray, intervals: list[tuple[float, float]]) -> np.ndarray:

@@ -11,7 +11,6 @@ from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
 from rigtool.analysis.depth_fits import (
     ModelFits,
-    WindowSamples,
     candidate_points,
     fit_models,
     speed_sign,
@@ -27,6 +26,7 @@ from rigtool.analysis.fits import (
     session_index,
     session_line,
 )
+from rigtool.analysis.point_pass import SectionSamples, SpreadPass, fill_spreads, point_pass
 from rigtool.analysis.quality import (
     drift_over_sweep,
     hysteresis,
@@ -40,7 +40,7 @@ from rigtool.analysis.results import (
     TareDrift,
     VoltageLaw,
 )
-from rigtool.analysis.steady import PointTable, SteadyWindows, steady_windows
+from rigtool.analysis.steady import PointTable
 from rigtool.analysis.voltage import fit_voltage_law, voltage_point
 from rigtool.store import Store
 from rigtool.version import __version__
@@ -60,18 +60,21 @@ def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = 
 def calibrate(run: RunData, params: CalibrationParams | None = None) -> CalibrationResult:
     """Analyse a loaded run: steady windows, then per depth the curve, fits and quality."""
     p = params or CalibrationParams()
-    windows = steady_windows(run.samples, p.settling)
-    table = windows.point_table(run.steps, run.samples)
+    windows, table = point_pass(run, p.settling)
+    spreads = SpreadPass(run, windows)
     drift = run_tare_drift(run.tares, run.session_starts_s)
     warnings = _run_warnings(run, table, drift, p)
     sections = []
     for rows in _groups(run.steps):
-        sec = _section(run, table.take(rows), rows, windows, drift, p)
+        sec = _section(run, table.take(rows), spreads.section(rows), drift, p)
         volts = run.steps.voltage_v[rows[0]] if run.steps.voltage_v is not None else NAN
         if math.isfinite(volts):
             sec.voltage_v = float(volts)
             sec.bus_v = _bus_voltage(sec.points)
         sections.append(sec)
+    computed = spreads.run_pass()
+    for sec in sections:
+        fill_spreads(sec.fits, computed)
     for sec in sections:
         prefix = f"{sec.label}: " if len(sections) > 1 else ""
         warnings += [prefix + w for w in sec.warnings]
@@ -95,10 +98,13 @@ def _dynamics(run: RunData) -> tuple[Dynamics | None, list[str]]:
     """Identify the dynamics of a step-response run from its points in time order; the
     warnings say why when there are none."""
     ok = np.flatnonzero(run.steps.status == "ok")
-    s = run.samples
-    keep = np.isin(s.point, ok)
-    series = StepSeries(s.t_s[keep], s.thrust_n[keep], run.steps.t_acquire_s[ok],
-                        run.steps.command[ok], run.neutral_command)
+    t_s, thrust_n = [], []
+    for block in run.source.blocks(("t_s", "thrust_n")):
+        keep = np.isin(block.first_row + block.samples.point, ok)
+        t_s.append(block.samples.t_s[keep])
+        thrust_n.append(block.samples.thrust_n[keep])
+    series = StepSeries(np.concatenate(t_s), np.concatenate(thrust_n),
+                        run.steps.t_acquire_s[ok], run.steps.command[ok], run.neutral_command)
     dynamics = identify(series)
     if dynamics is not None:
         return dynamics, dynamics.warnings
@@ -146,18 +152,11 @@ def _voltage_laws(sections: list[DepthSection]) -> list[VoltageLaw]:
     return laws
 
 
-def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: SteadyWindows,
+def _section(run: RunData, points: PointTable, samples: SectionSamples,
              drift: TareDrift | None, p: CalibrationParams) -> DepthSection:
     """Fits first (they find the sensor zero when speed is measured), then the command curve
     relative to that zero; fits are redone if the curve puts some of their points in a dead
-    zone."""
-    local = np.full(len(run.steps), -1)
-    local[rows] = np.arange(rows.size)
-    sample_local = local[run.samples.point]
-    pick = windows.in_window & (sample_local >= 0)
-    samples = WindowSamples(sample_local[pick], run.samples.thrust_n[pick],
-                            run.samples.speed_rpm[pick], run.samples.current_a[pick])
-
+    zone. The per-sample spreads are placeholders until the second pass."""
     ok = points.status == "ok"
     usable = candidate_points(points, p.fit) & np.isfinite(points.speed.mean)
     direction = speed_sign(points, run.neutral_command, usable)
@@ -187,6 +186,7 @@ def _section(run: RunData, points: PointTable, rows: np.ndarray, windows: Steady
             curve = make_curve(fixed_zero)
 
     def fit() -> ModelFits:
+        samples.clear()
         return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
                           density_kg_m3=run.water_density_kg_m3, params=p.fit, zero=fixed_zero,
                           direction=direction, sessions=run.session_starts_s)

@@ -1,11 +1,14 @@
 """Load one run from the Store into numpy arrays (the only analysis module that reads the Store).
 
-Samples are read once, as whole-run arrays, and grouped by point through `offsets`, so later
-stages work with vectorised per-point reductions instead of per-step queries.
+Points, tares and events are read at once; samples are not: `RunData.source` reads them in
+blocks of whole points (`PointBlock`), so every stage's memory is bounded by the block, not
+the run. Within a block, samples are grouped by point through `offsets`, so stages work
+with vectorised per-point reductions instead of per-step queries.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +19,7 @@ from rigtool.units import FT_CHANNELS
 
 SAMPLE_FIELDS = ("t_s", "thrust_n", "speed_rpm", "current_a", "voltage_v")
 _AXIS_FIT_STEPS = 24  # points sampled to recover the thrust axis from the F/T channels
+BLOCK_SAMPLES = 1 << 18  # samples per block of points the analysis reads (whole points)
 
 
 @dataclass
@@ -40,7 +44,8 @@ class Steps:
 
 @dataclass
 class Samples:
-    """All acquired samples of a run; point p owns rows offsets[p]:offsets[p + 1] (time order)."""
+    """Acquired samples of consecutive points; point p owns rows offsets[p]:offsets[p + 1]
+    (time order). A channel not read or not recorded is None."""
 
     t_s: np.ndarray
     thrust_n: np.ndarray
@@ -96,7 +101,7 @@ class RunData:
     propeller_diameter_m: float | None
     water_density_kg_m3: float | None
     steps: Steps
-    samples: Samples
+    source: SampleSource
     tares: Tares
     events: list[dict] = field(default_factory=list)
     step_response: bool = False  # a `command.steps` run: levels follow each other
@@ -119,9 +124,6 @@ def _load_run(store: Store, run_id: str) -> RunData:
         raise UsageError(f"run {run_id} has no recorded points: nothing to calibrate")
     steps = _steps(step_rows)
     torque = torque_channel(record.rig, store, step_rows)
-    extra = (torque[0],) if torque else ()
-    samples = _samples(store.samples(run_id, ("step_id", *SAMPLE_FIELDS, *extra)), steps,
-                       torque)
     events = store.events(run_id)
     tare_rows = [e for e in events if e["kind"] == "tare"]
     tares = _tares(store, tare_rows, steps, step_rows)
@@ -135,7 +137,7 @@ def _load_run(store: Store, run_id: str) -> RunData:
         propeller_diameter_m=record.propeller_diameter_m,
         water_density_kg_m3=record.water_density_kg_m3,
         steps=steps,
-        samples=samples,
+        source=SampleSource(store, run_id, steps, torque),
         tares=tares,
         events=[e for e in events if e["kind"] != "tare"],
         step_response=bool((record.protocol.get("command") or {}).get("steps")),
@@ -185,24 +187,92 @@ def torque_channel(rig: dict, store: Store, step_rows: list[dict]) -> tuple[str,
     return (name, int(sign)) if np.isfinite(probe).any() else None
 
 
-def _samples(data: dict[str, np.ndarray], steps: Steps,
-             torque: tuple[str, int] | None = None) -> Samples:
-    step_ids = data["step_id"].astype(np.int64)
-    order = np.argsort(steps.step_id)
-    sorted_ids = steps.step_id[order]
-    point = order[np.searchsorted(sorted_ids, step_ids)] if step_ids.size else step_ids
-    arrays = {k: data[k] for k in SAMPLE_FIELDS}
-    if torque is not None:
-        arrays["torque_nm"] = data[torque[0]]
-        if torque[1] < 0:
-            np.negative(arrays["torque_nm"], out=arrays["torque_nm"])
-    if point.size > 1 and np.any(np.diff(point) < 0):
-        perm = np.argsort(point, kind="stable")
-        point = point[perm]
-        arrays = {k: v[perm] for k, v in arrays.items()}
-    counts = np.bincount(point, minlength=len(steps))
+@dataclass
+class PointBlock:
+    """The samples of steps rows first_row .. first_row + n_points - 1 (`samples.point` counts
+    from 0 at first_row)."""
+
+    first_row: int
+    samples: Samples
+
+    @property
+    def rows(self) -> np.ndarray:
+        """The steps rows of the block's points, in order."""
+        return self.first_row + np.arange(self.samples.offsets.size - 1)
+
+
+class SampleSource:
+    """A run's samples, read from the store block by block of whole points on demand.
+
+    Each block holds about BLOCK_SAMPLES samples (one long point makes a larger one), so a
+    pass over the run needs memory for one block only. Samples of points not in `steps`
+    (stored after the run was loaded) are skipped."""
+
+    def __init__(self, store: Store, run_id: str, steps: Steps,
+                 torque: tuple[str, int] | None = None, batch: int = BLOCK_SAMPLES) -> None:
+        self.store, self.run_id, self.steps = store, run_id, steps
+        self.torque, self.batch = torque, batch
+
+    @property
+    def has_torque(self) -> bool:
+        """Whether the run recorded torque about the thrust axis."""
+        return self.torque is not None
+
+    def sample_count(self) -> int:
+        """How many samples the run's points hold in all."""
+        return self.store.sample_count(self.run_id)
+
+    def blocks(self, fields: Sequence[str] = (*SAMPLE_FIELDS, "torque_nm")) -> Iterator[PointBlock]:
+        """Consecutive blocks of points covering every steps row once, with `fields` read
+        (`torque_nm`: the torque channel, sign applied, when recorded)."""
+        stored = {f: f for f in fields if f != "torque_nm"}
+        if "torque_nm" in fields and self.torque is not None:
+            stored["torque_nm"] = self.torque[0]
+        idx = self.steps.idx
+        n_rows, row = len(idx), 0
+        for chunk in self.store.iter_point_samples(self.run_id, tuple(stored.values()),
+                                                   self.batch):
+            at = _rows_of(idx, chunk["step_idx"])
+            known = at >= 0
+            if not known.all():
+                at = at[known]
+                chunk = {k: v[known] for k, v in chunk.items()}
+            if not at.size:
+                continue
+            end = int(at[-1]) + 1
+            yield PointBlock(row, _block_samples(chunk, stored, at - row, end - row,
+                                                 self.torque))
+            row = end
+        if row < n_rows or n_rows == 0:
+            empty = {k: np.empty(0) for k in stored.values()}
+            yield PointBlock(row, _block_samples(empty, stored, np.empty(0, np.int64),
+                                                 n_rows - row, self.torque))
+
+
+def _rows_of(idx: np.ndarray, step_idx: np.ndarray) -> np.ndarray:
+    """The steps row of each sample (-1: a point not in `idx`); `step_idx` comes in runs of
+    one point, so each run is looked up once."""
+    if not step_idx.size or not idx.size:
+        return np.full(step_idx.size, -1)
+    starts = np.concatenate(([0], np.flatnonzero(np.diff(step_idx)) + 1))
+    first = step_idx[starts]
+    at = np.minimum(np.searchsorted(idx, first), idx.size - 1)
+    at = np.where(idx[at] == first, at, -1)
+    return np.repeat(at, np.diff(np.append(starts, step_idx.size)))
+
+
+def _block_samples(chunk: dict[str, np.ndarray], stored: dict[str, str], point: np.ndarray,
+                   n_points: int, torque: tuple[str, int] | None) -> Samples:
+    """One chunk of whole points (`point`: local row of each sample, ascending) as Samples."""
+    arrays: dict[str, np.ndarray | None] = {k: chunk[c] for k, c in stored.items()}
+    if torque is not None and arrays.get("torque_nm") is not None and torque[1] < 0:
+        np.negative(arrays["torque_nm"], out=arrays["torque_nm"])
+    arrays.setdefault("t_s", np.empty(0))
+    for name in ("thrust_n", "speed_rpm", "current_a"):
+        arrays.setdefault(name, None)
+    counts = np.bincount(point, minlength=n_points)
     offsets = np.concatenate(([0], np.cumsum(counts)))
-    return Samples(point=point, offsets=offsets, **arrays)
+    return Samples(point=point, offsets=offsets, **arrays)  # type: ignore[arg-type]
 
 
 def _tares(store: Store, rows: list[dict], steps: Steps, step_rows: list[dict]) -> Tares:
@@ -226,6 +296,9 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
     """Weights w with thrust_n ~ w . (fx..tz) + c, by least squares on a few spread-out points.
 
     The rig file's axis convention is not needed: the stored thrust and F/T channels define it.
+    The points are read one at a time (twice: which channels hold data, then the fit), and
+    the least squares problem is reduced to its triangular factor point by point, so memory
+    is bounded by one point.
     """
     rows = sorted((r for r in step_rows if r["thrust_n_mean"] is not None),
                   key=lambda r: r["thrust_n_mean"])
@@ -233,16 +306,32 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
         return None
     pick = np.unique(np.linspace(0, len(rows) - 1, min(_AXIS_FIT_STEPS, len(rows))).astype(int))
     ids = [int(rows[i]["id"]) for i in pick]
-    parts = [store.step_samples(i, (*FT_CHANNELS, "thrust_n")) for i in ids]
-    data = np.concatenate([np.column_stack(list(p.values())) for p in parts])
-    if data.size == 0:
+
+    def points() -> Iterator[np.ndarray]:
+        for i in ids:
+            part = store.step_samples(i, (*FT_CHANNELS, "thrust_n"))
+            yield np.column_stack(list(part.values())).reshape(-1, 7)
+
+    finite, n_rows = np.ones(6, bool), 0
+    for data in points():
+        finite &= np.isfinite(data[:, :6]).all(axis=0)
+        n_rows += data.shape[0]
+    if n_rows == 0:
         return None
-    cols = np.flatnonzero(usable & np.isfinite(data[:, :6]).all(axis=0))
-    ok = np.isfinite(data[:, 6]) & np.isfinite(data[:, cols]).all(axis=1)
-    if cols.size == 0 or ok.sum() <= cols.size + 1:
+    cols = np.flatnonzero(usable & finite)
+    if cols.size == 0:
         return None
-    design = np.column_stack([data[ok][:, cols], np.ones(ok.sum())])
-    coef, *_ = np.linalg.lstsq(design, data[ok, 6], rcond=None)
+    factor, n_ok = np.empty((0, cols.size + 2)), 0
+    for data in points():
+        ok = np.isfinite(data[:, 6]) & np.isfinite(data[:, cols]).all(axis=1)
+        rows_ok = np.column_stack([data[ok][:, cols], np.ones(ok.sum()), data[ok, 6]])
+        factor = np.linalg.qr(np.vstack([factor, rows_ok]), mode="r")
+        n_ok += int(ok.sum())
+    if n_ok <= cols.size + 1:
+        return None
+    # The cut-off lstsq takes by default for the whole (n_ok x k) problem, not the factor's.
+    rcond = np.finfo(float).eps * max(n_ok, cols.size + 1)
+    coef, *_ = np.linalg.lstsq(factor[:, :-1], factor[:, -1], rcond=rcond)
     weights = np.zeros(6)
     weights[cols] = coef[:-1]
     return weights

@@ -23,6 +23,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -76,14 +77,32 @@ class FitParams:
     rel_systematic: float = 1e-3  # scale uncertainty of force and feedback, added to intervals
 
 
+class SampleSpreads(Protocol):
+    """The steady-window samples of one depth, as the per-sample spreads need them."""
+
+    def spread(self, name: str, note: str,
+               residual: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+               ) -> Coefficient:
+        """RMS (no interval) of residual(point, thrust_n, speed_rpm, current_a) over the
+        window samples; `point` indexes rows of the depth's PointTable."""
+
+
 @dataclass
 class WindowSamples:
-    """Steady-window samples of one depth; `point` indexes rows of that depth's PointTable."""
+    """Steady-window samples of one depth in memory; `point` indexes rows of that depth's
+    PointTable. (Calibrate streams them instead: rigtool.analysis.point_pass.)"""
 
     point: np.ndarray
     thrust_n: np.ndarray
     speed_rpm: np.ndarray
     current_a: np.ndarray
+
+    def spread(self, name: str, note: str,
+               residual: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+               ) -> Coefficient:
+        """RMS (no interval) of `residual` over these samples."""
+        return residual_spread(residual(self.point, self.thrust_n, self.speed_rpm,
+                                        self.current_a), name, note, interval=False)
 
 
 @dataclass
@@ -203,7 +222,7 @@ def _stopped_thrust(points: PointTable, ok: np.ndarray, top_rpm: float) -> float
     return float(np.median(points.thrust.mean[stopped])) if stopped.any() else 0.0
 
 
-def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float | None,
+def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float | None,
                density_kg_m3: float | None, params: FitParams | None = None,
                zero: ZeroLine | None = None, direction: SpeedSign | None = None,
                sessions: tuple[float, ...] = ()) -> ModelFits:
@@ -221,7 +240,6 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
         return result
     f, se_f, t = points.thrust.mean, points.thrust.se, points.t_mid_s
     n, se_n = points.speed.mean, points.speed.se
-    n_s = samples.speed_rpm
     use &= np.isfinite(n)
     if not use.any():
         return result
@@ -229,7 +247,6 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
         result.speed_sign, result.warnings = direction.source, direction.warnings
         if direction.source != "measured":
             n = np.abs(n) * direction.sign
-            n_s = np.abs(n_s) * direction.sign[samples.point]
     n_min = max(p.min_speed_rpm, p.min_speed_frac * float(np.max(np.abs(n[use]))))
     masks = {"fwd": use & (n > n_min), "rev": use & (n < -n_min)}
     thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions)
@@ -255,16 +272,24 @@ def fit_models(points: PointTable, samples: WindowSamples, *, diameter_m: float 
     result.zero = thrust_fit.zero
     zero = result.zero.at(t)
     pred = _signed_model(cp, n, lambda c, v: laws.thrust_from_speed(v, c, c))
-    pred_s = _signed_model(cp, n_s, lambda c, v: laws.thrust_from_speed(v, c, c),
-                           np.sign(n)[samples.point])
-    in_fit = result.used[samples.point]
+    inferred = direction is not None and direction.source != "measured"
+
+    sign_n, used, zero_p = np.sign(n), result.used, zero
+    sign_d = direction.sign if inferred else None
+
+    def sample_residual(point: np.ndarray, thrust_n: np.ndarray, speed_rpm: np.ndarray,
+                        _current_a: np.ndarray) -> np.ndarray:
+        n_s = speed_rpm if sign_d is None else np.abs(speed_rpm) * sign_d[point]
+        pred_s = _signed_model(cp, n_s, lambda c, v: laws.thrust_from_speed(v, c, c),
+                               sign_n[point])
+        return (thrust_n - zero_p[point] - pred_s)[used[point]]
+
     out["sigma_n_point"] = residual_spread(
         (f - zero - pred)[result.used], "sigma_n_point",
         "RMS of point-mean thrust minus zero minus C_p |n| n", interval=True)
-    out["sigma_n_sample"] = residual_spread(
-        (samples.thrust_n - zero[samples.point] - pred_s)[in_fit], "sigma_n_sample",
-        "RMS of sample thrust minus zero minus C_p |n| n over the steady windows; no interval "
-        "(samples are autocorrelated)", interval=False)
+    out["sigma_n_sample"] = samples.spread(
+        "sigma_n_sample", "RMS of sample thrust minus zero minus C_p |n| n over the steady "
+        "windows; no interval (samples are autocorrelated)", sample_residual)
     if points.torque.measured:
         out.update(_torque_models(points, n, se_n, t, masks, result, diameter_m,
                                   density_kg_m3, p, sessions))
@@ -398,7 +423,7 @@ class CurrentLaw:
         return self.rows, infl * self.resid * math.sqrt(self.serial[0])
 
 
-def _current_models(points: PointTable, samples: WindowSamples, n: np.ndarray,
+def _current_models(points: PointTable, samples: SampleSpreads, n: np.ndarray,
                     masks: dict[str, np.ndarray], thrust_fit: DirectionalFit,
                     cp: dict[str, Coefficient], p: FitParams,
                     single: np.ndarray) -> tuple[dict[str, Coefficient], list[str]]:
@@ -594,27 +619,32 @@ def _fixed_zero_variance(direct: DirectionalFit, key: str, t_s: np.ndarray,
     return max(a * a * c00 + 2 * a * b * c01 + b * b * c11, 0.0)
 
 
-def _current_spreads(points: PointTable, samples: WindowSamples, n: np.ndarray,
+def _current_spreads(points: PointTable, samples: SampleSpreads, n: np.ndarray,
                      cur: np.ndarray, ci: dict[str, Coefficient], law: CurrentLaw,
                      direct: DirectionalFit, signed: bool) -> dict[str, Coefficient]:
     """sigma_i per point mean and per sample: thrust minus zero minus the direct C_i law."""
     zero = direct.zero.at(points.t_mid_s)
-    cur_s = np.abs(samples.current_a) if signed else samples.current_a
 
     def model(c: float, v: np.ndarray) -> np.ndarray:
         return c * np.maximum(v - law.i_0.value, 0.0) ** law.power
 
     sign = np.sign(n)
     pred = _signed_model(ci, cur, model, sign) * sign
-    pred_s = _signed_model(ci, cur_s, model, sign[samples.point]) * sign[samples.point]
-    in_fit = direct.used[samples.point] & np.isfinite(cur_s)
+
+    def sample_residual(point: np.ndarray, thrust_n: np.ndarray, _speed_rpm: np.ndarray,
+                        current_a: np.ndarray) -> np.ndarray:
+        cur_s = np.abs(current_a) if signed else current_a
+        pred_s = _signed_model(ci, cur_s, model, sign[point]) * sign[point]
+        in_fit = direct.used[point] & np.isfinite(cur_s)
+        return (thrust_n - zero[point] - pred_s)[in_fit]
+
     f = points.thrust.mean
     law_text = "(I - I_0)^(2/3)" if law.k == CUBIC else "(I - I_0_free)^(2/k)"
     return {
         "sigma_i_point": residual_spread(
             (f - zero - pred)[direct.used], "sigma_i_point",
             f"RMS of point-mean thrust minus zero minus C_i_direct {law_text}", interval=True),
-        "sigma_i_sample": residual_spread(
-            (samples.thrust_n - zero[samples.point] - pred_s)[in_fit], "sigma_i_sample",
-            f"RMS of sample thrust minus zero minus C_i_direct {law_text} over the steady "
-            "windows; no interval (samples are autocorrelated)", interval=False)}
+        "sigma_i_sample": samples.spread(
+            "sigma_i_sample", f"RMS of sample thrust minus zero minus C_i_direct {law_text} "
+            "over the steady windows; no interval (samples are autocorrelated)",
+            sample_residual)}

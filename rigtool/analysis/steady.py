@@ -157,12 +157,15 @@ class SteadyWindows:
     channels: dict[str, ChannelStats]
     in_window: np.ndarray
 
-    def point_table(self, steps: Steps, samples: Samples) -> PointTable:
+    def point_table(self, steps: Steps, n_samples: np.ndarray,
+                    resolutions: dict[str, float]) -> PointTable:
+        """The run's point table; `resolutions`: the printed step of thrust, current and
+        voltage (see `resolution`; 0 or missing: none)."""
         n = len(steps)
         return PointTable(
             step_idx=steps.idx, command=steps.command, depth_m=steps.depth_m,
             repeat=steps.repeat, direction=steps.direction, t_start_s=steps.t_start_s,
-            status=steps.status, settled=steps.settled, n_samples=np.diff(samples.offsets),
+            status=steps.status, settled=steps.settled, n_samples=n_samples,
             n_window=self.n_window, window_start_s=self.window_start_s, t_mid_s=self.t_mid_s,
             unsteady=self.unsteady, thrust=self.channels["thrust_n"],
             speed=self.channels["speed_rpm"], current=self.channels["current_a"],
@@ -171,18 +174,45 @@ class SteadyWindows:
             dead=np.zeros(n, bool), used_in_fits=np.zeros(n, bool), thrust_zero_n=np.zeros(n),
             torque_zero_nm=np.zeros(n),
             speed_sign=np.zeros(n),
-            **resolution_floors(self.channels, samples),
+            **resolution_floors(self.channels, resolutions),
         )
+
+
+def concat_windows(parts: list[SteadyWindows]) -> SteadyWindows:
+    """The windows of consecutive blocks of points as one (without the per-sample mask)."""
+    def cat(name: str) -> np.ndarray:
+        return np.concatenate([getattr(w, name) for w in parts])
+
+    channels = {}
+    for name, unit in CHANNEL_UNITS.items():
+        stats = [w.channels[name] for w in parts]
+        channels[name] = ChannelStats(unit, *(np.concatenate([getattr(c, k) for c in stats])
+                                              for k in ("mean", "std", "se", "min", "max")))
+    return SteadyWindows(parts[0].criterion, cat("first"), cat("window_start_s"),
+                         cat("t_mid_s"), cat("n_window"), cat("unsteady"), channels,
+                         np.zeros(0, bool))
+
+
+RESOLUTION_CHANNELS = ("thrust_n", "current_a", "voltage_v")  # those `resolution_floors` uses
+
+
+def resolution_stride(n_finite: int) -> int:
+    """Every how many finite values `resolution` looks at, of a channel with `n_finite`."""
+    return n_finite // RESOLUTION_SAMPLES + 1 if n_finite > RESOLUTION_SAMPLES else 1
 
 
 def resolution(x: np.ndarray) -> float:
     """The step a channel's values are printed in (0.05 A, 0.01 kgf in N, ...): the smallest
     gap between distinct values, or a whole fraction of it, that every value is a whole
-    multiple of; 0 when there is none (live readings) or too few distinct values to tell."""
+    multiple of; 0 when there is none (live readings) or too few distinct values to tell.
+    At most RESOLUTION_SAMPLES values, evenly strided, are looked at."""
     v = x[np.isfinite(x)]
-    if v.size > RESOLUTION_SAMPLES:
-        v = v[:: v.size // RESOLUTION_SAMPLES + 1]
-    v = np.unique(np.abs(v))
+    return printed_step(v[::resolution_stride(v.size)])
+
+
+def printed_step(values: np.ndarray) -> float:
+    """`resolution` of finite `values`, all of them looked at."""
+    v = np.unique(np.abs(values))
     gaps = np.diff(v)
     if v.size < MIN_DISTINCT or not (gaps > 0).any():
         return 0.0
@@ -195,14 +225,15 @@ def resolution(x: np.ndarray) -> float:
     return 0.0
 
 
-def resolution_floors(channels: dict[str, ChannelStats], samples: Samples) -> dict[str, np.ndarray]:
+def resolution_floors(channels: dict[str, ChannelStats], resolutions: dict[str, float]
+                      ) -> dict[str, np.ndarray]:
     """Per point, the power and thrust below which half a printed step of current, voltage or
     thrust moves the efficiency by more than MAX_ROUNDING. A channel whose readings scatter
     by half a step or more within the point's window is dithered by its noise (rounding then
     biases its mean by under 1 % of a step; the standard error covers the rest) and sets no
     floor."""
     def step(name: str) -> np.ndarray:
-        q = resolution(samples.channel(name)) if samples.has(name) else 0.0
+        q = resolutions.get(name, 0.0)
         return np.where(np.nan_to_num(channels[name].std) < q / 2, q, 0.0)
 
     k = 1.0 / (2 * MAX_ROUNDING)
@@ -321,8 +352,11 @@ def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points:
         mean = np.bincount(pid, weights=xv, minlength=n_points) / cnt
         dev = np.where(ok, xv - mean[pid], 0.0)
         c0 = np.bincount(pid, weights=dev * dev, minlength=n_points)
-        same = pid[1:] == pid[:-1]
-        c1 = np.bincount(pid[:-1][same], weights=(dev[1:] * dev[:-1])[same], minlength=n_points)
+        # Lag-1 products within each point: one across a point boundary counts 0 (sums of
+        # the same terms as over the pairs within points).
+        lag = dev[1:] * dev[:-1]
+        lag[pid[1:] != pid[:-1]] = 0.0
+        c1 = np.bincount(pid[:-1], weights=lag, minlength=n_points)
         var = c0 / (cnt - 1)
         std = np.sqrt(var)
         r1 = ar1_coefficient(c1 / c0, MAX_R1_SAMPLES)

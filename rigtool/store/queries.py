@@ -219,6 +219,37 @@ class RunQueries:
         if pending:
             yield decode_blocks(pending, cols, self.path)
 
+    def sample_count(self, run_id: str) -> int:
+        """How many samples the run's points hold in all (blocks checked first)."""
+        self._read.check_blocks(run_id, "st.run_id = ?", (run_id,))
+        return int(self.conn.execute(
+            "SELECT COALESCE(SUM(b.n), 0) FROM sample_blocks b JOIN steps st "
+            "ON st.id = b.step_id WHERE st.run_id = ?", (run_id,)).fetchone()[0])
+
+    def iter_point_samples(self, run_id: str, columns: Iterable[str], batch: int = READ_SAMPLES
+                           ) -> Iterator[dict[str, np.ndarray]]:
+        """A run's samples in plan order, in chunks of whole points of at most about `batch`
+        samples (a point longer than that is a chunk of its own): `step_idx` then `columns`,
+        as `sample_arrays` gives them. A chunk ends before a point when one more point as
+        long as the last would pass `batch`. Memory is bounded by the chunk, not the run."""
+        cols = sample_names(columns)
+        self._read.check_blocks(run_id, "st.run_id = ?", (run_id,))
+        sql = (f"SELECT st.idx, b.n{''.join(', b.' + c for c in cols[1:])} FROM sample_blocks b "
+               "JOIN steps st ON st.id = b.step_id WHERE st.run_id = ? ORDER BY st.idx, b.chunk")
+        pending: list[tuple] = []
+        held = point = 0
+        for row in self.conn.execute(sql, (run_id,)):
+            if pending and row[0] != pending[-1][0]:
+                if held + point > batch:
+                    yield decode_blocks(pending, cols, self.path)
+                    pending, held = [], 0
+                point = 0
+            pending.append(row)
+            held += row[1]
+            point += row[1]
+        if pending:
+            yield decode_blocks(pending, cols, self.path)
+
     def run_ids(self) -> list[str]:
         """Every run id, oldest first."""
         self._read.find_bad(None, "runs", ("id",), "1", ())
