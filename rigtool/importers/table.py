@@ -96,10 +96,12 @@ def _body(first: str, rest: Iterator[str]) -> Iterator[str]:
 
 def read_table_chunks(path: Path, *, encoding: str, digest: Any, delimiter: str | None = None,
                       decimal: str = ".", header_row: int | None = None,
-                      rows_per_chunk: int = ROWS_PER_CHUNK) -> Iterator[RawTable]:
-    """Parse `path` (its `encoding` from `scan`) in tables of up to `rows_per_chunk` rows, each
-    with the header; the first is yielded once the header is read, even without rows. The
-    header is line `header_row` or the first non-blank line. Memory holds one chunk of text."""
+                      rows_per_chunk: int | None = None) -> Iterator[RawTable]:
+    """Parse `path` (its `encoding` from `scan`) in tables of up to `rows_per_chunk`
+    (default ROWS_PER_CHUNK) rows, each with the header; the first is yielded once the header
+    is read, even without rows. The header is line `header_row` or the first non-blank line.
+    Memory holds one chunk of text."""
+    per_chunk = rows_per_chunk or ROWS_PER_CHUNK
     lines = _lines(path, encoding, digest)
     head = None
     for number, line in enumerate(lines, start=1):
@@ -124,7 +126,7 @@ def read_table_chunks(path: Path, *, encoding: str, digest: Any, delimiter: str 
                         header.pop()
                 elif (cells and cells[0].strip()) or any(c.strip() for c in cells):
                     rows.append((header_row + reader.line_num - 1, cells))
-                    if len(rows) >= rows_per_chunk:
+                    if len(rows) >= per_chunk:
                         yield RawTable(path, header, header_row, rows, delim, bad)
                         rows, bad = [], []
             break
