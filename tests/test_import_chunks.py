@@ -72,7 +72,7 @@ def test_chunk_size_and_read_blocks_do_not_change_the_run(tmp_path: Path,
 
 @pytest.mark.parametrize("text", [
     "a\r\nb\rc\n\nd", "a\r", "\r\n\r\n", "x\x0cy\x1cz\x85w\u2028v\u2029u\x0bt", "", "é\r\nü",
-    "\ufeffhead\r\nrow"])
+    "\ufeffhead\r\nrow", "x" * 50 + "\r\n" + "y" * 30 + "\r" + "z" * 9])
 @pytest.mark.parametrize("block", [1, 2, 3, 1 << 20])
 def test_lines_are_those_of_splitlines(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                        text: str, block: int) -> None:
@@ -82,3 +82,10 @@ def test_lines_are_those_of_splitlines(tmp_path: Path, monkeypatch: pytest.Monke
     digest = hashlib.sha256()
     assert list(table._lines(path, "utf-8-sig", digest)) == text.lstrip("\ufeff").splitlines()
     assert digest.hexdigest() == hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def test_one_huge_line_is_refused_with_a_message(tmp_path: Path, capsys) -> None:
+    log = tmp_path / "one-line.csv"
+    log.write_bytes(b"7" * (12 << 20))  # 12 MiB and no line break: gathered in linear time
+    assert main(["import", str(log), "--db", str(tmp_path / "db.sqlite")]) == 2
+    assert "header cannot be read: a cell is longer than" in capsys.readouterr().err

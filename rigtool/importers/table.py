@@ -68,21 +68,35 @@ def scan(path: Path) -> tuple[bytes, str]:
 
 def _lines(path: Path, encoding: str, digest: Any) -> Iterator[str]:
     """The file's lines exactly as `str.splitlines` splits the whole text, decoded block by
-    block; every byte read goes into `digest`."""
+    block; every byte read goes into `digest`. A line longer than a block is gathered in
+    pieces and joined once (linear time however long it is)."""
     decoder = codecs.getincrementaldecoder(encoding)()
-    carry = ""
+    pending: list[str] = []  # the start of a line whose break is not read yet
+    tail = ""  # a CR ending a block: LF may follow in the next
     try:
         for block in iter_regular_bytes(path, MAX_TABLE_BYTES):
             digest.update(block)
-            parts = (carry + decoder.decode(block)).splitlines(keepends=True)
-            last = parts[-1] if parts else ""
-            # a last line without its break, or ending in CR (LF may follow), waits for more
-            carry = parts.pop() if parts and (last.endswith("\r") or last.splitlines()[0] == last) else ""
-            for part in parts:
-                yield part.splitlines()[0]
-        yield from (carry + decoder.decode(b"", final=True)).splitlines()
+            text = tail + decoder.decode(block)
+            tail = "\r" if text.endswith("\r") else ""
+            yield from _split(text[:len(text) - len(tail)], pending)
+        yield from _split(tail + decoder.decode(b"", final=True), pending)
     except UnicodeDecodeError:
         raise UsageError(f"{path}: the file changed while it was read") from None
+    if pending:
+        yield "".join(pending)
+
+
+def _split(text: str, pending: list[str]) -> Iterator[str]:
+    """The lines `text` ends, the first joined to `pending`; an unended last piece goes to
+    `pending`."""
+    for part in text.splitlines(keepends=True):
+        line = part.splitlines()[0]
+        if len(line) == len(part):
+            pending.append(part)
+        else:
+            pending.append(line)
+            yield "".join(pending)
+            pending.clear()
 
 
 def _body(first: str, rest: Iterator[str]) -> Iterator[str]:
