@@ -89,14 +89,18 @@ def _lines(path: Path, encoding: str, digest: Any) -> Iterator[str]:
 def _split(text: str, pending: list[str]) -> Iterator[str]:
     """The lines `text` ends, the first joined to `pending`; an unended last piece goes to
     `pending`."""
-    for part in text.splitlines(keepends=True):
-        line = part.splitlines()[0]
-        if len(line) == len(part):
-            pending.append(part)
-        else:
-            pending.append(line)
-            yield "".join(pending)
+    if not text:
+        return
+    lines = text.splitlines()
+    piece = lines.pop() if len((text[-1] + "x").splitlines()) == 1 else None  # no break at the end
+    if lines:
+        if pending:
+            pending.append(lines[0])
+            lines[0] = "".join(pending)
             pending.clear()
+        yield from lines
+    if piece is not None:
+        pending.append(piece)
 
 
 def _body(first: str, rest: Iterator[str]) -> Iterator[str]:
