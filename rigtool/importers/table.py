@@ -50,11 +50,12 @@ def scan(path: Path) -> tuple[bytes, str]:
     utf8 = True
     for block in iter_regular_bytes(path, MAX_TABLE_BYTES):  # a FIFO or device is refused
         head += block[:MAGIC_BYTES - len(head)]
-        if utf8:
-            try:
-                decoder.decode(block)
-            except UnicodeDecodeError:
-                utf8 = False
+        try:
+            decoder.decode(block)
+        except UnicodeDecodeError:
+            utf8 = False
+            if len(head) == MAGIC_BYTES:
+                break  # Latin-1, and the start is known: nothing more to learn
     if utf8:
         try:
             decoder.decode(b"", final=True)
