@@ -1,13 +1,15 @@
 """Read the files a user names: regular files only, size-capped, never blocking on a FIFO.
 
 A FIFO, a device such as /dev/zero, or a symlink to one would hang rigtool or fill its
-memory, so every config, DBC and CSV file is opened through `read_regular_bytes`.
+memory, so every config, DBC and CSV file is opened through `read_regular_bytes` (or, for
+large logs, `iter_regular_bytes`).
 """
 
 from __future__ import annotations
 
 import os
 import stat
+from collections.abc import Iterator
 from pathlib import Path
 
 from rigtool.errors import ConfigError
@@ -62,7 +64,13 @@ def _check_stat(path: Path, st: os.stat_result, max_bytes: int) -> None:
 
 
 def read_regular_bytes(path: str | Path, max_bytes: int) -> bytes:
-    """The bytes of the regular file `path`, at most `max_bytes`; UnreadableFile otherwise.
+    """The bytes of the regular file `path`, at most `max_bytes`; UnreadableFile otherwise."""
+    return b"".join(iter_regular_bytes(path, max_bytes))
+
+
+def iter_regular_bytes(path: str | Path, max_bytes: int) -> Iterator[bytes]:
+    """The bytes of the regular file `path` in blocks of up to 1 MiB, at most `max_bytes` in
+    all (UnreadableFile past that), so a large log is read without holding it whole.
 
     The file is opened non-blocking and checked again through its descriptor, so a FIFO
     or device swapped in after the first check is refused instead of read.
@@ -74,21 +82,26 @@ def read_regular_bytes(path: str | Path, max_bytes: int) -> bytes:
     except OSError as exc:
         raise UnreadableFile(path, f"cannot read: {exc.strerror or exc}") from None
     try:
-        _check_stat(path, os.fstat(fd), max_bytes)
-        chunks, total = [], 0
-        while total <= max_bytes:
-            chunk = os.read(fd, min(_READ_CHUNK, max_bytes + 1 - total))
+        try:
+            st = os.fstat(fd)
+        except OSError as exc:
+            raise UnreadableFile(path, f"cannot read: {exc.strerror or exc}") from None
+        _check_stat(path, st, max_bytes)
+        total = 0
+        while True:
+            try:
+                chunk = os.read(fd, min(_READ_CHUNK, max_bytes + 1 - total))
+            except OSError as exc:
+                raise UnreadableFile(path, f"cannot read: {exc.strerror or exc}") from None
             if not chunk:
-                break
-            chunks.append(chunk)
+                return
             total += len(chunk)
-    except OSError as exc:
-        raise UnreadableFile(path, f"cannot read: {exc.strerror or exc}") from None
+            if total > max_bytes:
+                raise UnreadableFile(path, "file too large (grew past the limit of "
+                                           f"{_size(max_bytes)})")
+            yield chunk
     finally:
         os.close(fd)
-    if total > max_bytes:
-        raise UnreadableFile(path, f"file too large (grew past the limit of {_size(max_bytes)})")
-    return b"".join(chunks)
 
 
 def decode_utf8(path: Path, data: bytes) -> str:

@@ -13,7 +13,7 @@ import numpy as np
 from rigtool.errors import UsageError
 from rigtool.files import MAX_TABLE_BYTES, read_regular_bytes
 from rigtool.importers import workbook
-from rigtool.importers.generic import Parsed, parse
+from rigtool.importers.generic import Parsed, parse_chunks
 from rigtool.importers.mapping import Mapping, load_mapping, with_overrides
 from rigtool.importers.steps import (
     TEMPERATURE_CHANNEL,
@@ -22,7 +22,7 @@ from rigtool.importers.steps import (
     point_steps,
     timeseries_steps,
 )
-from rigtool.importers.table import read_table
+from rigtool.importers.table import read_table_chunks, scan
 from rigtool.importers.writer import protocol_for, write_run
 from rigtool.store import Store
 
@@ -81,19 +81,20 @@ class _Source:
 
 
 def _read(path: Path, m: Mapping) -> _Source:
-    """Parse a text table or an .xlsx workbook (by its name, or a ZIP archive under any name)."""
+    """Parse a text table, chunk by chunk, or an .xlsx workbook (by its name, or a ZIP archive
+    under any name), which is read whole."""
     if workbook.is_workbook(path):
         book = workbook.read_workbook(path, m)
         return _Source(book.parsed, book.sha256, book.sheets, book.notes, book.warnings)
-    raw = read_regular_bytes(path, MAX_TABLE_BYTES)  # a FIFO or device is refused, not read
-    if workbook.is_workbook(path, raw):
-        book = workbook.read_workbook(path, m, raw)
+    head, encoding = scan(path)
+    if workbook.is_workbook(path, head):
+        book = workbook.read_workbook(path, m, read_regular_bytes(path, MAX_TABLE_BYTES))
         return _Source(book.parsed, book.sha256, book.sheets, book.notes, book.warnings)
-    sha = hashlib.sha256(raw).hexdigest()
-    table = read_table(path, delimiter=m.delimiter, decimal=m.decimal, header_row=m.header_row,
-                       raw=raw)
-    del raw
-    return _Source(parse(table, m), sha)
+    digest = hashlib.sha256()
+    chunks = read_table_chunks(path, encoding=encoding, digest=digest, delimiter=m.delimiter,
+                               decimal=m.decimal, header_row=m.header_row)
+    parsed = parse_chunks(chunks, m)
+    return _Source(parsed, digest.hexdigest())
 
 
 def _drop_unmeasured_torque(source: _Source) -> None:

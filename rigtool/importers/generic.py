@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -186,15 +188,34 @@ def _column(cells: list[str], fld: str, ref: ColumnRef, widths: np.ndarray, deci
 
 def parse(table: RawTable, mapping: Mapping) -> Parsed:
     """Read every data row; a row with an unreadable mapped cell is skipped and reported."""
-    importer, refs, command_unit, warnings = resolve_columns(table, mapping)
-    widths = np.fromiter((len(cells) for _, cells in table.rows), dtype=np.int64,
-                         count=len(table.rows))
+    return parse_chunks(iter([table]), mapping)
+
+
+def parse_chunks(tables: Iterator[RawTable], mapping: Mapping) -> Parsed:
+    """`parse` of a table read in chunks (`read_table_chunks`): each chunk's cells become SI
+    columns before the next is read, so only the numbers of the whole file are held."""
+    first = next(tables)
+    importer, refs, command_unit, warnings = resolve_columns(first, mapping)
     problems: dict[int, list[str]] = {}
-    columns = {}
-    for fld, ref in refs.items():
-        j = ref.index
-        cells = [cells[j] if j < len(cells) else "" for _, cells in table.rows]
-        columns[fld] = _column(cells, fld, ref, widths, mapping.decimal, problems)
+    parts: dict[str, list[np.ndarray]] = {fld: [] for fld in refs}
+    row_lines: list[np.ndarray] = []
+    bad: list[tuple[int, str]] = []
+    n = 0
+    for table in itertools.chain([first], tables):
+        widths = np.fromiter((len(cells) for _, cells in table.rows), dtype=np.int64,
+                             count=len(table.rows))
+        local: dict[int, list[str]] = {}
+        for fld, ref in refs.items():
+            j = ref.index
+            cells = [cells[j] if j < len(cells) else "" for _, cells in table.rows]
+            parts[fld].append(_column(cells, fld, ref, widths, mapping.decimal, local))
+        problems.update((n + i, ps) for i, ps in local.items())
+        row_lines.append(np.fromiter((line for line, _ in table.rows), dtype=np.int64,
+                                     count=len(table.rows)))
+        bad += table.bad
+        n += len(table.rows)
+    columns = {fld: np.concatenate(p) for fld, p in parts.items()}
+    del parts
     if "thrust_std" in columns:
         with np.errstate(over="ignore", invalid="ignore"):
             spread = np.abs(columns["thrust"]) + np.abs(columns["thrust_std"])
@@ -206,16 +227,16 @@ def parse(table: RawTable, mapping: Mapping) -> Parsed:
             problems.setdefault(i, []).append(
                 f"command: {columns['command'][i]:g} is outside the commands rigtool stores "
                 f"(|command| <= {MAX_COMMAND:g})")
-    good = np.ones(len(table.rows), dtype=bool)
+    good = np.ones(n, dtype=bool)
     good[list(problems)] = False
-    row_lines = [line for line, _ in table.rows]
-    errors = [(row_lines[i], p) for i, ps in problems.items() for p in ps] + table.bad
+    all_lines = np.concatenate(row_lines)
+    errors = [(int(all_lines[i]), p) for i, ps in problems.items() for p in ps] + bad
     errors.sort(key=lambda e: e[0])
     values = {f: v[good] for f, v in columns.items()}
-    _refuse_pooled_supplies(values, refs, str(table.path))
-    lines = np.asarray(row_lines, dtype=int)[good]
-    return Parsed(importer, refs, command_unit, values, lines, len(table.rows) + len(table.bad),
-                  [f"{table.path}:{n}: {p}" for n, p in errors], warnings)
+    del columns
+    _refuse_pooled_supplies(values, refs, str(first.path))
+    return Parsed(importer, refs, command_unit, values, all_lines[good], n + len(bad),
+                  [f"{first.path}:{line}: {p}" for line, p in errors], warnings)
 
 
 def supply_levels(values: dict[str, np.ndarray]) -> np.ndarray | None:
