@@ -1,7 +1,12 @@
-"""Shared fixtures: paths to shipped protocols, a temporary run database."""
+"""Shared fixtures: paths to shipped protocols, a temporary run database, and the simulated
+sweeps of shipped protocols that several test files start from (made once per test run)."""
 
 from __future__ import annotations
 
+import fcntl
+import os
+import sqlite3
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -37,6 +42,50 @@ def recorder(channel):
 @pytest.fixture
 def db_path(tmp_path: Path) -> Path:
     return tmp_path / "runs.sqlite"
+
+
+def copy_db(src: Path, dst: Path) -> Path:
+    """A consistent copy of the SQLite database `src` at `dst` (SQLite's online backup), for a
+    test that writes to a database another test also reads."""
+    with sqlite3.connect(src) as source, sqlite3.connect(dst) as target:
+        source.backup(target)
+    source.close()
+    target.close()
+    return dst
+
+
+def shared_dir(tmp_path_factory) -> Path:
+    """A folder for what a whole test run builds once: the run's base temporary folder, which
+    under pytest-xdist every worker of the run shares."""
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    folder = root / "shared"
+    folder.mkdir(exist_ok=True)
+    return folder
+
+
+@pytest.fixture(scope="session")
+def shipped_sweep(tmp_path_factory) -> Callable[[str], Path]:
+    """`shipped_sweep(name)`: the database of one `rigtool sweep protocols/<name>.yaml --sim`,
+    swept on first use by whichever pytest-xdist worker asks first (the others wait on a lock)
+    and kept for the test run. Read it, or `copy_db` it before writing: other tests start
+    from the same file."""
+    from rigtool.cli import main
+
+    folder = shared_dir(tmp_path_factory)
+
+    def sweep(name: str) -> Path:
+        db, done = folder / f"{name}.sqlite", folder / f"{name}.done"
+        with open(folder / f"{name}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not done.exists():
+                db.unlink(missing_ok=True)  # a worker that failed half-way
+                assert main(["sweep", str(PROTOCOLS / f"{name}.yaml"), "--sim", "--db",
+                             str(db)]) == 0
+                done.touch()
+        return db
+
+    return sweep
 
 
 @pytest.fixture

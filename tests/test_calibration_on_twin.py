@@ -15,16 +15,17 @@ from rigtool.cli import main
 from rigtool.store import Store
 from rigtool.thruster_profiles import PROFILES
 
-from .conftest import PROTOCOLS
+from .conftest import PROTOCOLS, copy_db
 
 CAN = PROFILES["can-bldc"]
 
 
 @pytest.fixture(scope="module")
-def baseline(tmp_path_factory):
-    """One full luo2020-baseline run (401 points, 1.2 M samples), shared by the tests here."""
-    db = tmp_path_factory.mktemp("baseline") / "runs.sqlite"
-    assert main(["sweep", str(PROTOCOLS / "luo2020-baseline.yaml"), "--sim", "--db", str(db)]) == 0
+def baseline(tmp_path_factory, shipped_sweep):
+    """One full luo2020-baseline run (401 points, 1.2 M samples): the session's sweep
+    (conftest.shipped_sweep), copied for the tests here."""
+    db = copy_db(shipped_sweep("luo2020-baseline"),
+                 tmp_path_factory.mktemp("baseline") / "runs.sqlite")
     store = Store(db)
     return store, store.resolve_run_id("last")
 
@@ -78,10 +79,8 @@ def _zones(cal):
     return sec.curve
 
 
-def test_stm32_dead_zones_and_break_away(tmp_path):
-    db = tmp_path / "s.sqlite"
-    assert main(["sweep", str(PROTOCOLS / "stm32-pwm.yaml"), "--sim", "--db", str(db)]) == 0
-    store = Store(db)
+def test_stm32_dead_zones_and_break_away(shipped_sweep):
+    store = Store(shipped_sweep("stm32-pwm"), read_only=True)
     curve = _zones(calibrate_run(store, store.resolve_run_id("last")))
     zones = sorted(curve.dead_zones)
     assert len(zones) == 2
@@ -91,9 +90,8 @@ def test_stm32_dead_zones_and_break_away(tmp_path):
     assert any(abs(b - 451) <= 1 for b in curve.break_aways)
 
 
-def test_esc_deadband(tmp_path, capsys):
-    db = tmp_path / "e.sqlite"
-    assert main(["sweep", str(PROTOCOLS / "esc-1100-1900.yaml"), "--sim", "--db", str(db)]) == 0
+def test_esc_deadband(tmp_path, capsys, shipped_sweep):
+    db = copy_db(shipped_sweep("esc-1100-1900"), tmp_path / "e.sqlite")
     out = tmp_path / "cal"
     assert main(["calibrate", "last", "--out", str(out), "--db", str(db)]) == 0
     run_id = Store(db).resolve_run_id("last")

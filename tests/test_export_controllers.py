@@ -21,6 +21,8 @@ from rigtool.cli import main
 from rigtool.store import Store
 from rigtool.workflows import stored_results
 
+from .conftest import copy_db
+
 ROOT = Path(__file__).resolve().parents[1]
 FORWARD_ONLY = """\
 rigtool_protocol: 1
@@ -49,9 +51,10 @@ def _cli(*args: str | Path) -> int:
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
+def runs(tmp_path_factory, shipped_sweep):
     """Three twins swept and calibrated once through the CLI, with their exports: the shipped
-    ESC and quick-demo protocols, and a forward-only ESC sweep."""
+    ESC (the session's sweep of it, copied) and quick-demo protocols, and a forward-only ESC
+    sweep."""
     tmp = tmp_path_factory.mktemp("controllers")
     db, out = tmp / "db.sqlite", tmp / "cal"
     (tmp / "fwd.yaml").write_text(FORWARD_ONLY)
@@ -62,7 +65,10 @@ def runs(tmp_path_factory):
             ("demo", ROOT / "protocols" / "quick-demo.yaml",
              ("px4", "thruster-manager", "auv-controllers")),
             ("fwd", tmp / "fwd.yaml", ("ardupilot", "px4", "auv-controllers"))):
-        assert _cli("sweep", protocol, "--sim", "--db", db) == 0
+        if name == "esc":
+            copy_db(shipped_sweep("esc-1100-1900"), db)
+        else:
+            assert _cli("sweep", protocol, "--sim", "--db", db) == 0
         store = Store(db)
         run_id = store.resolve_run_id("last")
         store.close()

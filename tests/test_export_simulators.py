@@ -36,6 +36,8 @@ from rigtool.cli import main
 from rigtool.store import Store
 from rigtool.workflows import stored_results
 
+from .conftest import copy_db
+
 ROOT = Path(__file__).resolve().parents[1]
 SIMS = ("uuv", "stonefish", "gazebo")
 OPTIONS = ["--joint", "j", "--link", "l", "--namespace", "ns", "--index", "1", "--mesh",
@@ -56,11 +58,11 @@ def run(*args: str) -> int:
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    """A quick-demo sweep calibrated with the three exports, and two step runs exported with it."""
+def lab(tmp_path_factory, shipped_sweep):
+    """A quick-demo sweep (the session's, copied) calibrated with the three exports, and two
+    step runs exported with it."""
     tmp = tmp_path_factory.mktemp("simulators")
-    db = str(tmp / "db.sqlite")
-    assert run("sweep", ROOT / "protocols/quick-demo.yaml", "--sim", "--db", db) == 0
+    db = str(copy_db(shipped_sweep("quick-demo"), tmp / "db.sqlite"))
     assert run("calibrate", "last", "--db", db, "--out", tmp / "cal",
                *(a for f in SIMS for a in ("--export", f)), *OPTIONS) == 0
     steady = next((tmp / "cal").iterdir())

@@ -30,7 +30,7 @@ from rigtool.store import Store
 from rigtool.thruster_profiles import profile_with_overrides
 from rigtool.workflows import export_calibration, stored_results
 
-from .conftest import PROTOCOLS
+from .conftest import PROTOCOLS, copy_db
 from .test_c_evaluator import C_DIR, CC, _agree
 from .test_export_all_formats import OPTIONS, empty_lists
 
@@ -50,10 +50,14 @@ def test_the_list_is_the_shipped_protocols():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", SHIPPED)
-def test_sweep_calibrate_report(name, tmp_path, monkeypatch, capsys):
+def test_sweep_calibrate_report(name, tmp_path, monkeypatch, capsys, shipped_sweep):
+    """The first sweep is the session's (conftest.shipped_sweep), copied: the same CLI sweep
+    the other files that start from a shipped protocol share; a needed run is swept after it."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("RIGTOOL_DB", str(tmp_path / "rigtool.sqlite"))
-    for protocol in filter(None, (NEEDS.get(name), name)):
+    first, *then = filter(None, (NEEDS.get(name), name))
+    copy_db(shipped_sweep(first), tmp_path / "rigtool.sqlite")
+    for protocol in then:
         assert main(["sweep", str(PROTOCOLS / f"{protocol}.yaml"), "--sim"]) == 0
     capsys.readouterr()
     exports = [a for f in MODULES for a in ("--export", f)]

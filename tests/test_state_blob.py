@@ -27,7 +27,7 @@ from rigtool.cli import main
 from rigtool.errors import StoreError
 from rigtool.store import RunRecord, Store
 
-from .conftest import PROTOCOLS
+from .conftest import copy_db
 from .state_fixtures import FIXTURES, SHIPPED, format_of, summary
 
 BLOBS = sorted(FIXTURES.glob("*.blob"))
@@ -177,11 +177,11 @@ def test_every_class_a_calibration_can_hold_is_registered():
 
 
 @pytest.fixture(scope="module")
-def calibrated(tmp_path_factory) -> Path:
-    """The database of a calibrated dynamics-steps run (the step-response stage too)."""
+def calibrated(tmp_path_factory, shipped_sweep) -> Path:
+    """The database of a calibrated dynamics-steps run (the step-response stage too): the
+    session's sweep of it, copied."""
     tmp = tmp_path_factory.mktemp("calibrated")
-    db = tmp / "db.sqlite"
-    assert main(["sweep", str(PROTOCOLS / "dynamics-steps.yaml"), "--sim", "--db", str(db)]) == 0
+    db = copy_db(shipped_sweep("dynamics-steps"), tmp / "db.sqlite")
     assert main(["calibrate", "last", "--db", str(db), "--out", str(tmp / "out")]) == 0
     return db
 

@@ -93,9 +93,11 @@ def test_twin_speed_and_current_follow_the_supply_voltage():
     assert can.steady_state(50)[0] == n48
 
 
-@pytest.fixture(params=CASES, ids=["default", "hungry-motor", "noisy"])
-def swept(request, tmp_path):
+@pytest.fixture(scope="module", params=CASES, ids=["default", "hungry-motor", "noisy"])
+def swept(request, tmp_path_factory):
+    """Each case swept, calibrated and reported once; the tests only read what it wrote."""
     seed, overrides = request.param
+    tmp_path = tmp_path_factory.mktemp("volts")
     db, out = str(tmp_path / "db.sqlite"), tmp_path / "cal"
     assert main(["sweep", str(_protocol(tmp_path, seed, overrides)), "--sim", "--db", db]) == 0
     assert main(["calibrate", "last", "--db", db, "--out", str(out)]) == 0
