@@ -104,6 +104,26 @@ def test_a_second_export_rewrites_only_the_new_and_the_recalibrated_run(lab, cap
     assert "0 run(s) written, 3 unchanged" in capsys.readouterr().out
 
 
+def test_a_first_export_killed_while_marking_its_folder_is_taken_up_again(lab, capsys):
+    """A kill -9 of the first export into a new folder leaves its lock and the manifest's
+    half-written temporary file: the next export takes the folder, not refuses it."""
+    tmp, db, ids, _ = lab
+    out = tmp / "fresh"
+    out.mkdir()
+    (out / "_rigtool_export.lock").write_text("")
+    (out / "._rigtool_manifest.json.tmp").write_text('{"runs": {"x"')
+    assert _export(out, db) == 0
+    assert _duckdb_counts(out) == _store_counts(db)
+    assert not (out / "._rigtool_manifest.json.tmp").exists()
+    # anything else (or the temporary name as a symlink) is still not rigtool's to take
+    other = tmp / "other"
+    other.mkdir()
+    (other / "._rigtool_manifest.json.tmp").symlink_to(tmp / "lab.sqlite")
+    capsys.readouterr()
+    assert _export(other, db) == 2
+    assert "holds files but no rigtool dataset" in capsys.readouterr().err
+
+
 def test_duckdb_and_pyarrow_read_the_store_s_row_counts(lab):
     tmp, db, ids, out = lab
     expected = _store_counts(db)

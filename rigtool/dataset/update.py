@@ -16,6 +16,7 @@ from rigtool.dataset.files import (
     partition_dir,
     remove_partition,
     replace_atomically,
+    temp_name,
 )
 from rigtool.dataset.hive import segment
 from rigtool.dataset.manifest import MANIFEST, Entry, read_manifest, write_manifest
@@ -68,8 +69,10 @@ def _check_folder(folder: Path) -> None:
     """Refuse a file, or a folder holding something other than a rigtool dataset."""
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"--all {folder}: is a file; give a folder for the dataset")
+    own = {LOCK, temp_name(folder / MANIFEST).name}  # what a first export killed leaves
     if (folder.is_dir() and not (folder / MANIFEST).is_file()
-            and any(p.name != LOCK for p in folder.iterdir())):
+            and any(p.name not in own or p.is_symlink() or not p.is_file()
+                    for p in folder.iterdir())):
         raise UsageError(f"--all {folder}: the folder holds files but no rigtool dataset "
                          f"({MANIFEST}); give an empty or new folder")
 
