@@ -285,8 +285,12 @@ def test_usage_errors_exit_2_naming_the_folder(lab, capsys):
     assert main(["export", "--all", str(out), "--format", "csv", "--db", str(db)]) == 2
     assert main(["export", "last", "--all", str(out), "--db", str(db)]) == 2
     manifest = out / "_rigtool_manifest.json"
+    newer = json.loads(manifest.read_text())
+    newer["dataset_version"] = 99
+    huge = json.loads(manifest.read_text())
+    next(iter(huge["runs"].values()))["rows"] = 10**30
     for damaged in ("{not json", "[" * 100_000, '{"format": "rigtool-parquet-dataset", "runs": '
-                    '{"r": {"rows": -1}}}'):
+                    '{"r": {"rows": -1}}}', json.dumps(newer), json.dumps(huge)):
         manifest.write_text(damaged)
         assert _export(out, db) == 2
         err = capsys.readouterr().err

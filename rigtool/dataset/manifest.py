@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from rigtool.dataset.files import replace_atomically
+from rigtool.dataset.partition import DATASET_VERSION
 from rigtool.errors import DataError
 from rigtool.ids import utc_now
 from rigtool.version import __version__
@@ -18,6 +19,7 @@ MANIFEST = "_rigtool_manifest.json"
 FORMAT = "rigtool-parquet-dataset"
 MAX_MANIFEST_BYTES = 256 << 20  # ~2 KB a run: room for 100 000 runs
 _TEXT_OR_NONE = (str, type(None))
+MAX_COUNT = (1 << 63) - 1  # rows, bytes, points: what an int64 holds
 
 
 @dataclass
@@ -60,6 +62,11 @@ def read_manifest(folder: Path) -> dict[str, Entry] | None:
         raise _damaged(path, f"not JSON ({str(exc)[:80]})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise _damaged(path, f"not a {FORMAT} manifest")
+    version = data.get("dataset_version")
+    if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= (
+            DATASET_VERSION):
+        raise _damaged(path, f"dataset_version {str(version)[:20]!r}: this rigtool writes and "
+                             f"reads 1..{DATASET_VERSION} (a newer rigtool wrote it?)")
     runs = data.get("runs")
     if not isinstance(runs, dict):
         raise _damaged(path, "`runs` is not an object")
@@ -72,7 +79,7 @@ def _entry(path: Path, run_id: str, fields: object) -> Entry:
     for name, kind in _TYPES.items():
         value = fields[name]
         if not isinstance(value, kind) or (kind is int and (isinstance(value, bool)
-                                                            or value < 0)):
+                                                            or not 0 <= value <= MAX_COUNT)):
             raise _damaged(path, f"run {run_id[:80]!r}, {name}: {str(value)[:80]!r}")
     return Entry(**fields)
 
