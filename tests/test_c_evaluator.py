@@ -8,6 +8,7 @@ several 1e-9 N), identical flags and NaNs.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -321,6 +322,18 @@ def test_the_signal_flag_must_match_the_fields_and_files(qctm_eval, hetero_files
     _both_refuse(qctm_eval, tmp_path, "is missing")
     (tmp_path / VARIANCE_FILE).write_bytes(kinv)
     _agree(qctm_eval, tmp_path, np.array([1000.0]), np.array([1.5]), np.array([0.3]), [0])
+
+
+@pytest.mark.parametrize("field", ["log_mean", "log_bias"])
+@pytest.mark.parametrize("value", ["1e308", "-1e308", "150.5"])
+def test_a_noise_level_that_is_no_log_variance_is_refused_by_both(qctm_eval, slim_text,
+                                                                 tmp_path, field, value):
+    """A log-variance level of 1e308 (or beyond +-100) would give infinite or NaN intervals:
+    both readers refuse the file instead (found by an attack)."""
+    text, n = re.subn(rf'"{field}": [^,}}]+', f'"{field}": {value}', slim_text, count=1)
+    assert n == 1
+    (tmp_path / MODEL_FILE).write_text(text)
+    _both_refuse(qctm_eval, tmp_path, "not a finite log variance")
 
 
 BAD_DOCS = {

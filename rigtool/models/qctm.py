@@ -213,11 +213,24 @@ class LogNoise:
     def from_dict(cls, d: dict) -> LogNoise:
         event = d.get("log_bias_event")
         return cls(np.array(d["x_mean"]), np.array(d["x_scale"]), np.array(d["length_scales"]),
-                   float(d["signal_var"]), float(d["log_mean"]),
+                   float(d["signal_var"]), _log_level("log_mean", d["log_mean"]),
                    np.array(d["x_train"], dtype=float), np.array(d["alpha"]),
-                   float(d.get("log_bias", LOG_CHI2_BIAS)),
-                   None if event is None else float(event),
+                   _log_level("log_bias", d.get("log_bias", LOG_CHI2_BIAS)),
+                   None if event is None else _log_level("log_bias_event", event),
                    float(d.get("gate_z0", 0.0)), float(d.get("gate_s", 0.0)))
+
+
+MAX_LOG_LEVEL = 100.0  # |log N^2| of a noise level: e^100 N^2 is far beyond any thruster
+
+
+def _log_level(name: str, value: object) -> float:
+    """A log-variance level of the noise model, finite and within +-MAX_LOG_LEVEL: NaN, inf
+    or 1e308 would give NaN or infinite intervals instead of a refusal."""
+    level = float(value)  # type: ignore[arg-type]
+    if not abs(level) <= MAX_LOG_LEVEL:
+        raise ValueError(f"noise.{name} {level!r} is not a finite log variance within "
+                         f"+-{MAX_LOG_LEVEL:g}")
+    return level
 
 
 @dataclass

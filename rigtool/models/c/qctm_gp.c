@@ -879,6 +879,14 @@ static int load_noise(loader *L, qctm_model *m, const jval *doc)
         if (get_num(L, nz, "log_bias_event", NAN, &m->log_bias_event))
             return -1;
     }
+    /* log-variance levels: finite and within +-100 (MAX_LOG_LEVEL in qctm.py) */
+    if (!(fabs(m->log_mean) <= 100.0))
+        return lfail(L, "qctm_gp.json: noise.%s is not a finite log variance within +-100", "log_mean");
+    if (!(fabs(m->log_bias) <= 100.0))
+        return lfail(L, "qctm_gp.json: noise.%s is not a finite log variance within +-100", "log_bias");
+    if (m->has_bias_event && !(fabs(m->log_bias_event) <= 100.0))
+        return lfail(L, "qctm_gp.json: noise.%s is not a finite log variance within +-100",
+                     "log_bias_event");
     return get_kernel(L, nz, "noise", "alpha", &m->noise);
 }
 
