@@ -4,6 +4,7 @@ and where they are written; synthetic data and small twin runs."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -16,11 +17,12 @@ from rigtool.analysis.cavitation import (
     block_folds,
     calibrate_cavitation,
     check_folds,
+    check_warnings,
     evaluate_on_run,
     mixture_p95,
     thrust_model,
 )
-from rigtool.analysis.gp import GateShift, GpParams, calibrate_gate, shift_noise
+from rigtool.analysis.gp import SHIFT_RANGE, GateShift, GpParams, calibrate_gate, shift_noise
 from rigtool.analysis.results import CavitationParams
 from rigtool.analysis.trainset import TrainingSet
 from rigtool.cli import main
@@ -202,3 +204,23 @@ def test_shifted_noise_model_is_the_calibrated_one():
 def test_mixture_p95():
     assert mixture_p95(np.full(10, 2.0)) == pytest.approx(Z95 * 2.0, rel=1e-6)
     assert np.isnan(mixture_p95(np.zeros(0)))
+
+
+def _check(event_cov: float, event_shift: float) -> dict:
+    classes = {"event": {"n_blocks": 200, "coverage": event_cov},
+               "outside": {"n_blocks": 900, "coverage": 0.95}}
+    return {"classes": classes, "n_events": 40,
+            "log_var_shift": {"event": event_shift, "outside": 0.1},
+            "sd_factor": {"event": math.exp(event_shift / 2), "outside": math.exp(0.05)}}
+
+
+def test_a_check_that_misses_or_hits_the_widening_limit_says_so():
+    """Found by an attack: a held-out check at 82.6 % against its 95 %, and event intervals
+    widened to the limit (sd x 20, +-68 N), both passed without a word."""
+    floor = {"classes": {c: {"verdict": "target met on held-out data"}
+                         for c in ("event", "outside")}}
+    assert check_warnings(_check(0.95, 1.0), floor) == []
+    narrow = check_warnings(_check(0.826, 1.0), floor)
+    assert len(narrow) == 1 and "during events" in narrow[0] and "82.6 %" in narrow[0]
+    capped = check_warnings(_check(0.917, SHIFT_RANGE), floor)
+    assert len(capped) == 1 and "widening limit (sd x 20.1)" in capped[0]

@@ -39,6 +39,7 @@ from rigtool.analysis.events import (
     relative_drop,
 )
 from rigtool.analysis.gp import (
+    SHIFT_RANGE,
     ExactGp,
     calibrate_gate,
     fit_exact,
@@ -233,6 +234,7 @@ OUTSIDE_CHECK_LEVEL = 0.935
 BLOCK_FOLDS = 4  # folds of a single training run
 MIN_FOLD_ROWS = 50  # a fold model needs this many training rows
 MIN_CLASS_ROWS = 30  # held-out blocks a class needs for an interval scale of its own
+CHECK_FLOOR = 0.90  # held-out coverage after scaling below this: the check missed, say so
 MIN_CHECK_EVENTS = 10  # held-out ventilation events below which the event scale is rough
 MIN_QUIET_ROWS = 5  # quiet blocks of a point that give its noise (floor)
 
@@ -437,6 +439,16 @@ def check_warnings(check: dict, floor: dict) -> list[str]:
     elif check["n_events"] < MIN_CHECK_EVENTS:
         out.append(f"only {check['n_events']} ventilation events in the training runs: the scale "
                    "of the event intervals rests on few events; add runs with `--train-with RUN`")
+    for c, v in check["classes"].items():
+        where = "during events" if c == "event" else "outside events"
+        if v["n_blocks"] >= MIN_CLASS_ROWS and v["coverage"] < CHECK_FLOOR:
+            out.append(f"{where}, the 95 % intervals cover only {100 * v['coverage']:.1f} % of "
+                       "the held-out blocks even after scaling: they are too narrow there "
+                       "(cavitation.json 'interval_check')")
+        if check["log_var_shift"][c] >= SHIFT_RANGE - 1e-6:
+            out.append(f"{where}, the intervals reached the widening limit (sd x "
+                       f"{check['sd_factor'][c]:.1f}): they cover by being wide, not by "
+                       "predicting; do not rely on them (cavitation.json 'interval_check')")
     for c, v in floor["classes"].items():
         if v["verdict"] == "target out of reach from speed and current":
             where = "during events" if c == "event" else "outside events"
