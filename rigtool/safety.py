@@ -97,8 +97,14 @@ class LimitMonitor:
             if v is None:
                 continue
             v = np.asarray(v, dtype=float)
-            v = v[~np.isnan(v)]
             key = (lim.field, source)
+            nan = np.isnan(v)
+            if v.size and not nan.any() and not lim.outside(v).any():
+                # the common block: every reading valid and within the limit ends any run
+                self._invalid_since.pop(key, None)
+                self._carry[key] = 0
+                continue
+            v = v[~nan]
             if v.size == 0:
                 self._no_reading(lim, key, source)
                 continue
