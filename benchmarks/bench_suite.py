@@ -5,7 +5,7 @@ process and prints its wall time, the CPU time of every process it started (user
 from getrusage of the children) and the load average before and after. On a shared machine
 the wall time alone says little; the CPU time divided by the cores approximates an idle run.
 
-    python benchmarks/bench_suite.py [PYTEST ARGS...]      e.g. -n 2 --dist loadfile
+    python benchmarks/bench_suite.py [PYTEST ARGS...]      e.g. -n 0 for one process
 """
 
 from __future__ import annotations

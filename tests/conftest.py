@@ -3,9 +3,11 @@ sweeps of shipped protocols that several test files start from (made once per te
 
 from __future__ import annotations
 
+import compileall
 import fcntl
 import os
 import sqlite3
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -13,6 +15,15 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 PROTOCOLS = ROOT / "protocols"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Compile once, not in every worker, run and CLI subprocess: write bytecode even where the
+    environment says not to (PYTHONDONTWRITEBYTECODE), for pytest's rewritten test modules and
+    for rigtool, which the controller compiles before any worker or subprocess starts."""
+    sys.dont_write_bytecode = False
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        compileall.compile_dir(ROOT / "rigtool", quiet=2)
 
 
 @pytest.fixture

@@ -5,6 +5,7 @@ only."""
 from __future__ import annotations
 
 import ast
+import functools
 import inspect
 import re
 import subprocess
@@ -49,21 +50,24 @@ def _imports(path: Path) -> set[str]:
     return found
 
 
-GRAPH = {m: _imports(p) - {m} for m, p in MODULES.items()}
+@functools.cache
+def _graph() -> dict[str, set[str]]:
+    """Module -> the rigtool modules it imports; parsed when a test first asks (not at collection)."""
+    return {m: _imports(p) - {m} for m, p in MODULES.items()}
 
 
 def test_no_two_modules_or_packages_import_each_other():
     cycles = []
-    for a, targets in GRAPH.items():
+    for a, targets in _graph().items():
         for b in targets:
-            if a < b and a in GRAPH.get(b, ()):
+            if a < b and a in _graph().get(b, ()):
                 cycles.append((a, b))
 
     def top(m: str) -> str:
         return ".".join(m.split(".")[:2])
 
     packages: dict[str, set[str]] = {}
-    for a, targets in GRAPH.items():
+    for a, targets in _graph().items():
         packages.setdefault(top(a), set()).update(top(b) for b in targets if top(b) != top(a))
     cycles += [(a, b) for a, bs in packages.items() for b in bs
                if a < b and a in packages.get(b, ())]
@@ -77,7 +81,7 @@ def test_no_import_cycles_at_all():
 
     def visit(m: str, path: list[str]) -> bool:
         state[m] = 1
-        for t in sorted(GRAPH.get(m, ())):
+        for t in sorted(_graph().get(m, ())):
             if state.get(t) == 1:
                 cycle.extend(path[path.index(t):] + [m, t] if t in path else [m, t])
                 return True
@@ -86,7 +90,7 @@ def test_no_import_cycles_at_all():
         state[m] = 2
         return False
 
-    for m in sorted(GRAPH):
+    for m in sorted(_graph()):
         if m not in state and visit(m, []):
             break
     assert cycle == []
@@ -123,7 +127,7 @@ def test_data_flows_one_way():
     workflows, CLI); the store and the model runtime import no analysis."""
     later = ("rigtool.artefacts", "rigtool.report", "rigtool.workflows", "rigtool.cli",
              "rigtool.api", "rigtool.export")
-    bad = [(m, t) for m, targets in GRAPH.items() for t in targets
+    bad = [(m, t) for m, targets in _graph().items() for t in targets
            if (m.startswith("rigtool.analysis") and t.startswith(later))
            or (_in_store(m) or m.startswith("rigtool.models"))
            and t.startswith(("rigtool.analysis", "rigtool.artefacts", "rigtool.report"))]
@@ -206,7 +210,10 @@ def _all_imports(module: str, path: Path) -> set[str]:
     return found - {module}
 
 
-FULL = {m: _all_imports(m, p) for m, p in MODULES.items()}
+@functools.cache
+def _full() -> dict[str, set[str]]:
+    """Module -> every rigtool module it imports by any route; parsed when first asked."""
+    return {m: _all_imports(m, p) for m, p in MODULES.items()}
 
 
 def test_every_module_has_a_rank():
@@ -217,7 +224,7 @@ def test_no_module_imports_a_higher_rank():
     """foundation < config < devices/sim < store < analysis < artefacts < report < workflows
     < interfaces (CLI, API, watch, export)."""
     bad = sorted(f"{m} ({ORDER[_rank(m)]}) -> {t} ({ORDER[_rank(t)]})"
-                 for m, targets in FULL.items() for t in targets
+                 for m, targets in _full().items() for t in targets
                  if _rank(m) is not None and _rank(t) is not None and _rank(t) > _rank(m))
     assert bad == []
 
@@ -245,7 +252,7 @@ def test_the_import_finder_sees_relative_root_and_importlib_imports():
 
 
 def test_devices_import_no_store_engine_or_analysis_and_config_no_simulator():
-    bad = sorted((m, t) for m, targets in FULL.items() for t in targets
+    bad = sorted((m, t) for m, targets in _full().items() for t in targets
                  if (m.startswith("rigtool.devices") and t.startswith(
                      ("rigtool.store", "rigtool.engine", "rigtool.analysis", "rigtool.sweep")))
                  or (_rank(m) == ORDER.index("config") and t.startswith("rigtool.sim")))
@@ -259,7 +266,7 @@ DRIVERS = ("stm32_bridge", "vesc_can", "dbc_can", "netft", "ascii_gauge", "seria
 def test_a_driver_imports_no_other_driver():
     """Shared pieces (units, framing, the CAN link, the base) live in shared modules, not in
     one driver that the others import."""
-    bad = sorted((m, t) for m, targets in FULL.items() for t in targets
+    bad = sorted((m, t) for m, targets in _full().items() for t in targets
                  if m.rpartition(".")[2] in DRIVERS and m.startswith("rigtool.devices.")
                  and t.rpartition(".")[2] in DRIVERS and t.startswith("rigtool.devices."))
     assert bad == []
