@@ -41,6 +41,13 @@ MIN_LENGTH_SCALE = 1.0
 # made models fitted on part of the points extrapolate to the others by a factor of 10 in sd.
 MIN_NOISE_LENGTH_SCALE = 1.0
 NOISE_SMOOTHING = 1.0  # length scale (standardised inputs) of `local_square_quantile`
+# Bounds of the noise GP (log variance): its targets vary by ~1 (variance 0.5-1.5). Without
+# them the likelihood went to a signal variance of 1000 and a white noise of 1e-3 (the old
+# bounds), the GP interpolated its rough targets exactly and swung to -10 (a factor exp(-10)
+# on the variance) between rows; a fold model's held-out events fell into such a hole and
+# the interval check widened the exported intervals to +-68 N (docs/cavitation.md).
+MAX_NOISE_SIGNAL_VAR = 4.0
+MIN_NOISE_WHITE_VAR = 0.05
 MIN_SIDE_ROWS = 20  # rows a side (quiet, ventilating) needs for a noise level of its own
 CV_TOLERANCE = 0.02  # a GP signal must cut the held-out error by more than 2 % to be kept
 # candidate factors on the ML signal variance for cross-validation; 0 is the mean term alone
@@ -270,10 +277,10 @@ def _noise_kernel(dim: int, fitted: LogNoise | None):  # noqa: ANN202 (a scikit-
     from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
     if fitted is None or fitted.white_var is None:
-        return (ConstantKernel(1.0, (1e-3, 1e3))
+        return (ConstantKernel(1.0, (1e-3, MAX_NOISE_SIGNAL_VAR))
                 * Matern(length_scale=np.ones(dim),
                          length_scale_bounds=(MIN_NOISE_LENGTH_SCALE, 1e3), nu=NU)
-                + WhiteKernel(1.0, (1e-3, 10.0)))
+                + WhiteKernel(1.0, (MIN_NOISE_WHITE_VAR, 10.0)))
     return (ConstantKernel(fitted.signal_var, "fixed")
             * Matern(length_scale=fitted.length_scales, length_scale_bounds="fixed", nu=NU)
             + WhiteKernel(fitted.white_var, "fixed"))
