@@ -22,7 +22,14 @@ from rigtool.analysis.cavitation import (
     mixture_p95,
     thrust_model,
 )
-from rigtool.analysis.gp import SHIFT_RANGE, GateShift, GpParams, calibrate_gate, shift_noise
+from rigtool.analysis.gp import (
+    MAX_NOISE_SIGNAL_VAR,
+    SHIFT_RANGE,
+    GateShift,
+    GpParams,
+    calibrate_gate,
+    shift_noise,
+)
 from rigtool.analysis.results import CavitationParams
 from rigtool.analysis.trainset import TrainingSet
 from rigtool.cli import main
@@ -115,12 +122,28 @@ def test_floor_in_cavitation_json_and_report(twin):
                                                          "outside": OUTSIDE_CHECK_LEVEL}
     model = json.loads((out / train[0] / "qctm_gp.json").read_text())
     assert model["floor"] == summary["floor"]
+    _model_carries_the_check(model, summary["interval_check"])
     for html in ((out / train[0] / "report.html").read_text(),):
         section = html[html.index('<section id="cavitation"'):]
         assert 'id="cavitation-floor"' in section and "floor p95 N" in section
         assert "one training run, so never checked on another run" in section
     assert main(["report", train[0], "--db", db, "--out", str(tmp / "rep")]) == 0
     assert 'id="cavitation-floor"' in (tmp / "rep" / train[0] / "report.html").read_text()
+
+
+def _model_carries_the_check(model: dict, check: dict) -> None:
+    """What `calibrate` exports is what its check set (issue 29: a widening seen in the bench
+    never reached the CLI's model): format 7, the loss-side table of the check (absent when
+    it is 0 at every speed), the noise GP within its bounds, and no shift at the limit."""
+    assert model["format_version"] == 7
+    noise, missed = model["noise"], check["missed_lower"]
+    if any(v > 0 for v in missed["lower_n"]):
+        assert noise["missed_speed_rpm"] == missed["speed_rpm"]
+        assert noise["missed_lower_n"] == missed["lower_n"]
+    else:
+        assert "missed_lower_n" not in noise
+    assert noise["signal_var"] <= MAX_NOISE_SIGNAL_VAR
+    assert max(abs(v) for v in check["log_var_shift"].values()) < SHIFT_RANGE - 1
 
 
 def _training_set(run_id: np.ndarray, depth: np.ndarray, command: np.ndarray,
