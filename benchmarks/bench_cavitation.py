@@ -62,6 +62,13 @@ SETS = {
     # the per-condition interval method: developed on cal-dev, reported once on cal-final2
     "cal-final2": ([(91000 + 10 * k, tuple(91001 + 10 * k + j for j in range(3)))
                     for k in range(6)], list(range(91101, 91109)), [91201, 91202]),
+    # the lower-side widening for ventilation the gate misses: developed on cal-dev,
+    # reported once on cal-final3
+    "cal-final3": ([(93000 + 10 * k, tuple(93001 + 10 * k + j for j in range(3)))
+                    for k in range(6)], list(range(93101, 93109)), [93201, 93202]),
+    # the episode-conformal event scale: developed on cal-dev, reported once on cal-final4
+    "cal-final4": ([(95000 + 10 * k, tuple(95001 + 10 * k + j for j in range(3)))
+                    for k in range(6)], list(range(95101, 95109)), [95201, 95202]),
 }
 # Twin variants (simulator overrides on can-bldc, applied to base, training and test runs).
 # `weak`: a bigger propeller on a thriftier motor (other C_p, C_n), a noisier current and

@@ -336,6 +336,38 @@ def test_a_noise_level_that_is_no_log_variance_is_refused_by_both(qctm_eval, sli
     _both_refuse(qctm_eval, tmp_path, "not a finite log variance")
 
 
+def test_missed_ventilation_widening_agrees_and_acts_on_the_loss_side_only(qctm_eval, slim_text,
+                                                                         tmp_path):
+    """Format 7: the loss-side widening (noise.missed_*) lowers lo95 in forward and raises
+    hi95 in reverse, by (1 - gate) times the table at |speed|, in C as in Python; a table
+    that is not increasing, or whose lengths differ, is refused by both."""
+    doc = json.loads(slim_text)
+    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    speed, current, depth, seg, *_ = _gp_data(80, 4, BETM)
+    n = np.r_[speed, -speed[:10]]
+    i, h, s = np.r_[current, current[:10]], np.r_[depth, depth[:10]], np.r_[seg, 9 + seg[:10]]
+    plain = load_model(tmp_path).evaluate(n, i, h, s)
+    doc["noise"].update(missed_speed_rpm=[700.0, 1200.0, 1600.0], missed_lower_n=[4.0, 1.0, 0.0])
+    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    model = load_model(tmp_path)
+    wide = model.evaluate(n, i, h, s)
+    worst, _ = _agree(qctm_eval, tmp_path, n, i, h, s)
+    assert worst < ATOL
+    want = model.noise.missed_lower(model.features(n, i, h, s))
+    fwd = n > 0
+    np.testing.assert_allclose(plain.lo95[fwd] - wide.lo95[fwd], want[fwd], atol=1e-12)
+    np.testing.assert_allclose(wide.hi95[~fwd] - plain.hi95[~fwd], want[~fwd], atol=1e-12)
+    np.testing.assert_array_equal(wide.hi95[fwd], plain.hi95[fwd])
+    np.testing.assert_array_equal(wide.thrust_n, plain.thrust_n)
+    slow = fwd & (np.abs(n - 700) < 50)
+    assert np.median(want[slow]) > 2.0 and np.all(want[np.abs(n) > 1590] < 0.1)
+    for knots, lower in (([700.0, 700.0, 1600.0], [4.0, 1.0, 0.0]), ([700.0], [4.0, 1.0]),
+                         ([700.0, 1200.0], [4.0, -1.0])):
+        doc["noise"].update(missed_speed_rpm=knots, missed_lower_n=lower)
+        (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+        _both_refuse(qctm_eval, tmp_path, "missed")
+
+
 BAD_DOCS = {
     "empty": lambda t: "",
     "truncated": lambda t: t[: len(t) // 2],
@@ -344,8 +376,8 @@ BAD_DOCS = {
     "bad number": lambda t: t.replace('"y_std": ', '"y_std": 1.', 1),
     "bad escape": lambda t: t.replace('"rigtool-qctm-gp"', '"rigtool\\q"', 1),
     "not an object": lambda t: "[1, 2, 3]",
-    "version 1": lambda t: t.replace('"format_version": 6', '"format_version": 1', 1),
-    "version 7": lambda t: t.replace('"format_version": 6', '"format_version": 7', 1),
+    "version 1": lambda t: t.replace('"format_version": 7', '"format_version": 1', 1),
+    "version 8": lambda t: t.replace('"format_version": 7', '"format_version": 8', 1),
     "x_train type": lambda t: t.replace('"x_train": [', '"x_train": "no", "x": [', 1),
     "unknown betm field": lambda t: t.replace('"cp_fwd"', '"cp_sideways": 1, "cp_fwd"', 1),
 }
@@ -375,7 +407,7 @@ def test_bad_kinv_and_bad_input_exit_with_a_message(qctm_eval, hetero_files, tmp
 
 def test_calibrate_writes_no_unused_gp_terms_and_both_readers_agree(qctm_eval, twin, tmp_path,
                                                                     capsys):
-    """`rigtool calibrate` with the default fit (no GP signal): format 6 without the
+    """`rigtool calibrate` with the default fit (no GP signal): format 7 without the
     posterior-variance file or the signal arrays, an earlier fit's file in the folder
     removed, and the C program and rigtool.models agree on it."""
     folder, rec, betm = twin
@@ -386,7 +418,7 @@ def test_calibrate_writes_no_unused_gp_terms_and_both_readers_agree(qctm_eval, t
                  "--out", str(tmp_path)]) == 0
     capsys.readouterr()
     doc = json.loads((out / MODEL_FILE).read_text())
-    assert doc["format_version"] == 6 and doc["gp"]["signal"] is False
+    assert doc["format_version"] == 7 and doc["gp"]["signal"] is False
     assert doc["gp"]["signal_var"] == 0 and not {"alpha", "a_n", "weights"} & set(doc["gp"])
     assert not (out / VARIANCE_FILE).exists()
     assert load_model(out).alpha is None

@@ -22,7 +22,14 @@ from rigtool.analysis.cavitation import (
     mixture_p95,
     thrust_model,
 )
-from rigtool.analysis.gp import SHIFT_RANGE, GateShift, GpParams, calibrate_gate, shift_noise
+from rigtool.analysis.gp import (
+    MAX_NOISE_SIGNAL_VAR,
+    SHIFT_RANGE,
+    GateShift,
+    GpParams,
+    calibrate_gate,
+    shift_noise,
+)
 from rigtool.analysis.results import CavitationParams
 from rigtool.analysis.trainset import TrainingSet
 from rigtool.cli import main
@@ -115,12 +122,28 @@ def test_floor_in_cavitation_json_and_report(twin):
                                                          "outside": OUTSIDE_CHECK_LEVEL}
     model = json.loads((out / train[0] / "qctm_gp.json").read_text())
     assert model["floor"] == summary["floor"]
+    _model_carries_the_check(model, summary["interval_check"])
     for html in ((out / train[0] / "report.html").read_text(),):
         section = html[html.index('<section id="cavitation"'):]
         assert 'id="cavitation-floor"' in section and "floor p95 N" in section
         assert "one training run, so never checked on another run" in section
     assert main(["report", train[0], "--db", db, "--out", str(tmp / "rep")]) == 0
     assert 'id="cavitation-floor"' in (tmp / "rep" / train[0] / "report.html").read_text()
+
+
+def _model_carries_the_check(model: dict, check: dict) -> None:
+    """What `calibrate` exports is what its check set (issue 29: a widening seen in the bench
+    never reached the CLI's model): format 7, the loss-side table of the check (absent when
+    it is 0 at every speed), the noise GP within its bounds, and no shift at the limit."""
+    assert model["format_version"] == 7
+    noise, missed = model["noise"], check["missed_lower"]
+    if any(v > 0 for v in missed["lower_n"]):
+        assert noise["missed_speed_rpm"] == pytest.approx(missed["speed_rpm"], rel=1e-6)
+        assert noise["missed_lower_n"] == pytest.approx(missed["lower_n"], rel=1e-6, abs=1e-6)
+    else:
+        assert "missed_lower_n" not in noise
+    assert noise["signal_var"] <= MAX_NOISE_SIGNAL_VAR
+    assert max(abs(v) for v in check["log_var_shift"].values()) < SHIFT_RANGE - 1
 
 
 def _training_set(run_id: np.ndarray, depth: np.ndarray, command: np.ndarray,
@@ -224,3 +247,37 @@ def test_a_check_that_misses_or_hits_the_widening_limit_says_so():
     assert len(narrow) == 1 and "during events" in narrow[0] and "82.6 %" in narrow[0]
     capped = check_warnings(_check(0.917, SHIFT_RANGE), floor)
     assert len(capped) == 1 and "widening limit (sd x 20.1)" in capped[0]
+
+
+def test_missed_ventilation_is_covered_by_the_loss_side_widening_alone():
+    """Event rows whose shortfall the gate calls quiet (a thrust loss the current misses, here
+    at the slow level only): a loss-side widening at that level covers them on new rows, the
+    fast level gets none, and outside rows stay at their target (the widening is one-sided)."""
+    rng = np.random.default_rng(13)
+
+    def rows(n: int) -> tuple[np.ndarray, ...]:
+        slow = rng.random(n) < 0.5
+        speed = np.where(slow, 800.0, 1500.0) + rng.normal(0.0, 5.0, n)
+        event = rng.random(n) < 0.3
+        missed = event & slow & (rng.random(n) < 0.4)
+        z = np.where(event & ~missed, rng.uniform(1.0, 3.0, n), rng.normal(0.0, 0.05, n))
+        resid = rng.normal(0.0, np.where(event & ~missed, 3.0, 0.3))
+        resid = np.where(missed, -rng.uniform(1.5, 5.0, n), resid)  # a loss, never a gain
+        return speed, np.where(slow, 40.0, 90.0), z, resid, event
+
+    speed, level, z, resid, event = rows(8000)
+    noise = np.where(event, 1.5, 0.6) ** 2
+    shift = calibrate_gate(resid, np.zeros(resid.size), noise, z, event, ~event, 0.5, 0.1,
+                           CHECK_LEVEL, OUTSIDE_CHECK_LEVEL, speed_rpm=speed, speed_level=level)
+    slow_knot, fast_knot = shift.missed_lower_n
+    assert 3.5 < slow_knot < 6.0 and fast_knot == 0.0
+    plain = calibrate_gate(resid, np.zeros(resid.size), noise, z, event, ~event, 0.5, 0.1,
+                           CHECK_LEVEL, OUTSIDE_CHECK_LEVEL)
+    speed, level, z, resid, event = rows(8000)
+    noise = np.where(event, 1.5, 0.6) ** 2
+    for s, lo_event in ((shift, 0.93), (plain, 0.0)):
+        half = Z95 * np.sqrt(noise * s.factor(z))
+        inside = (resid <= half) & (-resid <= half + s.missed(speed, z))
+        assert inside[event].mean() >= lo_event
+        assert 0.91 <= inside[~event].mean() <= 0.97
+    assert inside[event].mean() < 0.93  # without the widening the missed losses fall out

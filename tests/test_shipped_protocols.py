@@ -103,7 +103,7 @@ def _qctm_model_is_slim_and_read_by_both(folder: Path, tmp_path: Path) -> None:
     format 6), the model files under 1 MB, and rigtool.models and the C evaluator agree on
     the run's own block means."""
     doc = json.loads((folder / MODEL_FILE).read_text())
-    assert doc["format_version"] == 6 and doc["gp"]["signal"] is False
+    assert doc["format_version"] == 7 and doc["gp"]["signal"] is False
     assert not (folder / VARIANCE_FILE).exists()
     assert (folder / MODEL_FILE).stat().st_size < 1_000_000
     with Store(tmp_path / "rigtool.sqlite", read_only=True) as store:

@@ -41,6 +41,13 @@ MIN_LENGTH_SCALE = 1.0
 # made models fitted on part of the points extrapolate to the others by a factor of 10 in sd.
 MIN_NOISE_LENGTH_SCALE = 1.0
 NOISE_SMOOTHING = 1.0  # length scale (standardised inputs) of `local_square_quantile`
+# Bounds of the noise GP (log variance): its targets vary by ~1 (variance 0.5-1.5). Without
+# them the likelihood went to a signal variance of 1000 and a white noise of 1e-3 (the old
+# bounds), the GP interpolated its rough targets exactly and swung to -10 (a factor exp(-10)
+# on the variance) between rows; a fold model's held-out events fell into such a hole and
+# the interval check widened the exported intervals to +-68 N (docs/cavitation.md).
+MAX_NOISE_SIGNAL_VAR = 4.0
+MIN_NOISE_WHITE_VAR = 0.05
 MIN_SIDE_ROWS = 20  # rows a side (quiet, ventilating) needs for a noise level of its own
 CV_TOLERANCE = 0.02  # a GP signal must cut the held-out error by more than 2 % to be kept
 # candidate factors on the ML signal variance for cross-validation; 0 is the mean term alone
@@ -270,10 +277,10 @@ def _noise_kernel(dim: int, fitted: LogNoise | None):  # noqa: ANN202 (a scikit-
     from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 
     if fitted is None or fitted.white_var is None:
-        return (ConstantKernel(1.0, (1e-3, 1e3))
+        return (ConstantKernel(1.0, (1e-3, MAX_NOISE_SIGNAL_VAR))
                 * Matern(length_scale=np.ones(dim),
                          length_scale_bounds=(MIN_NOISE_LENGTH_SCALE, 1e3), nu=NU)
-                + WhiteKernel(1.0, (1e-3, 10.0)))
+                + WhiteKernel(1.0, (MIN_NOISE_WHITE_VAR, 10.0)))
     return (ConstantKernel(fitted.signal_var, "fixed")
             * Matern(length_scale=fitted.length_scales, length_scale_bounds="fixed", nu=NU)
             + WhiteKernel(fitted.white_var, "fixed"))
@@ -401,6 +408,11 @@ def variance_parts(gp: ExactGp, x: np.ndarray) -> np.ndarray:
 SHIFT_RANGE = 6.0  # log-variance shifts are searched in +-this (a factor exp(+-3) on the sd)
 MIN_CHECK_ROWS = 30  # held-out rows of a class below which it gets no shift of its own
 EVENT_EXTRA = 1.0  # log-variance the detected events may add to cover ventilation the gate misses
+# log-variance the check may take off the event intervals (a factor 0.55 on the sd): with the
+# missed ventilation covered apart, a check over 12-17 held-out events asked for up to -1.8
+# (sd x 0.4) and a new run's events were covered 85 % (cal-dev replay, docs/cavitation.md)
+EVENT_SHRINK = 1.2
+MIN_MISSED_ROWS = 5  # held-out missed-ventilation rows a speed level needs for a widening
 
 
 @dataclass(frozen=True)
@@ -412,22 +424,40 @@ class GateShift:
     s: float
     d_quiet: float
     d_event: float
+    # the loss-side widening (N) for ventilation the gate misses, per speed knot (r/min)
+    missed_speed_rpm: tuple[float, ...] | None = None
+    missed_lower_n: tuple[float, ...] | None = None
 
     def factor(self, z: np.ndarray) -> np.ndarray:
         """The factor on the noise variance at shortfall thrust z."""
         g = gate(z, self.z0, self.s)
         return np.exp((1.0 - g) * self.d_quiet + g * self.d_event)
 
+    def missed(self, speed_rpm: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Loss-side widening (N): (1 - gate(z)) times the table at |speed| (0 without one)."""
+        if self.missed_speed_rpm is None or self.missed_lower_n is None:
+            return np.zeros(np.shape(z))
+        table = np.interp(np.abs(speed_rpm), self.missed_speed_rpm, self.missed_lower_n)
+        return (1.0 - gate(z, self.z0, self.s)) * table
+
 
 def calibrate_gate(resid: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray,
                    z: np.ndarray, event: np.ndarray, outside: np.ndarray,
                    z0: float, s: float, level: float = 0.95,
-                   outside_level: float | None = None) -> GateShift:
+                   outside_level: float | None = None, speed_rpm: np.ndarray | None = None,
+                   speed_level: np.ndarray | None = None) -> GateShift:
     """The scale under which held-out residuals are covered at `level` during events and at
     `outside_level` (default `level`) outside them: `class_shifts` on the `outside` and the
     `event` rows, the latter through the rows the gate (z0, s) calls ventilating. Without
     enough rows of a class, one shift for all at `level`; without enough held-out rows at
-    all, none."""
+    all, none. With `speed_rpm` and `speed_level` (a label per row, e.g. the command), the
+    event rows the gate calls quiet are covered by a loss-side widening per speed level
+    (`missed_widening`) instead of by wider event intervals."""
+    if speed_rpm is not None and speed_level is not None and min(
+            event.sum(), outside.sum()) >= MIN_CHECK_ROWS:
+        return _calibrate_with_missed(np.asarray(resid, float), post_var, noise_var, z, event,
+                                      outside, z0, s, level, outside_level,
+                                      np.asarray(speed_rpm, float), np.asarray(speed_level))
     r2 = np.asarray(resid, float) ** 2 / Z95**2
     if event.sum() < MIN_CHECK_ROWS or outside.sum() < MIN_CHECK_ROWS:
         use = event | outside
@@ -468,6 +498,76 @@ def class_shifts(r2: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray, g:
     return dq, de
 
 
+def _calibrate_with_missed(resid: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray,
+                           z: np.ndarray, event: np.ndarray, outside: np.ndarray, z0: float,
+                           s: float, level: float, outside_level: float | None,
+                           speed_rpm: np.ndarray, speed_level: np.ndarray,
+                           rounds: int = 4) -> GateShift:
+    """`calibrate_gate` with the loss-side widening, in turn: d_quiet covers `outside_level` of
+    the outside rows; d_event covers `level` of the event rows the gate calls ventilating;
+    the widening per speed level covers `level` of the event rows it calls quiet (ventilation
+    the shortfall misses: only a thrust loss, so only the loss side); then d_event grows, by
+    at most EVENT_EXTRA, until `level` of all event rows are covered. d_event is at least
+    -EVENT_SHRINK."""
+    g = gate(z, z0, s)
+    u = resid * np.where(np.sign(speed_rpm) >= 0, 1.0, -1.0)  # < 0: a thrust loss
+    quiet_level = level if outside_level is None else outside_level
+    gated, missed = event & (g >= 0.5), event & (g < 0.5)
+    knots, _ = _speed_knots(speed_rpm, speed_level)
+    table = np.zeros(knots.size)
+    dq = de = 0.0
+
+    def half(a: float, b: float) -> np.ndarray:
+        return Z95 * np.sqrt(post_var + noise_var * np.exp((1 - g) * a + g * b))
+
+    def cover(rows: np.ndarray, a: float, b: float) -> float:
+        h = half(a, b)
+        extra = (1.0 - g) * np.interp(np.abs(speed_rpm), knots, table)
+        return float(np.mean((u[rows] <= h[rows]) & (-u[rows] <= h[rows] + extra[rows])))
+
+    for _ in range(rounds):
+        dq = _bisect_shift(lambda c, b=de: cover(outside, c, b), quiet_level)
+        if gated.sum() < MIN_CHECK_ROWS:
+            de = dq
+        else:
+            de = _bisect_shift(lambda c, a=dq: cover(gated, a, c), level)
+        table = missed_widening(u, half(dq, de), g, missed, speed_rpm, speed_level, knots, level)
+        if gated.sum() >= MIN_CHECK_ROWS:
+            more = _bisect_shift(lambda c, a=dq: cover(event, a, c), level)
+            de = min(de + EVENT_EXTRA, max(de, more))
+    de = max(de, -EVENT_SHRINK)
+    return GateShift(z0, s, dq, de, tuple(float(k) for k in knots),
+                     tuple(float(v) for v in table))
+
+
+def _speed_knots(speed_rpm: np.ndarray, speed_level: np.ndarray) -> tuple[np.ndarray, list]:
+    """Strictly increasing knots, the median |speed| of each level's rows, and the levels of
+    each knot (levels of one median share a knot)."""
+    by_speed: dict[float, list] = {}
+    for lv in np.unique(speed_level):
+        sp = np.abs(speed_rpm[(speed_level == lv) & np.isfinite(speed_rpm)])
+        if sp.size:
+            by_speed.setdefault(float(np.median(sp)), []).append(lv)
+    knots = np.array(sorted(by_speed), float)
+    return (knots if knots.size else np.zeros(1)), [by_speed[k] for k in sorted(by_speed)]
+
+
+def missed_widening(u: np.ndarray, half: np.ndarray, g: np.ndarray, missed: np.ndarray,
+                    speed_rpm: np.ndarray, speed_level: np.ndarray, knots: np.ndarray,
+                    level: float) -> np.ndarray:
+    """Per speed knot, the loss-side widening (N, before the factor 1 - gate) that covers
+    `level` of that knot's missed-ventilation rows (`missed`: event rows the gate calls quiet)
+    beyond their half-width `half`; 0 where fewer than MIN_MISSED_ROWS rows."""
+    _, levels = _speed_knots(speed_rpm, speed_level)
+    need = np.maximum(-u - half, 0.0) / np.maximum(1.0 - g, 0.5)
+    out = np.zeros(knots.size)
+    for j, lvs in enumerate(levels):
+        rows = missed & np.isin(speed_level, lvs) & np.isfinite(need)
+        if rows.sum() >= MIN_MISSED_ROWS:
+            out[j] = float(np.quantile(need[rows], level))
+    return out
+
+
 def _coverage(r2: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray, rows: np.ndarray,
               shift: float) -> float:
     """Fraction of `rows` covered with the noise variance times exp(shift)."""
@@ -493,6 +593,10 @@ def shift_noise(noise: LogNoise, shift: GateShift) -> LogNoise:
     else:
         out.log_bias_event = noise.log_bias_event + shift.d_event
     out.log_bias = noise.log_bias + shift.d_quiet
+    if shift.missed_speed_rpm is not None and shift.missed_lower_n is not None and any(
+            v > 0 for v in shift.missed_lower_n):
+        out.missed_speed_rpm = np.array(shift.missed_speed_rpm, float)
+        out.missed_lower_n = np.array(shift.missed_lower_n, float)
     return out
 
 

@@ -51,9 +51,10 @@ VARIANCE_FILE = "qctm_gp_kinv.npy"
 FORMAT = "rigtool-qctm-gp"
 MAX_MODEL_BYTES = 64 << 20  # qctm_gp.json: a few MB for the largest training budget
 MAX_VARIANCE_BYTES = 256 << 20  # qctm_gp_kinv.npy: n_train^2 doubles (2000 rows: 32 MB)
+# 7: the loss-side widening for ventilation the shortfall misses (noise.missed_*);
 # 6: gp.signal (false: no GP mean or posterior terms, no alpha and no variance file);
 # 5: noise bias per regime; 4: bounds, domain; 3: gate, lead_blocks; 2: beta z
-FORMAT_VERSION = 6
+FORMAT_VERSION = 7
 SIGNAL_ARRAYS = ("alpha", "a_n", "weights", "variance_file")  # absent when gp.signal is false
 Z95 = 1.959963984540054
 SQRT5 = 5.0**0.5
@@ -178,6 +179,11 @@ class LogNoise:
     gate_z0: float = 0.0
     gate_s: float = 0.0
     white_var: float | None = None  # the fit's white-noise level (refits reuse it; not exported)
+    # Format 7: ventilation the shortfall misses only ever lowers the thrust, so the interval's
+    # loss side is widened by (1 - gate(z)) * missed_lower_n interpolated at |speed| between
+    # the missed_speed_rpm knots (numpy.interp); None: no widening.
+    missed_speed_rpm: np.ndarray | None = None
+    missed_lower_n: np.ndarray | None = None
 
     def bias(self, x: np.ndarray) -> np.ndarray:
         """log_bias + (log_bias_event - log_bias) gate(z), z = x[:, 1]."""
@@ -201,23 +207,51 @@ class LogNoise:
         """Noise variance of a new measurement at inputs x (N^2)."""
         return np.exp(self.log_mean + self.bias(x) + self.deviation(x))
 
+    def missed_lower(self, x: np.ndarray) -> np.ndarray:
+        """Loss-side widening (N) at inputs x: (1 - gate(z)) * the missed-ventilation table at
+        |speed| (0 without a table)."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        if self.missed_speed_rpm is None or self.missed_lower_n is None:
+            return np.zeros(len(x))
+        table = np.interp(np.abs(x[:, 0]), self.missed_speed_rpm, self.missed_lower_n)
+        return (1.0 - gate(x[:, 1], self.gate_z0, self.gate_s)) * table
+
     def to_dict(self) -> dict:
-        return {"kernel": "matern", "nu": 2.5, "x_mean": self.x_mean.tolist(),
-                "x_scale": self.x_scale.tolist(), "length_scales": self.length_scales.tolist(),
-                "signal_var": self.signal_var, "log_mean": self.log_mean,
-                "log_bias": self.log_bias, "log_bias_event": self.log_bias_event,
-                "gate_z0": self.gate_z0, "gate_s": self.gate_s,
-                "x_train": self.x_train.tolist(), "alpha": self.alpha.tolist()}
+        out = {"kernel": "matern", "nu": 2.5, "x_mean": self.x_mean.tolist(),
+               "x_scale": self.x_scale.tolist(), "length_scales": self.length_scales.tolist(),
+               "signal_var": self.signal_var, "log_mean": self.log_mean,
+               "log_bias": self.log_bias, "log_bias_event": self.log_bias_event,
+               "gate_z0": self.gate_z0, "gate_s": self.gate_s,
+               "x_train": self.x_train.tolist(), "alpha": self.alpha.tolist()}
+        if self.missed_speed_rpm is not None and self.missed_lower_n is not None:
+            out["missed_speed_rpm"] = self.missed_speed_rpm.tolist()
+            out["missed_lower_n"] = self.missed_lower_n.tolist()
+        return out
 
     @classmethod
     def from_dict(cls, d: dict) -> LogNoise:
         event = d.get("log_bias_event")
+        knots, lower = missed_table(d.get("missed_speed_rpm"), d.get("missed_lower_n"))
         return cls(np.array(d["x_mean"]), np.array(d["x_scale"]), np.array(d["length_scales"]),
                    float(d["signal_var"]), _log_level("log_mean", d["log_mean"]),
                    np.array(d["x_train"], dtype=float), np.array(d["alpha"]),
                    _log_level("log_bias", d.get("log_bias", LOG_CHI2_BIAS)),
                    None if event is None else _log_level("log_bias_event", event),
-                   float(d.get("gate_z0", 0.0)), float(d.get("gate_s", 0.0)))
+                   float(d.get("gate_z0", 0.0)), float(d.get("gate_s", 0.0)),
+                   missed_speed_rpm=knots, missed_lower_n=lower)
+
+
+def missed_table(knots: object, lower: object) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The missed-ventilation table of a document, checked: both absent (None), or as many
+    finite, strictly increasing speed knots (r/min) as finite widenings >= 0 (N)."""
+    if knots is None and lower is None:
+        return None, None
+    k, v = np.array(knots, dtype=float), np.array(lower, dtype=float)
+    if (k.ndim != 1 or v.shape != k.shape or k.size == 0 or not np.all(np.isfinite(k))
+            or not np.all(np.isfinite(v)) or np.any(v < 0) or np.any(np.diff(k) <= 0)):
+        raise ValueError("noise.missed_speed_rpm and noise.missed_lower_n must be as many "
+                         "finite values, the speeds strictly increasing, the widths >= 0")
+    return k, v
 
 
 MAX_LOG_LEVEL = 100.0  # |log N^2| of a noise level: e^100 N^2 is far beyond any thruster
@@ -327,6 +361,9 @@ class ThrustModel:
         thrust = np.clip(raw, lo_b, hi_b)
         flags = np.where(np.isfinite(raw) & (thrust != raw), CLAMPED, 0)
         lo, hi = thrust - Z95 * std, thrust + Z95 * std
+        if self.noise is not None:  # ventilation the shortfall misses: on the loss side only
+            miss = self.noise.missed_lower(x_safe)
+            lo, hi = np.where(up, lo - miss, lo), np.where(up, hi, hi + miss)
         # outside the training domain: widen to the physical prior [0, f_BETM] +- prior noise
         distance = np.full(len(n), np.inf)
         if self.domain is not None:

@@ -96,8 +96,12 @@ def check_view(check: dict | None, floor: dict | None) -> dict:
         rows.append([name, str(c["n_blocks"]), _pct(c["coverage_before"]), _pct(c["coverage"]),
                      _f(check["sd_factor"][name]), _f(c["p95_abs_n"]), _f(f["floor_p95_n"]),
                      _f(f["target_p95_n"]), f["verdict"]])
+    missed = check.get("missed_lower") or {}
+    widths = [f"{_f(w)} N at {rpm:.0f} r/min" for rpm, w in
+              zip(missed.get("speed_rpm", ()), missed.get("lower_n", ()), strict=False) if w > 0]
     return {"check": {"method": check["method"], "kind": check["kind"],
-                      "n_events": check["n_events"], "rows": rows, "basis": floor["basis"]}}
+                      "n_events": check["n_events"], "rows": rows, "basis": floor["basis"],
+                      "missed": "; ".join(widths)}}
 
 
 def _pct(v: float | None) -> str:

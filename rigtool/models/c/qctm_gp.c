@@ -1,4 +1,4 @@
-/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-6).
+/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-7).
  *
  * Build:  cc -std=c99 -O2 -o qctm_eval qctm_gp.c qctm_eval_main.c -lm
  *
@@ -612,6 +612,9 @@ struct qctm_model {
     /* format 5: bias log_bias + (log_bias_event - log_bias) gate(z) with the noise's own gate */
     int has_bias_event;
     double log_bias_event, noise_gate_z0, noise_gate_s;
+    /* format 7: loss-side widening (1 - gate(z)) * interp(|n|, missed_rpm, missed_lower) */
+    size_t n_missed;
+    double *missed_rpm, *missed_lower;
     /* bounds and domain (models/domain.py) */
     double short_lo, short_hi, above_n;
     int has_domain, has_range[4];
@@ -858,6 +861,29 @@ static int load_gp(loader *L, qctm_model *m, const jval *doc)
     return 0;
 }
 
+/* The missed-ventilation table (format 7, LogNoise.missed_lower): both arrays absent, or as
+ * many finite values, the speeds strictly increasing and the widths >= 0. */
+static int load_missed(loader *L, qctm_model *m, const jval *nz)
+{
+    const jval *k = jget(nz, "missed_speed_rpm"), *v = jget(nz, "missed_lower_n");
+    size_t i, n;
+    if (k == NULL && v == NULL)
+        return 0;
+    if (get_vec(L, k, "noise.missed_speed_rpm", &m->missed_rpm, &m->n_missed) != 0
+        || get_vec(L, v, "noise.missed_lower_n", &m->missed_lower, &n) != 0)
+        return -1;
+    if (n != m->n_missed || n == 0)
+        return lfail(L, "qctm_gp.json: %s must have as many values as noise.missed_speed_rpm",
+                     "noise.missed_lower_n");
+    for (i = 0; i < n; i++) {
+        if (!isfinite(m->missed_rpm[i]) || !isfinite(m->missed_lower[i])
+            || m->missed_lower[i] < 0.0 || (i > 0 && !(m->missed_rpm[i] > m->missed_rpm[i - 1])))
+            return lfail(L, "qctm_gp.json: %s must be finite, the speeds strictly increasing "
+                         "and the widths >= 0", "noise.missed_speed_rpm / missed_lower_n");
+    }
+    return 0;
+}
+
 static int load_noise(loader *L, qctm_model *m, const jval *doc)
 {
     const jval *nz = jget(doc, "noise"), *ev;
@@ -887,6 +913,8 @@ static int load_noise(loader *L, qctm_model *m, const jval *doc)
     if (m->has_bias_event && !(fabs(m->log_bias_event) <= 100.0))
         return lfail(L, "qctm_gp.json: noise.%s is not a finite log variance within +-100",
                      "log_bias_event");
+    if (load_missed(L, m, nz) != 0)
+        return -1;
     return get_kernel(L, nz, "noise", "alpha", &m->noise);
 }
 
@@ -955,8 +983,8 @@ static int load_document(loader *L, qctm_model *m, const jval *doc)
     if (version < 2)
         return lfail(L, "qctm_gp.json: %s", "a version-1 model on raw (n, I, h) inputs: rerun "
                      "rigtool calibrate to refit it");
-    if (version > 6)
-        return lfail(L, "qctm_gp.json: %s", "format version above 6: this evaluator reads 2-6");
+    if (version > 7)
+        return lfail(L, "qctm_gp.json: %s", "format version above 7: this evaluator reads 2-7");
     m->version = (int)version;
     return load_betm(L, m, jget(doc, "betm")) || load_features(L, m, doc)
            || load_gp(L, m, doc) || load_noise(L, m, doc) || load_limits(L, m, doc);
@@ -973,6 +1001,8 @@ void qctm_free(qctm_model *m)
     free(m->gp.w);
     free(m->noise.xt);
     free(m->noise.w);
+    free(m->missed_rpm);
+    free(m->missed_lower);
     free(m->kinv);
     free(m);
 }
@@ -1378,6 +1408,16 @@ int qctm_evaluate(const qctm_model *m, size_t count, const double *speed_rpm,
             fl |= QCTM_CLAMPED;
         lo = th - QCTM_Z95 * std;
         hi = th + QCTM_Z95 * std;
+        if (m->n_missed > 0) { /* ventilation the shortfall misses: the loss side only */
+            double miss = np_interp(fabs(xsafe[0]), m->missed_rpm, m->missed_lower, m->n_missed);
+            if (m->noise_gate_s > 0.0)
+                miss *= 1.0 - 1.0 / (1.0 + exp(-np_clip((fabs(xsafe[1]) - m->noise_gate_z0)
+                                                        / m->noise_gate_s, -700.0, 700.0)));
+            if (f_n >= 0)
+                lo -= miss;
+            else
+                hi += miss;
+        }
         /* outside the training domain: widen to [0, f_BETM] +- the prior noise */
         if (m->has_domain) {
             const double v[4] = {n, fabs(i), h, x[1]};

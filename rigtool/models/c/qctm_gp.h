@@ -1,4 +1,4 @@
-/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-6).
+/* Reference C evaluator of an exported QCTM-GP thrust model (qctm_gp.json, format 2-7).
  *
  * C99, libc and libm only. It computes what rigtool.models.ThrustModel.evaluate computes
  * (rigtool/models/qctm.py is the reference; docs/cavitation.md, "Export", the recipe).
