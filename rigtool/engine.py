@@ -8,6 +8,7 @@ status; completed points are already committed, a point in progress is discarded
 from __future__ import annotations
 
 import contextlib
+import math
 import signal
 import threading
 from collections.abc import Callable
@@ -469,7 +470,7 @@ class Engine:
         for i, name in enumerate(FT_CHANNELS):
             out[name] = ft[:, i]
         out["thrust_n"] = self.rig.thrust_sign * ft[:, self.rig.thrust_channel]
-        if len(block) and np.isnan(out["thrust_n"]).all():
+        if len(block) and math.isnan(out["thrust_n"][0]) and np.isnan(out["thrust_n"]).all():
             raise SafetyTrip(f"no thrust readings on channel {FT_CHANNELS[self.rig.thrust_channel]}: "
                              "check the rig's `thrust:` channel against the sensor")
         self._device_warnings(step)
