@@ -268,8 +268,10 @@ class FollowMonitor:
         if values is None or not len(feedback):
             return
         ok = np.isfinite(values)
-        self._t = np.concatenate([self._t, feedback.t_s[ok]])
-        self._v = np.concatenate([self._v, values[ok]])
+        t, v = (feedback.t_s, values) if ok.all() else (feedback.t_s[ok], values[ok])
+        if self._t.size:
+            t, v = np.concatenate([self._t, t]), np.concatenate([self._v, v])
+        self._t, self._v = np.asarray(t, dtype=float), np.asarray(v, dtype=float)
         while self._t.size and self._t[-1] - self._t[0] >= FOLLOW_WINDOW_S:
             cut = int(np.searchsorted(self._t, self._t[0] + FOLLOW_WINDOW_S))
             window = _window(self._t[:cut], self._v[:cut])
