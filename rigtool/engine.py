@@ -8,6 +8,7 @@ status; completed points are already committed, a point in progress is discarded
 from __future__ import annotations
 
 import contextlib
+import math
 import signal
 import threading
 from collections.abc import Callable
@@ -469,7 +470,7 @@ class Engine:
         for i, name in enumerate(FT_CHANNELS):
             out[name] = ft[:, i]
         out["thrust_n"] = self.rig.thrust_sign * ft[:, self.rig.thrust_channel]
-        if len(block) and np.isnan(out["thrust_n"]).all():
+        if len(block) and math.isnan(out["thrust_n"][0]) and np.isnan(out["thrust_n"]).all():
             raise SafetyTrip(f"no thrust readings on channel {FT_CHANNELS[self.rig.thrust_channel]}: "
                              "check the rig's `thrust:` channel against the sensor")
         self._device_warnings(step)
@@ -528,14 +529,14 @@ class Engine:
     def _align_feedback(self, t: np.ndarray, fb: FeedbackBlock) -> dict[str, np.ndarray]:
         """Feedback at each force sample's time: the latest feedback value received (zero-order hold)."""
         out = {}
-        same_times = len(fb) == len(t) and len(t) and fb.t_s[0] == t[0] and fb.t_s[-1] == t[-1]
-        if same_times:
-            idx = np.arange(len(t))
-        else:
-            idx = np.searchsorted(fb.t_s, t, side="right") - 1 if len(fb) else None
+        same_times = len(fb) == len(t) and len(t) and (
+            fb.t_s is t or (fb.t_s[0] == t[0] and fb.t_s[-1] == t[-1]))
+        idx = None
+        if not same_times and len(fb):
+            idx = np.searchsorted(fb.t_s, t, side="right") - 1
         for name in FEEDBACK_FIELDS:
             values = getattr(fb, name)
-            if values is None or idx is None:
+            if values is None or not (same_times or idx is not None):
                 out[name] = np.full(len(t), self._fb_last[name])
                 continue
             held = values if same_times else np.where(idx >= 0, values[np.clip(idx, 0, None)],

@@ -42,6 +42,18 @@ class _Limit:
             return np.abs(v) > self.threshold
         return v > self.threshold if self.sense == "max" else v < self.threshold
 
+    def all_within(self, v: np.ndarray) -> bool:
+        """Whether a non-empty block has no NaN and no reading beyond the threshold, from its
+        extremes alone (a NaN makes them NaN, which compares False)."""
+        if not v.size:
+            return False
+        if self.sense == "max":
+            return bool(np.maximum.reduce(v) <= self.threshold)
+        if self.sense == "min":
+            return bool(np.minimum.reduce(v) >= self.threshold)
+        return bool(np.maximum.reduce(v) <= self.threshold
+                    and np.minimum.reduce(v) >= -self.threshold)
+
     def worst(self, v: np.ndarray) -> float:
         """The reading furthest beyond the threshold, as reported in the trip."""
         if self.sense == "abs":
@@ -98,13 +110,12 @@ class LimitMonitor:
                 continue
             v = np.asarray(v, dtype=float)
             key = (lim.field, source)
-            nan = np.isnan(v)
-            if v.size and not nan.any() and not lim.outside(v).any():
+            if lim.all_within(v):
                 # the common block: every reading valid and within the limit ends any run
                 self._invalid_since.pop(key, None)
                 self._carry[key] = 0
                 continue
-            v = v[~nan]
+            v = v[~np.isnan(v)]
             if v.size == 0:
                 self._no_reading(lim, key, source)
                 continue
@@ -168,15 +179,27 @@ class _Window:
     noise: float  # feedback noise or resolution, whichever is larger; NaN with too few frames
 
 
+def _median(v: np.ndarray) -> float:
+    """np.median of a non-empty array without NaN, from one partition (np.median's NaN check
+    and two-element mean cost more than the partition on a window); the same value."""
+    half = v.size // 2
+    if v.size % 2:
+        return float(np.partition(v, half)[half])
+    part = np.partition(v, (half - 1, half))
+    return (float(part[half - 1]) + float(part[half])) / 2
+
+
 def _window(t: np.ndarray, v: np.ndarray) -> _Window:
     """Mean of a window, and its noise: the standard deviation from successive differences
     (robust to a trend), at least the smallest step between frames (quantised feedback)."""
+    mean = float(np.add.reduce(v)) / v.size  # np.mean's sum and division, without its wrapper
     if v.size < 3:
-        return _Window(float(t[0]), float(v.mean()), float("nan"))
-    steps = np.abs(np.diff(v))
+        return _Window(float(t[0]), mean, float("nan"))
+    steps = np.abs(v[1:] - v[:-1])
     moved = steps[steps > 0]
-    noise = max(float(np.median(steps)) / _MAD_TO_SD, float(moved.min()) if moved.size else 0.0)
-    return _Window(float(t[0]), float(v.mean()), noise)
+    noise = max(_median(steps) / _MAD_TO_SD,
+                float(np.minimum.reduce(moved)) if moved.size else 0.0)
+    return _Window(float(t[0]), mean, noise)
 
 
 class FollowMonitor:
@@ -245,8 +268,10 @@ class FollowMonitor:
         if values is None or not len(feedback):
             return
         ok = np.isfinite(values)
-        self._t = np.concatenate([self._t, feedback.t_s[ok]])
-        self._v = np.concatenate([self._v, values[ok]])
+        t, v = (feedback.t_s, values) if ok.all() else (feedback.t_s[ok], values[ok])
+        if self._t.size:
+            t, v = np.concatenate([self._t, t]), np.concatenate([self._v, v])
+        self._t, self._v = np.asarray(t, dtype=float), np.asarray(v, dtype=float)
         while self._t.size and self._t[-1] - self._t[0] >= FOLLOW_WINDOW_S:
             cut = int(np.searchsorted(self._t, self._t[0] + FOLLOW_WINDOW_S))
             window = _window(self._t[:cut], self._v[:cut])

@@ -63,14 +63,16 @@ class SimActuator(Device):
         blocks, self.world.feedback = self.world.feedback, []
         if not blocks:
             return FeedbackBlock(np.empty(0))
-        t = np.concatenate([b.t_s for b in blocks])
+        one = len(blocks) == 1  # the usual read: one sensor block, nothing to join
+        t = blocks[0].t_s if one else np.concatenate([b.t_s for b in blocks])
         fields = {}
         for name in ("speed_rpm", "current_a", "voltage_v", "temperature_c"):
-            fields[name] = (
-                np.concatenate([getattr(b, name) for b in blocks])
-                if name in self.info.feedback
-                else None
-            )
+            if name not in self.info.feedback:
+                fields[name] = None
+            elif one:
+                fields[name] = getattr(blocks[0], name)
+            else:
+                fields[name] = np.concatenate([getattr(b, name) for b in blocks])
         return FeedbackBlock(t, **fields)
 
 

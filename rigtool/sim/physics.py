@@ -188,15 +188,15 @@ class ThrusterTwin:
         if size == 0:
             e = np.empty(0)
             return TwinSamples(np.empty((0, 6)), e, e.copy(), e.copy(), e.copy())
-        if t[0] < self._t - _TIME_SLACK_S:
-            raise ValueError(f"sample time {t[0]} lies before the twin's time {self._t}")
-        if self._pending and self._pending[0][0] <= t[-1]:  # a delayed command falls due
+        t0, t1 = float(t[0]), float(t[-1])
+        if t0 < self._t - _TIME_SLACK_S:
+            raise ValueError(f"sample time {t0} lies before the twin's time {self._t}")
+        if self._pending and self._pending[0][0] <= t1:  # a delayed command falls due
             cut = int(np.searchsorted(t, self._pending[0][0], side="left"))
             head = self.sample(t[:cut]) if cut else None
             self._advance(self._pending[0][0])
             tail = self.sample(t[cut:])
             return tail if head is None else _concat(head, tail)
-        t1 = float(t[-1])
         self._cavitate(t1)
         p = self.profile
         n0, nt = self._n, self._n_target
@@ -229,8 +229,8 @@ class ThrusterTwin:
         z[_THRUST], z[_TIME], z[_SPEED], z[_CURRENT] = thrust, t, n, current
         ft = z[: _ONE + 1].T @ self._ft_mix
         speed, current_fb, voltage = self._fb_mix @ z[_ONE:]
-        self._n, self._m = (float(v[-1]) if isinstance(v, np.ndarray) else float(v)
-                            for v in (n, m))
+        self._n = float(n[-1]) if isinstance(n, np.ndarray) else float(n)
+        self._m = float(m[-1]) if isinstance(m, np.ndarray) else float(m)
         self._t = t1
         thrust_true = thrust if isinstance(thrust, np.ndarray) else np.full(size, thrust)
         temperature = self._temperature(t, float(np.mean(current))) if self._heat else None
