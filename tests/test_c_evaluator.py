@@ -336,6 +336,31 @@ def test_a_noise_level_that_is_no_log_variance_is_refused_by_both(qctm_eval, sli
     _both_refuse(qctm_eval, tmp_path, "not a finite log variance")
 
 
+NAN, INF = float("nan"), float("inf")
+
+
+@pytest.mark.parametrize("field, value", [
+    ("gate_z0", NAN), ("gate_s", NAN), ("gate_s", INF), ("signal_var", NAN),
+    ("signal_var", 1e308), ("signal_var", -1.0), ("x_mean", [NAN, 0.0, 0.0]),
+    ("x_scale", [1.0, 0.0, 1.0]), ("length_scales", [INF, 1.0, 1.0]), ("x_train", NAN),
+    ("alpha", INF)])
+def test_a_noise_field_that_is_not_finite_is_refused_by_both(qctm_eval, slim_text, tmp_path,
+                                                            field, value):
+    """NaN or inf in the noise model's gate, signal variance, inputs or weights gave NaN or
+    infinite intervals (and gate_s NaN made Python and C disagree): both readers refuse the
+    file instead (found by an attack). x_train and alpha: one value of the first row."""
+    doc = json.loads(slim_text)
+    noise = doc["noise"]
+    if field == "x_train":
+        noise["x_train"][0][1] = value
+    elif field == "alpha":
+        noise["alpha"][0] = value
+    else:
+        noise[field] = value
+    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    _both_refuse(qctm_eval, tmp_path, f"noise.{field}")
+
+
 def test_missed_ventilation_widening_agrees_and_acts_on_the_loss_side_only(qctm_eval, slim_text,
                                                                          tmp_path):
     """Format 7: the loss-side widening (noise.missed_*) lowers lo95 in forward and raises

@@ -232,13 +232,28 @@ class LogNoise:
     def from_dict(cls, d: dict) -> LogNoise:
         event = d.get("log_bias_event")
         knots, lower = missed_table(d.get("missed_speed_rpm"), d.get("missed_lower_n"))
-        return cls(np.array(d["x_mean"]), np.array(d["x_scale"]), np.array(d["length_scales"]),
-                   float(d["signal_var"]), _log_level("log_mean", d["log_mean"]),
-                   np.array(d["x_train"], dtype=float), np.array(d["alpha"]),
+        signal_var = float(_finite("signal_var", d["signal_var"]))
+        if not 0.0 <= signal_var <= MAX_NOISE_SIGNAL_VAR:
+            raise ValueError(f"noise.signal_var {signal_var!r} must be within "
+                             f"0..{MAX_NOISE_SIGNAL_VAR:g}")
+        return cls(_finite("x_mean", d["x_mean"]), _finite("x_scale", d["x_scale"], True),
+                   _finite("length_scales", d["length_scales"], True),
+                   signal_var, _log_level("log_mean", d["log_mean"]),
+                   _finite("x_train", d["x_train"]), _finite("alpha", d["alpha"]),
                    _log_level("log_bias", d.get("log_bias", LOG_CHI2_BIAS)),
                    None if event is None else _log_level("log_bias_event", event),
-                   float(d.get("gate_z0", 0.0)), float(d.get("gate_s", 0.0)),
+                   float(_finite("gate_z0", d.get("gate_z0", 0.0))),
+                   float(_finite("gate_s", d.get("gate_s", 0.0))),
                    missed_speed_rpm=knots, missed_lower_n=lower)
+
+
+def _finite(name: str, value: object, positive: bool = False) -> np.ndarray:
+    """A numeric field of the noise model, every value finite (and > 0 where it divides):
+    NaN or inf would give NaN or infinite intervals instead of a refusal."""
+    a = np.array(value, dtype=float)
+    if not np.all(np.isfinite(a)) or (positive and not np.all(a > 0)):
+        raise ValueError(f"noise.{name} must be finite" + (" and > 0" if positive else ""))
+    return a
 
 
 def missed_table(knots: object, lower: object) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -255,6 +270,7 @@ def missed_table(knots: object, lower: object) -> tuple[np.ndarray | None, np.nd
 
 
 MAX_LOG_LEVEL = 100.0  # |log N^2| of a noise level: e^100 N^2 is far beyond any thruster
+MAX_NOISE_SIGNAL_VAR = 1e3  # the noise GP's signal variance: the ceiling every fit has had
 
 
 def _log_level(name: str, value: object) -> float:

@@ -753,6 +753,25 @@ static int get_kernel(loader *L, const jval *obj, const char *what, const char *
     return 0;
 }
 
+/* The noise model's inputs and weights (LogNoise.from_dict): every value finite, scales and
+ * length scales > 0. NaN or inf would give NaN or infinite intervals instead of a refusal. */
+static int check_noise_kernel(loader *L, const kernel_sum *ks)
+{
+    size_t i;
+    for (i = 0; i < 3; i++)
+        if (!isfinite(ks->x_mean[i]) || !(ks->x_scale[i] > 0.0) || !isfinite(ks->x_scale[i])
+            || !(ks->ls[i] > 0.0) || !isfinite(ks->ls[i]))
+            return lfail(L, "qctm_gp.json: %s", "noise.x_mean must be finite, noise.x_scale "
+                         "and noise.length_scales finite and > 0");
+    for (i = 0; i < 3 * ks->n; i++)
+        if (!isfinite(ks->xt[i]))
+            return lfail(L, "qctm_gp.json: %s", "noise.x_train must be finite");
+    for (i = 0; i < ks->n; i++)
+        if (!isfinite(ks->w[i]))
+            return lfail(L, "qctm_gp.json: %s", "noise.alpha must be finite");
+    return 0;
+}
+
 static int load_betm(loader *L, qctm_model *m, const jval *b)
 {
     static const char *const known[] = {"cp_fwd", "cp_rev", "c_n", "i_0", "ci_fwd", "ci_rev",
@@ -915,7 +934,14 @@ static int load_noise(loader *L, qctm_model *m, const jval *doc)
                      "log_bias_event");
     if (load_missed(L, m, nz) != 0)
         return -1;
-    return get_kernel(L, nz, "noise", "alpha", &m->noise);
+    if (!isfinite(m->noise_gate_z0) || !isfinite(m->noise_gate_s))
+        return lfail(L, "qctm_gp.json: %s", "noise.gate_z0 and noise.gate_s must be finite");
+    if (!(m->noise_signal_var >= 0.0 && m->noise_signal_var <= 1e3))
+        return lfail(L, "qctm_gp.json: %s", "noise.signal_var must be within 0..1000 "
+                     "(MAX_NOISE_SIGNAL_VAR in qctm.py)");
+    if (get_kernel(L, nz, "noise", "alpha", &m->noise) != 0)
+        return -1;
+    return check_noise_kernel(L, &m->noise);
 }
 
 /* Bounds.from_dict / Domain.from_dict: absent, null or {} give the defaults / no domain. */
