@@ -536,7 +536,7 @@ class Engine:
             idx = np.searchsorted(fb.t_s, t, side="right") - 1
         for name in FEEDBACK_FIELDS:
             values = getattr(fb, name)
-            if values is None or not (same_times or idx is not None):
+            if values is None or (idx is None and not same_times):
                 out[name] = np.full(len(t), self._fb_last[name])
                 continue
             held = values if same_times else np.where(idx >= 0, values[np.clip(idx, 0, None)],
