@@ -4,8 +4,8 @@
         --train SEED[,SEED] --out FILE.npz [--set cal-dev]
     python benchmarks/bench_cavitation_spread.py analyse FILE.npz [FILE.npz ...]
 
-`dump` trains the model `calibrate` would export (bench_cavitation's runs, recorded in DB
-by it) and saves the held-out check's inputs (`calibrate_gate`'s arrays) and, on the set's
+`dump` trains the model `calibrate` would export on runs that `bench_cavitation.py --set S
+--variant V --db DB` recorded (the same DB; only development sets, never a final one) and saves the held-out check's inputs (`calibrate_gate`'s arrays) and, on the set's
 held-out runs, each block's thrust, class by the twin's truth, truth event, the model's
 estimate and its variance parts with the noise model before the scale. `analyse` replays
 the scale on those arrays (bit for bit what the model exports; blocks flagged out of domain
