@@ -148,7 +148,7 @@ def _run_with_supply(tmp_path, url: str, read, **supply) -> tuple[Store, object]
     protocol.write_text(SIM_PROTOCOL)
     setup = resolve(protocol, sim=True)
     rigset = open_checked(setup)
-    rigset.supply = ScpiSupply(ScpiSupplyConfig(driver="scpi-supply", url=url, timeout_s=0.3,
+    rigset.supply = ScpiSupply(ScpiSupplyConfig(driver="scpi-supply", url=url,
                                                 max_voltage_v=24.0, **supply))
     inner = rigset.sensor.read
     rigset.sensor.read = lambda *args: read(inner, *args)
