@@ -8,6 +8,8 @@ axis that leaves closed loop without an error (W1) must each stop or refuse, nev
 
 from __future__ import annotations
 
+import time
+
 import pytest
 import yaml
 from pydantic import ValidationError
@@ -185,13 +187,28 @@ def _sweep(write_yaml, channel, tmp_path, twin, box, during) -> int:
     data = yaml.safe_load(rig.read_text())
     data["sensor"].update(host=host, port=port, http_port=box.http_port)
     rig.write_text(yaml.safe_dump(data, sort_keys=False))
-    act = threading.Timer(2.0, during, args=(twin,))
+    stop = threading.Event()
+
+    def when_held() -> None:
+        """`during(twin)` once a nonzero velocity setpoint has held for 0.3 s (the first
+        point's ramp done), however long the sweep took to start on a loaded machine."""
+        held_since, last = None, 0.0
+        while not stop.wait(0.01):
+            vel = twin.input_vel_turns_s
+            if vel == 0.0 or vel != last:
+                held_since, last = time.monotonic(), vel
+            elif time.monotonic() - held_since >= 0.3:
+                during(twin)
+                return
+
+    act = threading.Thread(target=when_held, daemon=True)
     act.start()
     try:
         return main(["sweep", str(write_yaml(PROTOCOL)), "--rig", str(rig), "--db",
                      str(tmp_path / "r.sqlite")])
     finally:
-        act.cancel()
+        stop.set()
+        act.join()
 
 
 @pytest.fixture
