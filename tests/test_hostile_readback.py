@@ -1,6 +1,6 @@
 """Everything rigtool reads back is hostile until checked: crafted database fields, merge
 sources and calibration folders end in a rigtool error (through the CLI: exit 2, one line, no
-traceback, within 10 s under 1 GiB of address space), never write to a merge source, and
+traceback, within 10 CPU s under 1 GiB of address space), never write to a merge source, and
 leave the database they were aimed at unchanged. Handcrafted cases run through the CLI;
 hypothesis (derandomized) fuzzes the same readers in-process through the API."""
 
