@@ -513,7 +513,7 @@ def _calibrate_with_missed(resid: np.ndarray, post_var: np.ndarray, noise_var: n
     u = resid * np.where(np.sign(speed_rpm) >= 0, 1.0, -1.0)  # < 0: a thrust loss
     quiet_level = level if outside_level is None else outside_level
     gated, missed = event & (g >= 0.5), event & (g < 0.5)
-    knots, _ = _speed_knots(speed_rpm, speed_level)
+    knots, levels = _speed_knots(speed_rpm, speed_level)
     table = np.zeros(knots.size)
     dq = de = 0.0
 
@@ -531,7 +531,7 @@ def _calibrate_with_missed(resid: np.ndarray, post_var: np.ndarray, noise_var: n
             de = dq
         else:
             de = _bisect_shift(lambda c, a=dq: cover(gated, a, c), level)
-        table = missed_widening(u, half(dq, de), g, missed, speed_rpm, speed_level, knots, level)
+        table = missed_widening(u, half(dq, de), g, missed, speed_level, levels, level)
         if gated.sum() >= MIN_CHECK_ROWS:
             more = _bisect_shift(lambda c, a=dq: cover(event, a, c), level)
             de = min(de + EVENT_EXTRA, max(de, more))
@@ -553,14 +553,13 @@ def _speed_knots(speed_rpm: np.ndarray, speed_level: np.ndarray) -> tuple[np.nda
 
 
 def missed_widening(u: np.ndarray, half: np.ndarray, g: np.ndarray, missed: np.ndarray,
-                    speed_rpm: np.ndarray, speed_level: np.ndarray, knots: np.ndarray,
-                    level: float) -> np.ndarray:
-    """Per speed knot, the loss-side widening (N, before the factor 1 - gate) that covers
-    `level` of that knot's missed-ventilation rows (`missed`: event rows the gate calls quiet)
-    beyond their half-width `half`; 0 where fewer than MIN_MISSED_ROWS rows."""
-    _, levels = _speed_knots(speed_rpm, speed_level)
+                    speed_level: np.ndarray, levels: list, level: float) -> np.ndarray:
+    """Per speed knot (`levels`: the speed levels of each knot, from `_speed_knots`), the
+    loss-side widening (N, before the factor 1 - gate) that covers `level` of that knot's
+    missed-ventilation rows (`missed`: event rows the gate calls quiet) beyond their
+    half-width `half`; 0 where fewer than MIN_MISSED_ROWS rows."""
     need = np.maximum(-u - half, 0.0) / np.maximum(1.0 - g, 0.5)
-    out = np.zeros(knots.size)
+    out = np.zeros(max(len(levels), 1))
     for j, lvs in enumerate(levels):
         rows = missed & np.isin(speed_level, lvs) & np.isfinite(need)
         if rows.sum() >= MIN_MISSED_ROWS:
