@@ -67,10 +67,37 @@ def measured_rate_hz(sensor: ForceSensor, asked_hz: float) -> float:
 
 
 def fitted_rate_hz(t_s: np.ndarray) -> float:
-    """Samples per second from their arrival times: the slope of the sample count against
-    time, so bursts (a datagram batch, a USB frame) weigh in on both sides of the line."""
-    slope = np.polyfit(t_s - t_s[0], np.arange(len(t_s), dtype=float), 1)[0]
-    return float(slope)
+    """Samples per second from their arrival times: the slope of the upper envelope of the
+    sample count against time, on its edge at the middle of the time span. A sample can
+    only arrive late, never early, so late ones (a busy sender catching up, a backlog read
+    at once, a USB frame's batch) fall below that envelope and do not pull it, as they
+    pulled a least-squares line."""
+    order = np.argsort(t_s, kind="stable")
+    t = np.asarray(t_s, dtype=float)[order]
+    count = order.astype(float)
+    last = np.r_[t[1:] != t[:-1], True]  # the highest count at each stamp
+    hull = _upper_hull(t[last], count[last])
+    if len(hull) < 2:
+        return math.inf
+    t_hull, count_hull = t[last][hull], count[last][hull]
+    edge = int(np.clip(np.searchsorted(t_hull, (t[0] + t[-1]) / 2), 1, len(hull) - 1))
+    return float((count_hull[edge] - count_hull[edge - 1]) / (t_hull[edge] - t_hull[edge - 1]))
+
+
+def _upper_hull(t: np.ndarray, count: np.ndarray) -> list[int]:
+    """Indices of the upper convex hull of the points (t, count), t strictly increasing
+    (a monotone chain: scipy's Qhull refuses the collinear points of a regular stream)."""
+    hull: list[int] = []
+    for i in range(len(t)):
+        while len(hull) >= 2:
+            a, b = hull[-2], hull[-1]
+            if ((t[b] - t[a]) * (count[i] - count[a])
+                    - (count[b] - count[a]) * (t[i] - t[a])) >= 0:
+                hull.pop()  # b lies on or below the chord from a to i
+            else:
+                break
+        hull.append(i)
+    return hull
 
 
 def check_sensor_rate(protocol: Protocol, path: Path, rigset: RigSet) -> SensorTiming:

@@ -18,7 +18,7 @@ from rigtool.errors import DeviceError
 from rigtool.plan import TimingRefused, expand, sensor_timing
 from rigtool.protocol import load_protocol
 from rigtool.rig import RigSet
-from rigtool.sensor_rate import check_sensor_rate
+from rigtool.sensor_rate import check_sensor_rate, fitted_rate_hz
 from rigtool.sim.gauge_twin import GaugeTwin
 from rigtool.sim.netft_twin import NetFTTwin
 from rigtool.store import Store
@@ -168,6 +168,33 @@ def test_a_netft_rate_is_checked_and_stored_as_acquired(live_hz, xml_rate, store
         assert _acquired_s(store, run_id, step) == pytest.approx(500 / stored_hz, abs=0.05)
     warned = [e["detail"]["message"] for e in store.events(run_id, "warning")]
     assert any("states 500 Hz but streams at" in m for m in warned) == note
+
+
+def _late_arrivals(pattern: str, rate_hz: float, rng: np.random.Generator) -> np.ndarray:
+    """Arrival times of 0.5 s of a stream at `rate_hz` (plus a backlog), delayed as
+    `pattern` says; a sample never arrives before it is sent."""
+    n = int(1.5 * rate_hz)
+    sent = np.arange(n) / rate_hz
+    arrived = sent + rng.exponential(50e-6, n)  # network and kernel latency
+    if pattern == "backlog":  # 60 % of the samples queued before the probe read them at once
+        arrived[: int(0.6 * n)] = arrived[int(0.6 * n)]
+    elif pattern == "sender-stalls":  # a busy sender stops for 5-20 ms, then catches up
+        for start in np.r_[0.0, rng.uniform(0, sent[-1], 11)]:
+            stalled = (sent >= start) & (sent < start + rng.uniform(5e-3, 20e-3))
+            arrived[stalled] = np.maximum(arrived[stalled], start + 20e-3)
+    elif pattern == "frames":  # a USB frame of 16 samples arrives after its last one
+        arrived = np.repeat(arrived[15::16], 16)[:n]
+    return np.maximum.accumulate(arrived)
+
+
+@pytest.mark.parametrize("pattern", ["jitter", "backlog", "sender-stalls", "frames"])
+@pytest.mark.parametrize("rate_hz", [80.0, 1000.0, 7000.0])
+def test_the_measured_rate_ignores_late_samples(pattern, rate_hz):
+    """Before: a least-squares line through the arrival times read a 1 kHz twin box whose
+    sender a loaded machine delayed at 1008.8 Hz, and a backlog read at once as 1966 Hz."""
+    for seed in range(5):
+        arrived = _late_arrivals(pattern, rate_hz, np.random.default_rng(seed))
+        assert fitted_rate_hz(arrived) == pytest.approx(rate_hz, rel=2e-3)
 
 
 @pytest.mark.parametrize("rate", ["nan", "inf", "-5", "0", "1e9"])
