@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -189,6 +190,15 @@ def _median(v: np.ndarray) -> float:
     return (float(part[half - 1]) + float(part[half])) / 2
 
 
+def _sorted_median(values: list[float]) -> float:
+    """np.median of a sorted, non-empty list without NaN (the same value: the middle element,
+    or the mean of the two), without converting and partitioning the list on every window."""
+    half = len(values) // 2
+    if len(values) % 2:
+        return values[half]
+    return (values[half - 1] + values[half]) / 2
+
+
 def _window(t: np.ndarray, v: np.ndarray) -> _Window:
     """Mean of a window, and its noise: the standard deviation from successive differences
     (robust to a trend), at least the smallest step between frames (quantised feedback)."""
@@ -248,7 +258,7 @@ class FollowMonitor:
         self._trough = float("inf")
         self._peak = 0.0
         self._armed = False  # the level rose clearly during the point: a fall now means a stop
-        self._noise: list[float] = []
+        self._noise: list[float] = []  # the point's window noise levels, kept sorted
         self._failed = 0
 
     def hold(self, command: float, t_s: float) -> None:
@@ -280,7 +290,7 @@ class FollowMonitor:
 
     def _judge(self, w: _Window) -> None:
         if np.isfinite(w.noise):
-            self._noise.append(w.noise)
+            bisect.insort(self._noise, w.noise)
         held = self._hold_t is not None and w.t0_s >= self._hold_t
         problem = self._map_problem(w) if held else None
         problem = problem or (self._fall_problem(w) if held else None)
@@ -306,7 +316,7 @@ class FollowMonitor:
         self._peak = max(self._peak, level)
         rise = self._peak - self._trough
         self._armed = self._armed or (
-            bool(self._noise) and rise >= FOLLOW_NOISE_K * float(np.median(self._noise)))
+            bool(self._noise) and rise >= FOLLOW_NOISE_K * _sorted_median(self._noise))
 
     def _map_problem(self, w: _Window) -> str | None:
         """Why the window misses the command map's speed, or None."""

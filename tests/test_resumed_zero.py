@@ -91,12 +91,21 @@ def _sweep(tmp: Path, text: str, seed: int, stop_after: int | None = None,
     return store, run_id
 
 
-def _pair(tmp: Path, text: str, seed: int, stop_after: int,
+@pytest.fixture(scope="module")
+def uninterrupted() -> dict[tuple[str, int], CalibrationResult]:
+    """Calibrations of uninterrupted runs by (protocol text, seed), made once for the module:
+    cases that differ only in how they resume share one (it is read, never changed)."""
+    return {}
+
+
+def _pair(tmp: Path, text: str, seed: int, stop_after: int, done: dict,
           continuing: bool = False) -> tuple[CalibrationResult, CalibrationResult]:
-    """Calibrations of the uninterrupted run and of the interrupted and resumed one."""
-    full = calibrate_run(*_sweep(tmp, text, seed))
+    """Calibrations of the uninterrupted run (from `done`, the `uninterrupted` fixture, when
+    another case made it) and of the interrupted and resumed one."""
+    if (text, seed) not in done:
+        done[text, seed] = calibrate_run(*_sweep(tmp, text, seed))
     resumed = calibrate_run(*_sweep(tmp, text, seed, stop_after, continuing))
-    return full, resumed
+    return done[text, seed], resumed
 
 
 def _drift(cal: CalibrationResult) -> tuple[float, float, float]:
@@ -138,7 +147,8 @@ def _drift_warnings(cal: CalibrationResult) -> list[str]:
 
 @pytest.mark.parametrize("seed, stop_after", [(2020, 203), (11, 120), (12, 300)])
 def test_resumed_luo_sweep_fits_the_drift_of_the_uninterrupted_one(tmp_path, seed,
-                                                                   stop_after, shipped_sweep):
+                                                                   stop_after, shipped_sweep,
+                                                                   uninterrupted):
     """The tester's case: per-depth tares, the twin's offset starting over at the resume
     (one offset for both sessions made the drift -1.42 N/h, truth +0.6 N/h). Seed 2020 is
     the shipped protocol's own: its uninterrupted run is the session's sweep of it."""
@@ -147,20 +157,20 @@ def test_resumed_luo_sweep_fits_the_drift_of_the_uninterrupted_one(tmp_path, see
             full = calibrate_run(store, store.resolve_run_id("last"))
         resumed = calibrate_run(*_sweep(tmp_path, LUO, seed, stop_after))
     else:
-        full, resumed = _pair(tmp_path, LUO, seed, stop_after)
+        full, resumed = _pair(tmp_path, LUO, seed, stop_after, uninterrupted)
     _assert_agree(full, resumed, PROFILES["can-bldc"].drift_n_per_h)
 
 
 @pytest.mark.parametrize("seed, stop_after", [(21, 100), (22, 60), (23, 150)])
 def test_resumed_esc_sweep_fits_the_drift_of_the_uninterrupted_one(tmp_path, seed,
-                                                                   stop_after):
-    full, resumed = _pair(tmp_path, ESC, seed, stop_after)
+                                                                   stop_after, uninterrupted):
+    full, resumed = _pair(tmp_path, ESC, seed, stop_after, uninterrupted)
     _assert_agree(full, resumed, PROFILES["esc-1100-1900"].drift_n_per_h)
 
 
-def test_resumed_stm32_sweep_finds_the_drift_with_its_dead_zones(tmp_path):
+def test_resumed_stm32_sweep_finds_the_drift_with_its_dead_zones(tmp_path, uninterrupted):
     """No speed feedback: the zero comes from the dead zones and the tares, per session."""
-    full, resumed = _pair(tmp_path, STM32, 31, 400)
+    full, resumed = _pair(tmp_path, STM32, 31, 400, uninterrupted)
     _assert_agree(full, resumed, PROFILES["stm32-pwm"].drift_n_per_h)
     assert resumed.sections[0].curve.dead_zones == full.sections[0].curve.dead_zones
 
@@ -171,8 +181,10 @@ def test_resumed_stm32_sweep_finds_the_drift_with_its_dead_zones(tmp_path):
     ("never", False),  # no tare, the re-opened twin's offset starts over
 ])
 def test_the_drift_comes_out_right_whether_or_not_the_resume_rezeroes(tmp_path, tare,
-                                                                       continuing):
-    full, resumed = _pair(tmp_path, BLDC.format(drift=2.0, tare=tare), 14, 80, continuing)
+                                                                       continuing,
+                                                                       uninterrupted):
+    full, resumed = _pair(tmp_path, BLDC.format(drift=2.0, tare=tare), 14, 80, uninterrupted,
+                          continuing)
     _assert_agree(full, resumed, 2.0)
 
 
