@@ -1,6 +1,8 @@
 """att29d (attack on issue 29 part 3, one-run trainings): held-out coverage of the exported
 quasi-cavitation 95 % intervals, measured through the CLI and the exported model file.
-Adapted from att29c's attack/cov29/cav_eval.py; new seeds (101000+) and a fourth twin `x5`.
+Copied from att29d's attack/one29/cav_eval.py for bias29: dev seeds 110000-113999, fewer
+trainings and held-out runs, and the mean error (model minus measured) and the sides of the
+misses per class.
 
     python cav_eval.py runs  WORK                 # record every run once (twin, CLI)
     python cav_eval.py train WORK LABEL CHECKOUT  # copy the db, calibrate each training there
@@ -201,7 +203,8 @@ def score(model, store, run_ids: list[str]) -> tuple[dict, dict]:  # noqa: ANN00
     for k in ("event", "outside"):
         m = c == k
         per_run = [float(i[m & (ri == q)].mean()) for q in range(len(run_ids)) if (m & (ri == q)).any()]
-        res[k] = {"n": int(m.sum()), "cover": float(i[m].mean()),
+        res[k] = {"n": int(m.sum()), "cover": float(i[m].mean()), "bias": float(np.nanmean(e[m])),
+                  "below": float(np.mean(~i[m] & (e[m] > 0))), "above": float(np.mean(~i[m] & (e[m] < 0))),
                   "p95": float(np.quantile(np.abs(e[m]), 0.95)),
                   "halfw_med": float(np.median(w[m])), "halfw_max": float(np.max(w[m])),
                   "nonfinite": int((~np.isfinite(w[m])).sum()), "ood": float(o[m].mean()),
@@ -235,7 +238,7 @@ def cmd_eval(work: Path, label: str) -> None:
         ev, ou = res["event"], res["outside"]
         print(f"{v:6} {name:9} | event cov {ev['cover']:.1%} (runs {ev['cover_runs'][0]:.0%}-"
               f"{ev['cover_runs'][1]:.0%}) hw {ev['halfw_med']:.2f}/{ev['halfw_max']:.1f} p95 {ev['p95']:.2f} "
-              f"n {ev['n']} | outside cov {ou['cover']:.1%} hw {ou['halfw_med']:.2f} p95 {ou['p95']:.2f} "
+              f"n {ev['n']} bias {ev['bias']:+.2f} below {ev['below']:.1%} | outside cov {ou['cover']:.1%} hw {ou['halfw_med']:.2f} p95 {ou['p95']:.2f} "
               f"| warn {len(res['warnings'])}", flush=True)
     (work / f"{label}-eval.json").write_text(json.dumps(rows, indent=1, default=str))
 
