@@ -11,9 +11,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from diag import held_out, train
 from scipy.optimize import least_squares
 
-from diag import held_out, train
 from rigtool.analysis.gp import fit_gated_mean
 from rigtool.models.qctm import GatedMean
 from rigtool.store import Store
