@@ -281,3 +281,46 @@ def test_missed_ventilation_is_covered_by_the_loss_side_widening_alone():
         assert inside[event].mean() >= lo_event
         assert 0.91 <= inside[~event].mean() <= 0.97
     assert inside[event].mean() < 0.93  # without the widening the missed losses fall out
+
+
+def _binned_mean(z: np.ndarray, y: np.ndarray, bins: int = 20) -> np.ndarray:
+    """Mean of y in quantile bins of z, at every row (an in-sample E[y | z])."""
+    edges = np.unique(np.quantile(z, np.linspace(0, 1, bins + 1)))
+    k = np.clip(np.searchsorted(edges, z, side="right") - 1, 0, edges.size - 2)
+    return np.array([y[k == j].mean() for j in range(edges.size - 1)])[k]
+
+
+@pytest.mark.parametrize("which", ["one", "two"])
+def test_mean_term_error_during_events_is_what_the_signals_allow(twin, which):
+    """The exported mean during the twin's TRUE events on held-out runs: beta is the twin's
+    -1 / cav_current_drop (z noise does not shrink it), and its error there is no more above
+    the measured thrust than that of the best mean from (z, command) fitted on the held-out
+    blocks themselves: conditioning on the truth, not the mean term, makes it look biased
+    (docs/cavitation.md, 'Where the mean term's error during events comes from')."""
+    from types import SimpleNamespace
+
+    from rigtool.analysis.cavitation import training_blocks
+    from rigtool.analysis.cavitation_truth import truth_intervals
+    from rigtool.analysis.dataset import load_run
+    from rigtool.thruster_profiles import ThrusterProfile
+
+    _, store, _, held, one, two = twin
+    res = one if which == "one" else two
+    assert res.gp.mean_term.beta == pytest.approx(-1.0 / ThrusterProfile.cav_current_drop,
+                                                  rel=0.05)
+    sets = []
+    for run in held:
+        truth = [SimpleNamespace(t_start_s=a, t_end_s=b) for a, b in truth_intervals(store, run)]
+        sets.append(training_blocks(load_run(store, run), res.betm, truth, PARAMS)[0])
+    z, y = (np.concatenate([getattr(s, k) for s in sets]) for k in ("xf", "y"))
+    z = z[:, 1]
+    cls, cmd = (np.concatenate([getattr(s, k) for s in sets]) for k in ("block_class", "command"))
+    use = (cls == "event") | (cls == "outside")
+    best = np.full(y.size, np.nan)
+    for c in np.unique(cmd):
+        best[use & (cmd == c)] = _binned_mean(z[use & (cmd == c)], y[use & (cmd == c)])
+    model = res.gp.predict(np.concatenate([s.xf for s in sets]))[0]
+    ev = cls == "event"
+    # one-sided: the finding was an estimate above the measured thrust; on the dev set the
+    # exported mean was 0.6 N below to 0.8 N above that optimum per training
+    assert np.mean((model - y)[ev]) - np.mean((best - y)[ev]) <= 1.0
