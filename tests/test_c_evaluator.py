@@ -361,6 +361,32 @@ def test_a_noise_field_that_is_not_finite_is_refused_by_both(qctm_eval, slim_tex
     _both_refuse(qctm_eval, tmp_path, f"noise.{field}")
 
 
+@pytest.mark.parametrize("section, field, value", [
+    ("noise", "x_mean", [1e200, 0.0, 0.0]), ("noise", "x_scale", [1e-300, 1.0, 1.0]),
+    ("noise", "length_scales", [1.0, 1e-300, 1.0]), ("noise", "x_train", 1e300),
+    ("noise", "alpha", 1e300), ("gp", "x_mean", [0.0, 1e200, 0.0]),
+    ("gp", "x_scale", [1.0, 1.0, 1e-300]), ("gp", "length_scales", [1e300, 1.0, 1.0]),
+    ("gp", "x_train", -1e300), ("gp", "y_mean", 1e300), ("gp", "y_std", 1e200),
+    ("gp", "y_std", 0.0), ("gp", "noise_var", -5.0), ("gp", "beta", -1e300),
+    ("gp", "gate_s", 1e300)])
+def test_a_finite_but_extreme_model_field_is_refused_by_both(qctm_eval, slim_text, tmp_path,
+                                                             section, field, value):
+    """Finite values so extreme that standardising or squaring them overflows (x_mean 1e200,
+    x_scale 1e-300) gave NaN intervals in Python, and in C for x_scale; y_std 1e200 an
+    OverflowError at prediction; the gp section's levels were not checked at all (found by
+    an attack). Both readers refuse them, naming the field. x_train: one value."""
+    doc = json.loads(slim_text)
+    part = doc[section]
+    if field == "x_train":
+        part["x_train"][0][0] = value
+    elif field == "alpha":
+        part["alpha"][0] = value
+    else:
+        part[field] = value
+    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    _both_refuse(qctm_eval, tmp_path, f"{section}.{field}")
+
+
 def test_missed_ventilation_widening_agrees_and_acts_on_the_loss_side_only(qctm_eval, slim_text,
                                                                          tmp_path):
     """Format 7: the loss-side widening (noise.missed_*) lowers lo95 in forward and raises

@@ -236,10 +236,10 @@ class LogNoise:
         if not 0.0 <= signal_var <= MAX_NOISE_SIGNAL_VAR:
             raise ValueError(f"noise.signal_var {signal_var!r} must be within "
                              f"0..{MAX_NOISE_SIGNAL_VAR:g}")
-        return cls(_finite("x_mean", d["x_mean"]), _finite("x_scale", d["x_scale"], True),
-                   _finite("length_scales", d["length_scales"], True),
-                   signal_var, _log_level("log_mean", d["log_mean"]),
-                   _finite("x_train", d["x_train"]), _finite("alpha", d["alpha"]),
+        x_mean, x_scale, length_scales, x_train = standardisation("noise", d)
+        return cls(x_mean, x_scale, length_scales,
+                   signal_var, _log_level("log_mean", d["log_mean"]), x_train,
+                   bounded("noise.alpha", d["alpha"], -MAX_KERNEL_WEIGHT, MAX_KERNEL_WEIGHT),
                    _log_level("log_bias", d.get("log_bias", LOG_CHI2_BIAS)),
                    None if event is None else _log_level("log_bias_event", event),
                    float(_finite("gate_z0", d.get("gate_z0", 0.0))),
@@ -271,6 +271,28 @@ def missed_table(knots: object, lower: object) -> tuple[np.ndarray | None, np.nd
 
 MAX_LOG_LEVEL = 100.0  # |log N^2| of a noise level: e^100 N^2 is far beyond any thruster
 MAX_NOISE_SIGNAL_VAR = 1e3  # the noise GP's signal variance: the ceiling every fit has had
+MAX_MODEL_VALUE = 1e6  # |any input, centre or level|: r/min, N and m of a thruster are far below
+MIN_MODEL_SCALE = 1e-6  # the smallest scale or length scale a standardisation may divide by
+MAX_KERNEL_WEIGHT = 1e12  # |alpha|: a GP's weights, normalised units
+
+
+def bounded(name: str, value: object, lo: float, hi: float) -> np.ndarray:
+    """A numeric field of a model file with every value within lo..hi: NaN, inf or values
+    so extreme that standardising or squaring them overflows would give NaN or infinite
+    intervals (or an overflow at prediction) instead of a refusal."""
+    a = np.array(value, dtype=float)
+    if not np.all((a >= lo) & (a <= hi)):
+        raise ValueError(f"{name} must be finite and within {lo:g}..{hi:g}")
+    return a
+
+
+def standardisation(section: str, d: dict) -> tuple[np.ndarray, ...]:
+    """x_mean, x_scale, length_scales and x_train of a kernel section, bounded."""
+    big, small = MAX_MODEL_VALUE, MIN_MODEL_SCALE
+    return (bounded(f"{section}.x_mean", d["x_mean"], -big, big),
+            bounded(f"{section}.x_scale", d["x_scale"], small, big),
+            bounded(f"{section}.length_scales", d["length_scales"], small, big),
+            bounded(f"{section}.x_train", d["x_train"], -big, big))
 
 
 def _log_level(name: str, value: object) -> float:
@@ -501,6 +523,17 @@ def _variance(path: Path) -> np.ndarray:
         raise UnreadableModel(f"{path}: {brief(exc)}") from None
 
 
+def gp_scalars(g: dict) -> dict[str, float]:
+    """The gp section's levels (required) and mean term (beta and the gate: 0 when absent),
+    each bounded."""
+    big = MAX_MODEL_VALUE
+    levels = {"y_mean": -big, "y_std": MIN_MODEL_SCALE, "signal_var": 0.0, "noise_var": 0.0}
+    out = {k: float(bounded(f"gp.{k}", g[k], lo, big)) for k, lo in levels.items()}
+    out.update({k: float(bounded(f"gp.{k}", g.get(k, 0.0), -big, big))
+                for k in ("beta", "gate_z0", "gate_s")})
+    return out
+
+
 def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustModel:
     """A ThrustModel from a qctm_gp.json document (and the posterior-variance matrix, which
     a document without GP signal, format 6 "signal": false, does not use)."""
@@ -508,11 +541,13 @@ def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustMod
     betm = Betm(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in b.items()})
     g = doc["gp"]
     signal = doc.get("format_version", 1) < 6 or g["signal"] is not False
-    x_train = np.array(g["x_train"], dtype=float)
+    x_mean, x_scale, length_scales, x_train = standardisation("gp", g)
+    scalars = gp_scalars(g)
     n_train = len(x_train)
     if x_train.shape != (n_train, len(FEATURES)) or n_train == 0:
         raise ValueError(f"gp.x_train is {x_train.shape}, not rows of {len(FEATURES)} inputs")
-    alpha = np.array(g["alpha"], dtype=float) if signal else None
+    alpha = (bounded("gp.alpha", g["alpha"], -MAX_KERNEL_WEIGHT, MAX_KERNEL_WEIGHT)
+             if signal else None)
     if alpha is not None and alpha.shape != (n_train,):
         raise ValueError(f"gp.alpha has shape {alpha.shape}, the model has {n_train} "
                          "training rows")
@@ -522,14 +557,14 @@ def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustMod
         raise ValueError(f"the posterior-variance matrix is {np.shape(k_inv)}, the model has "
                          f"{n_train} training rows: it belongs to another fit")
     return ThrustModel(
-        betm=betm, x_mean=np.array(g["x_mean"]), x_scale=np.array(g["x_scale"]),
-        length_scales=np.array(g["length_scales"]), signal_var=float(g["signal_var"]),
-        noise_var=float(g["noise_var"]), y_mean=float(g["y_mean"]), y_std=float(g["y_std"]),
+        betm=betm, x_mean=x_mean, x_scale=x_scale, length_scales=length_scales,
+        signal_var=scalars["signal_var"], noise_var=scalars["noise_var"],
+        y_mean=scalars["y_mean"], y_std=scalars["y_std"],
         x_train=x_train, alpha=alpha, k_inv=k_inv,
         noise=None if doc.get("noise") is None else LogNoise.from_dict(doc["noise"]),
         window=int(doc.get("features", {}).get("window_blocks", 1)),
         lead=None if doc.get("features", {}).get("lead_blocks") is None
         else int(doc["features"]["lead_blocks"]),
-        mean_term=GatedMean.from_dict(g),
+        mean_term=GatedMean(scalars["beta"], scalars["gate_z0"], scalars["gate_s"]),
         block_s=float(doc.get("features", {}).get("block_s", 0.2)),
         bounds=Bounds.from_dict(doc.get("bounds")), domain=Domain.from_dict(doc.get("domain")))

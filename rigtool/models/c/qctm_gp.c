@@ -23,6 +23,9 @@
 
 #define SQRT5 2.23606797749979 /* 5.0 ** 0.5 in Python */
 #define MAX_DEPTH 200          /* JSON nesting limit: bad input must not exhaust the stack */
+#define MAX_MODEL_VALUE 1e6    /* |input, centre or level| (MAX_MODEL_VALUE in qctm.py) */
+#define MIN_MODEL_SCALE 1e-6   /* smallest scale a standardisation divides by (qctm.py) */
+#define MAX_KERNEL_WEIGHT 1e12 /* |alpha| of the noise GP (MAX_KERNEL_WEIGHT in qctm.py) */
 
 static void set_err(char *err, size_t errlen, const char *fmt, ...)
 {
@@ -717,6 +720,18 @@ static int get_rows(loader *L, const jval *obj, const char *what, kernel_sum *ks
         || get_vec3(L, obj, what, "x_scale", ks->x_scale) != 0
         || get_vec3(L, obj, what, "length_scales", ks->ls) != 0)
         return -1;
+    /* bounded, so that standardising and squaring cannot overflow into NaN intervals */
+    for (k = 0; k < 3; k++) {
+        const char *bad = !(fabs(ks->x_mean[k]) <= MAX_MODEL_VALUE) ? "x_mean"
+            : !(ks->x_scale[k] >= MIN_MODEL_SCALE && ks->x_scale[k] <= MAX_MODEL_VALUE) ? "x_scale"
+            : !(ks->ls[k] >= MIN_MODEL_SCALE && ks->ls[k] <= MAX_MODEL_VALUE) ? "length_scales"
+            : NULL;
+        if (bad != NULL) {
+            snprintf(name, sizeof name, "%s.%s", what, bad);
+            return lfail(L, "qctm_gp.json: %s must be finite and within its bounds "
+                         "(|x_mean| <= 1e6, scales 1e-6..1e6)", name);
+        }
+    }
     snprintf(name, sizeof name, "%s.x_train", what);
     if (rows == NULL || rows->type != J_ARR || rows->len == 0)
         return lfail(L, "qctm_gp.json: %s must be a non-empty array of rows", name);
@@ -731,6 +746,8 @@ static int get_rows(loader *L, const jval *obj, const char *what, kernel_sum *ks
         for (k = 0; k < 3; k++) {
             if (r->items[k].type != J_NUM)
                 return lfail(L, "qctm_gp.json: every row of %s must have 3 numbers", name);
+            if (!(fabs(r->items[k].num) <= MAX_MODEL_VALUE))
+                return lfail(L, "qctm_gp.json: %s must be finite and within -1e6..1e6", name);
             ks->xt[3 * j + k] = (r->items[k].num - ks->x_mean[k]) / ks->x_scale[k];
         }
     }
@@ -753,22 +770,24 @@ static int get_kernel(loader *L, const jval *obj, const char *what, const char *
     return 0;
 }
 
-/* The noise model's inputs and weights (LogNoise.from_dict): every value finite, scales and
- * length scales > 0. NaN or inf would give NaN or infinite intervals instead of a refusal. */
+/* A scalar of the gp section within lo..MAX_MODEL_VALUE (model_from_document's bounds). */
+static int check_range(loader *L, double v, double lo, const char *name)
+{
+    if (v >= lo && v <= MAX_MODEL_VALUE)
+        return 0;
+    return lfail(L, "qctm_gp.json: %s must be finite and within its bounds "
+                 "(|value| <= 1e6; scales and variances >= 0)", name);
+}
+
+/* The noise model's weights (LogNoise.from_dict; its inputs are bounded by get_rows): finite
+ * and bounded, else NaN or infinite intervals instead of a refusal. */
 static int check_noise_kernel(loader *L, const kernel_sum *ks)
 {
     size_t i;
-    for (i = 0; i < 3; i++)
-        if (!isfinite(ks->x_mean[i]) || !(ks->x_scale[i] > 0.0) || !isfinite(ks->x_scale[i])
-            || !(ks->ls[i] > 0.0) || !isfinite(ks->ls[i]))
-            return lfail(L, "qctm_gp.json: %s", "noise.x_mean must be finite, noise.x_scale "
-                         "and noise.length_scales finite and > 0");
-    for (i = 0; i < 3 * ks->n; i++)
-        if (!isfinite(ks->xt[i]))
-            return lfail(L, "qctm_gp.json: %s", "noise.x_train must be finite");
     for (i = 0; i < ks->n; i++)
-        if (!isfinite(ks->w[i]))
-            return lfail(L, "qctm_gp.json: %s", "noise.alpha must be finite");
+        if (!(fabs(ks->w[i]) <= MAX_KERNEL_WEIGHT))
+            return lfail(L, "qctm_gp.json: %s", "noise.alpha must be finite and within "
+                         "-1e12..1e12");
     return 0;
 }
 
@@ -839,6 +858,7 @@ static int load_features(loader *L, qctm_model *m, const jval *doc)
 static int load_gp(loader *L, qctm_model *m, const jval *doc)
 {
     const jval *g = jget(doc, "gp"), *a_n;
+    size_t j;
     if (g == NULL || g->type != J_OBJ)
         return lfail(L, "qctm_gp.json: %s must be an object", "gp");
     if (get_num(L, g, "signal_var", NAN, &m->signal_var)
@@ -846,6 +866,14 @@ static int load_gp(loader *L, qctm_model *m, const jval *doc)
         || get_num(L, g, "y_mean", NAN, &m->y_mean) || get_num(L, g, "y_std", NAN, &m->y_std)
         || get_num(L, g, "beta", 0.0, &m->beta) || get_num(L, g, "gate_z0", 0.0, &m->gate_z0)
         || get_num(L, g, "gate_s", 0.0, &m->gate_s))
+        return -1;
+    if (check_range(L, m->y_mean, -MAX_MODEL_VALUE, "gp.y_mean")
+        || check_range(L, m->y_std, MIN_MODEL_SCALE, "gp.y_std")
+        || check_range(L, m->signal_var, 0.0, "gp.signal_var")
+        || check_range(L, m->noise_var, 0.0, "gp.noise_var")
+        || check_range(L, m->beta, -MAX_MODEL_VALUE, "gp.beta")
+        || check_range(L, m->gate_z0, -MAX_MODEL_VALUE, "gp.gate_z0")
+        || check_range(L, m->gate_s, -MAX_MODEL_VALUE, "gp.gate_s"))
         return -1;
     m->has_signal = 1;
     if (m->version >= 6) { /* gp.signal false: signal_var 0, the kernel terms are 0 */
@@ -872,9 +900,11 @@ static int load_gp(loader *L, qctm_model *m, const jval *doc)
     a_n = jget(g, "a_n");
     if (get_kernel(L, g, "gp", a_n != NULL ? "a_n" : "alpha", &m->gp) != 0)
         return -1;
-    if (a_n == NULL) {
-        size_t j;
-        for (j = 0; j < m->gp.n; j++)
+    for (j = 0; j < m->gp.n; j++) {
+        if (!(fabs(m->gp.w[j]) <= MAX_KERNEL_WEIGHT))
+            return lfail(L, "qctm_gp.json: %s must be finite and within -1e12..1e12",
+                         a_n != NULL ? "gp.a_n" : "gp.alpha");
+        if (a_n == NULL)
             m->gp.w[j] = m->y_std * m->signal_var * m->gp.w[j];
     }
     return 0;
