@@ -339,6 +339,21 @@ def test_a_noise_level_that_is_no_log_variance_is_refused_by_both(qctm_eval, sli
 NAN, INF = float("nan"), float("inf")
 
 
+def _write_with(folder: Path, text: str, section: str, field: str, value: object,
+                column: int) -> None:
+    """The model `text` with one field of `section` replaced (x_train: the value in `column`
+    of its first row; alpha: its first value), written to `folder`."""
+    doc = json.loads(text)
+    part = doc[section]
+    if field == "x_train":
+        part["x_train"][0][column] = value
+    elif field == "alpha":
+        part["alpha"][0] = value
+    else:
+        part[field] = value
+    (folder / MODEL_FILE).write_text(json.dumps(doc))
+
+
 @pytest.mark.parametrize("field, value", [
     ("gate_z0", NAN), ("gate_s", NAN), ("gate_s", INF), ("signal_var", NAN),
     ("signal_var", 1e308), ("signal_var", -1.0), ("x_mean", [NAN, 0.0, 0.0]),
@@ -349,15 +364,7 @@ def test_a_noise_field_that_is_not_finite_is_refused_by_both(qctm_eval, slim_tex
     """NaN or inf in the noise model's gate, signal variance, inputs or weights gave NaN or
     infinite intervals (and gate_s NaN made Python and C disagree): both readers refuse the
     file instead (found by an attack). x_train and alpha: one value of the first row."""
-    doc = json.loads(slim_text)
-    noise = doc["noise"]
-    if field == "x_train":
-        noise["x_train"][0][1] = value
-    elif field == "alpha":
-        noise["alpha"][0] = value
-    else:
-        noise[field] = value
-    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    _write_with(tmp_path, slim_text, "noise", field, value, column=1)
     _both_refuse(qctm_eval, tmp_path, f"noise.{field}")
 
 
@@ -375,15 +382,7 @@ def test_a_finite_but_extreme_model_field_is_refused_by_both(qctm_eval, slim_tex
     x_scale 1e-300) gave NaN intervals in Python, and in C for x_scale; y_std 1e200 an
     OverflowError at prediction; the gp section's levels were not checked at all (found by
     an attack). Both readers refuse them, naming the field. x_train: one value."""
-    doc = json.loads(slim_text)
-    part = doc[section]
-    if field == "x_train":
-        part["x_train"][0][0] = value
-    elif field == "alpha":
-        part["alpha"][0] = value
-    else:
-        part[field] = value
-    (tmp_path / MODEL_FILE).write_text(json.dumps(doc))
+    _write_with(tmp_path, slim_text, section, field, value, column=0)
     _both_refuse(qctm_eval, tmp_path, f"{section}.{field}")
 
 
