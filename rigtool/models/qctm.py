@@ -155,11 +155,6 @@ class GatedMean:
     def to_dict(self) -> dict:
         return {"beta": self.beta, "gate_z0": self.z0, "gate_s": self.s}
 
-    @classmethod
-    def from_dict(cls, g: dict) -> GatedMean:
-        return cls(float(g.get("beta", 0.0)), float(g.get("gate_z0", 0.0)),
-                   float(g.get("gate_s", 0.0)))
-
 
 @dataclass
 class LogNoise:
