@@ -455,6 +455,20 @@ def test_bad_kinv_and_bad_input_exit_with_a_message(qctm_eval, hetero_files, tmp
     assert out.returncode == 2 and "line 2" in out.stderr and out.stdout == ""
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -1e200])
+def test_a_variance_file_with_a_bad_entry_is_refused_by_both_readers(qctm_eval, hetero_files,
+                                                                     tmp_path, bad):
+    """One non-finite or absurd entry in qctm_gp_kinv.npy would make every posterior variance
+    NaN (or negative, clipped to 0): both readers refuse the file and name it."""
+    text, good = hetero_files
+    (tmp_path / MODEL_FILE).write_text(text)
+    (tmp_path / VARIANCE_FILE).write_bytes(good)
+    k_inv = np.load(tmp_path / VARIANCE_FILE)
+    k_inv[3, 5] = bad
+    np.save(tmp_path / VARIANCE_FILE, k_inv)
+    _both_refuse(qctm_eval, tmp_path, f"{VARIANCE_FILE}: entries must be finite")
+
+
 def test_calibrate_writes_no_unused_gp_terms_and_both_readers_agree(qctm_eval, twin, tmp_path,
                                                                     capsys):
     """`rigtool calibrate` with the default fit (no GP signal): format 7 without the

@@ -513,7 +513,11 @@ def _variance(path: Path) -> np.ndarray:
         matrix = np.load(path, mmap_mode="r", allow_pickle=False)
         if matrix.ndim != 2 or matrix.dtype.kind != "f":
             raise ValueError(f"a {matrix.dtype} array of shape {matrix.shape}, not a matrix")
-        return np.array(matrix, dtype=float)
+        out = np.array(matrix, dtype=float)
+        if not (np.isfinite(out).all() and np.abs(out).max(initial=0.0) <= MAX_KERNEL_WEIGHT):
+            raise ValueError(f"entries must be finite and within -{MAX_KERNEL_WEIGHT:g}.."
+                             f"{MAX_KERNEL_WEIGHT:g} (the posterior variance would be NaN)")
+        return out
     except (ValueError, OSError, EOFError) as exc:
         raise UnreadableModel(f"{path}: {brief(exc)}") from None
 

@@ -574,6 +574,14 @@ static int read_npy(const char *path, size_t n, double **out, int *missing, char
             memcpy(fortran ? &m[j * n + i] : &m[i * n + j], &bits, sizeof(double));
         }
     }
+    for (i = 0; i < n * n; i++) {
+        if (!isfinite(m[i]) || fabs(m[i]) > MAX_KERNEL_WEIGHT) {
+            set_err(err, errlen, "%s: entries must be finite and within -1e+12..1e+12 (the "
+                    "posterior variance would be NaN)", path);
+            free(m);
+            goto fail;
+        }
+    }
     free(hdr);
     free(buf);
     *out = m;
