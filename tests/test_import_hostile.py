@@ -243,3 +243,18 @@ def test_many_dropped_points_give_a_bounded_warning_list(tmp_path: Path) -> None
     assert "inside the 1 s settling time" in err
     assert err.count("\n") < 40
     assert "1 point(s)" in out
+
+
+def test_two_rows_on_one_line_are_a_bad_row_and_a_note_is_not(tmp_path: Path) -> None:
+    """A line holding two rows run together (a lost line end) has numbers beyond the header's
+    columns: skipped and named, not read as a row whose cells happen to fit. Empty trailing
+    cells and a text note after the last column leave a row as it is."""
+    text = ("t,cmd,F\n0,1500,0\n1,1600,1.0,\n2,1700,2.03,1800,3.0\n"
+            "4,1900,4.0,operator note\n5,2000,5.0\n")
+    status, out, err, db = _import(tmp_path, text, *COLS)
+    assert status == 0
+    assert "data.csv:4: row has 5 cells, the header 3, with numbers beyond it" in err
+    assert "4 row(s) read, 1 skipped" in out
+    with Store(db, create=False) as store:
+        (run_id,) = store.run_ids()
+        assert [s["command"] for s in store.steps(run_id)] == [1500, 1600, 1900, 2000]

@@ -186,6 +186,26 @@ def _column(cells: list[str], fld: str, ref: ColumnRef, widths: np.ndarray, deci
     return values
 
 
+def _overlong_rows(table: RawTable) -> dict[int, list[str]]:
+    """Rows with a number beyond the header's columns: two rows run together, or cells
+    shifted, so no cell of the row can be trusted to be in its column. Empty trailing cells
+    (a trailing separator) and a text note after the last column are fine."""
+    width = len(table.header)
+    return {i: [f"row has {len(cells):,} cells, the header {width}, with numbers beyond it: "
+                "cells shifted or two rows on one line"]
+            for i, (_, cells) in enumerate(table.rows)
+            if len(cells) > width and any(_is_number(c) for c in cells[width:])}
+
+
+def _is_number(cell: str) -> bool:
+    """Whether a cell reads as a number (either decimal mark)."""
+    try:
+        float(cell.replace(",", "."))
+    except ValueError:
+        return False
+    return True
+
+
 def parse(table: RawTable, mapping: Mapping) -> Parsed:
     """Read every data row; a row with an unreadable mapped cell is skipped and reported."""
     return parse_chunks(iter([table]), mapping)
@@ -204,7 +224,7 @@ def parse_chunks(tables: Iterator[RawTable], mapping: Mapping) -> Parsed:
     for table in itertools.chain([first], tables):
         widths = np.fromiter((len(cells) for _, cells in table.rows), dtype=np.int64,
                              count=len(table.rows))
-        local: dict[int, list[str]] = {}
+        local = _overlong_rows(table)
         for fld, ref in refs.items():
             j = ref.index
             cells = [cells[j] if j < len(cells) else "" for _, cells in table.rows]
