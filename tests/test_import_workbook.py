@@ -448,3 +448,20 @@ def test_a_command_beyond_what_the_store_takes_is_a_bad_row(tmp_path: Path, caps
     assert main(["import", str(path), "--db", db]) == 0
     assert "outside the commands rigtool stores" in capsys.readouterr().err
     assert main(["calibrate", "last", "--db", db, "--out", str(tmp_path / "cal")]) == 0
+
+
+def test_numbers_right_of_a_sheets_table_keep_their_rows(tmp_path: Path, capsys) -> None:
+    """A sum or a note right of a sheet's table is common in workbooks; cells there have fixed
+    places, so (unlike a delimited line with numbers past its header) the row is read."""
+    th = BookThruster(seed=9404, noise=0.0)
+    book = build_book(tmp_path / "b.xlsx", th, (16.0,), readme=False, chart=False)
+    wb = openpyxl.load_workbook(book)
+    ws = wb.worksheets[0]
+    ws.cell(row=3, column=len(HEAD) + 2, value=123.4)
+    wb.save(book)
+    db = tmp_path / "r.sqlite"
+    status, out, err = _cli(capsys, "import", str(book), "--db", str(db))
+    assert status == 0 and "skipped" not in out.replace("0 skipped", ""), (out, err)
+    store = Store(db)
+    kgf = rows(th, 16.0, np.random.default_rng(th.seed))["force"]
+    assert len(store.steps(store.resolve_run_id("last"))) == kgf.size

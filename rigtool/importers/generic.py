@@ -189,8 +189,11 @@ def _column(cells: list[str], fld: str, ref: ColumnRef, widths: np.ndarray, deci
 def _overlong_rows(table: RawTable) -> dict[int, list[str]]:
     """Rows with a number beyond the header's columns: two rows run together, or cells
     shifted, so no cell of the row can be trusted to be in its column. Empty trailing cells
-    (a trailing separator) and a text note after the last column are fine."""
+    (a trailing separator) and a text note after the last column are fine, and so is anything
+    right of a workbook's table (its cells have fixed places: no delimiter to lose)."""
     width = len(table.header)
+    if not table.delimiter:
+        return {}
     return {i: [f"row has {len(cells):,} cells, the header {width}, with numbers beyond it: "
                 "cells shifted or two rows on one line"]
             for i, (_, cells) in enumerate(table.rows)
