@@ -13,12 +13,15 @@ import pytest
 from rigtool.analysis.cavitation import (
     CHECK_LEVEL,
     ONE_RUN_WARNING,
+    OUT_OF_REACH,
     OUTSIDE_CHECK_LEVEL,
     block_folds,
     calibrate_cavitation,
     check_folds,
     check_warnings,
     evaluate_on_run,
+    floor_range,
+    floor_verdict,
     mixture_p95,
     thrust_model,
 )
@@ -117,6 +120,8 @@ def test_floor_in_cavitation_json_and_report(twin):
         floor = summary["floor"]["classes"][name]
         assert floor["floor_p95_n"] > 0 and floor["heldout_p95_n"] >= floor["floor_p95_n"]
         assert floor["target_p95_n"] in (3.5, 1.0) and floor["verdict"]
+        low, high = floor["floor_range_n"]
+        assert low <= floor["floor_p95_n"] <= high and floor["floor_groups"] >= 2
         assert 0 < summary["interval_check"]["classes"][name]["coverage"] <= 1
     assert summary["interval_check"]["check_levels"] == {"event": CHECK_LEVEL,
                                                          "outside": OUTSIDE_CHECK_LEVEL}
@@ -222,6 +227,44 @@ def test_shifted_noise_model_is_the_calibrated_one():
         shift = GateShift(0.4, 0.1, -0.5, 0.8)
         expected = noise.var_n2(q) * shift.factor(q[:, 1])
         np.testing.assert_allclose(shift_noise(noise, shift).var_n2(q), expected, rtol=1e-12)
+
+
+def test_the_floor_range_narrows_with_more_groups_and_brackets_the_truth():
+    """Groups (points) whose sds scatter as one run's events do: the floor's range from 8 groups
+    is 1.5-2 times as wide as from 64, and over seeded trainings it holds the floor of the
+    population the groups came from 65-75 % of the time with 8 groups and 84-89 % with 64 (a
+    bootstrap's percentile range under-covers: read it as the least uncertainty there is)."""
+    rng = np.random.default_rng(21)
+    population = np.exp(rng.normal(0.5, 0.6, 20000))
+    truth = mixture_p95(population)
+    widths, held = {}, {}
+    for n in (8, 64):
+        spans, hits = [], []
+        for k in range(100):
+            sd, rows = rng.choice(population, n), rng.integers(5, 40, n)
+            low, high = floor_range(sd, rows, np.random.default_rng(k))
+            spans.append(high - low)
+            hits.append(low <= truth <= high)
+        widths[n], held[n] = float(np.median(spans)), float(np.mean(hits))
+    assert widths[8] > 1.3 * widths[64] > 0
+    assert 0.55 <= held[8] < held[64] and 0.78 <= held[64] <= 0.95
+    assert all(math.isnan(v) for v in floor_range(np.ones(1), np.ones(1, int), rng))
+
+
+def test_out_of_reach_only_when_the_whole_floor_range_is_above_the_target():
+    """A floor from one run's few events is uncertain (a factor of 3 between trainings of one
+    thruster): only a range wholly above the target is "out of reach" (and warned about)."""
+    assert floor_verdict((4.0, 5.0, 6.5), 7.0, 3.5) == OUT_OF_REACH
+    assert floor_verdict((math.nan, 5.0, math.nan), 7.0, 3.5) == OUT_OF_REACH  # a lone group
+    spans = floor_verdict((2.0, 3.9, 6.0), 7.0, 3.5)
+    assert spans != OUT_OF_REACH and "spans the target" in spans
+    assert floor_verdict((2.0, 3.9, 6.0), 3.0, 3.5) == "target met on held-out data"
+    assert "not ruled out" in floor_verdict((0.5, 1.0, 2.0), 7.0, 3.5)
+    floor = {"classes": {"event": {"verdict": spans, "floor_p95_n": 3.9, "target_p95_n": 3.5},
+                         "outside": {"verdict": OUT_OF_REACH, "floor_p95_n": 1.4,
+                                     "floor_range_n": [1.2, 1.7], "target_p95_n": 1.0}}}
+    (warning,) = check_warnings(_check(0.95, 1.0), floor)
+    assert warning.startswith("outside events") and "range 1.20-1.70 N" in warning
 
 
 def test_mixture_p95():

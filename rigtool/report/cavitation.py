@@ -86,6 +86,14 @@ def cavitation_view(res: CavitationResult, image_format: str = "svg") -> dict:
     }
 
 
+def _floor_cell(f: dict) -> str:
+    """The floor with its range over the training's groups (results from before it: alone)."""
+    low, high = f.get("floor_range_n") or (math.nan, math.nan)
+    if not (isinstance(low, float) and math.isfinite(low) and math.isfinite(high)):
+        return _f(f["floor_p95_n"])
+    return f"{_f(f['floor_p95_n'])} ({_f(low)}-{_f(high)})"
+
+
 def check_view(check: dict | None, floor: dict | None) -> dict:
     """The held-out interval check and the floor as text cells (empty for older results)."""
     if not check or not floor:
@@ -94,7 +102,7 @@ def check_view(check: dict | None, floor: dict | None) -> dict:
     for name, c in check["classes"].items():
         f = floor["classes"][name]
         rows.append([name, str(c["n_blocks"]), _pct(c["coverage_before"]), _pct(c["coverage"]),
-                     _f(check["sd_factor"][name]), _f(c["p95_abs_n"]), _f(f["floor_p95_n"]),
+                     _f(check["sd_factor"][name]), _f(c["p95_abs_n"]), _floor_cell(f),
                      _f(f["target_p95_n"]), f["verdict"]])
     missed = check.get("missed_lower") or {}
     widths = [f"{_f(w)} N at {rpm:.0f} r/min" for rpm, w in
