@@ -28,7 +28,7 @@ from rigtool.errors import StoreError
 from .hostile import MEMORY_LIMIT
 from .state_fixtures import FIXTURES
 
-TIME_LIMIT_S = 10
+TIME_LIMIT_S = 10  # CPU seconds of one decode
 MIB = 1 << 20
 ZERO_MIB = bytes(MIB)
 SMALL = [FIXTURES / f"{p}-v{v}.blob" for p in ("quick-demo", "dynamics-steps-esc") for v in (1, 2)]
@@ -38,7 +38,7 @@ FUZZ = settings(derandomize=True, max_examples=400, deadline=None, database=None
 
 def outcome(blob: Any) -> str:
     """"ok" or "error" for decoding `blob`; anything but a one-line StoreError fails."""
-    started = time.perf_counter()
+    started = time.process_time()
     try:
         state.decode(blob)
         return "ok"
@@ -47,7 +47,7 @@ def outcome(blob: Any) -> str:
         assert "\n" not in message and message.endswith("calibrate again"), message
         return "error"
     finally:
-        assert time.perf_counter() - started < TIME_LIMIT_S
+        assert time.process_time() - started < TIME_LIMIT_S
 
 
 # -- building hostile zips ------------------------------------------------------------------
@@ -193,7 +193,7 @@ from rigtool.artefacts import state
 from rigtool.errors import StoreError
 for path in sorted(Path(sys.argv[1]).glob("*.blob")):
     data = path.read_bytes()
-    started = time.perf_counter()
+    started = time.process_time()
     try:
         state.decode(data)
         result, message = "ok", ""
@@ -203,7 +203,7 @@ for path in sorted(Path(sys.argv[1]).glob("*.blob")):
         result, message = type(exc).__name__, str(exc)[:300]
     del data
     print(json.dumps({"case": path.stem, "outcome": result, "message": message,
-                      "seconds": time.perf_counter() - started}), flush=True)
+                      "seconds": time.process_time() - started}), flush=True)
 try:
     bytearray(2 << 30)
     print(json.dumps({"case": "control", "outcome": "allocated"}))
@@ -218,7 +218,7 @@ def _limit_memory() -> None:
 
 def test_handcrafted_blobs_fail_cleanly_within_time_and_memory(tmp_path):
     """In a subprocess of 1 GiB address space: each hostile blob is a one-line StoreError in
-    under 10 s; the largest blobs the bounds allow decode; 2 GiB cannot be allocated there."""
+    under 10 CPU s (CPU, not wall time: a loaded machine must not fail it); the largest blobs the bounds allow decode; 2 GiB cannot be allocated there."""
     cases = handcrafted()
     for name, data in cases.items():
         (tmp_path / f"{name}.blob").write_bytes(data)
