@@ -21,6 +21,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -531,7 +532,8 @@ def _calibrate_with_missed(resid: np.ndarray, post_var: np.ndarray, noise_var: n
             de = dq
         else:
             de = _bisect_shift(lambda c, a=dq: cover(gated, a, c), level)
-        table = missed_widening(u, half(dq, de), g, missed, speed_level, levels, level)
+        table = missed_widening(u, half(dq, de), g, missed, speed_level, levels, level,
+                                event, speed_rpm)
         if gated.sum() >= MIN_CHECK_ROWS:
             more = _bisect_shift(lambda c, a=dq: cover(event, a, c), level)
             de = min(de + EVENT_EXTRA, max(de, more))
@@ -553,18 +555,48 @@ def _speed_knots(speed_rpm: np.ndarray, speed_level: np.ndarray) -> tuple[np.nda
 
 
 def missed_widening(u: np.ndarray, half: np.ndarray, g: np.ndarray, missed: np.ndarray,
-                    speed_level: np.ndarray, levels: list, level: float) -> np.ndarray:
+                    speed_level: np.ndarray, levels: list, level: float,
+                    event: np.ndarray | None = None,
+                    speed_rpm: np.ndarray | None = None) -> np.ndarray:
     """Per speed knot (`levels`: the speed levels of each knot, from `_speed_knots`), the
     loss-side widening (N, before the factor 1 - gate) that covers `level` of that knot's
     missed-ventilation rows (`missed`: event rows the gate calls quiet) beyond their
-    half-width `half`; 0 where fewer than MIN_MISSED_ROWS rows."""
+    half-width `half`, as a small-sample upper bound (`upper_quantile`). A knot with fewer
+    than MIN_MISSED_ROWS such rows gets 0 where it has MIN_CHECK_ROWS `event` rows (the gate
+    saw its ventilation), else the bound over every knot's rows scaled by speed^2 (thrust):
+    a training that saw too little ventilation at a level cannot tell the gate sees it."""
     need = np.maximum(-u - half, 0.0) / np.maximum(1.0 - g, 0.5)
+    ok = missed & np.isfinite(need)
     out = np.zeros(max(len(levels), 1))
+    pooled = None
+    if speed_rpm is not None:
+        sp2 = np.asarray(speed_rpm, float) ** 2
+        use = ok & np.isfinite(sp2) & (sp2 > 0)
+        pooled = need[use] / sp2[use]
     for j, lvs in enumerate(levels):
-        rows = missed & np.isin(speed_level, lvs) & np.isfinite(need)
+        at = np.isin(speed_level, lvs)
+        rows = ok & at
         if rows.sum() >= MIN_MISSED_ROWS:
-            out[j] = float(np.quantile(need[rows], level))
+            out[j] = upper_quantile(need[rows], level)
+        elif (pooled is not None and pooled.size >= MIN_MISSED_ROWS and event is not None
+              and (event & at).sum() < MIN_CHECK_ROWS):
+            knot_rpm = float(np.median(np.abs(speed_rpm[at & np.isfinite(speed_rpm)])))
+            out[j] = upper_quantile(pooled, level) * knot_rpm**2
     return out
+
+
+MISSED_CONFIDENCE = 0.9  # confidence of the upper bound on the missed rows' quantile
+
+
+def upper_quantile(x: np.ndarray, level: float, confidence: float = MISSED_CONFIDENCE) -> float:
+    """A distribution-free upper bound on the `level` quantile of x's population: the order
+    statistic at rank level (n + 1) + z_conf sqrt(n level (1 - level)) (normal approximation
+    of the binomial), the largest value when the rows are too few for that rank."""
+    v = np.sort(np.asarray(x, float))
+    n = v.size
+    z = NormalDist().inv_cdf(confidence)
+    rank = int(np.ceil(level * (n + 1) + z * np.sqrt(n * level * (1.0 - level))))
+    return float(v[min(max(rank, 1), n) - 1])
 
 
 def _coverage(r2: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray, rows: np.ndarray,
