@@ -446,19 +446,22 @@ def calibrate_gate(resid: np.ndarray, post_var: np.ndarray, noise_var: np.ndarra
                    z: np.ndarray, event: np.ndarray, outside: np.ndarray,
                    z0: float, s: float, level: float = 0.95,
                    outside_level: float | None = None, speed_rpm: np.ndarray | None = None,
-                   speed_level: np.ndarray | None = None) -> GateShift:
+                   speed_level: np.ndarray | None = None,
+                   loss_cap_n: np.ndarray | None = None) -> GateShift:
     """The scale under which held-out residuals are covered at `level` during events and at
     `outside_level` (default `level`) outside them: `class_shifts` on the `outside` and the
     `event` rows, the latter through the rows the gate (z0, s) calls ventilating. Without
     enough rows of a class, one shift for all at `level`; without enough held-out rows at
     all, none. With `speed_rpm` and `speed_level` (a label per row, e.g. the command), the
     event rows the gate calls quiet are covered by a loss-side widening per speed level
-    (`missed_widening`) instead of by wider event intervals."""
+    (`missed_widening`; `loss_cap_n`: the loss ventilation can cause at each row, for speed
+    levels that saw too little missed ventilation) instead of by wider event intervals."""
     if speed_rpm is not None and speed_level is not None and min(
             event.sum(), outside.sum()) >= MIN_CHECK_ROWS:
         return _calibrate_with_missed(np.asarray(resid, float), post_var, noise_var, z, event,
                                       outside, z0, s, level, outside_level,
-                                      np.asarray(speed_rpm, float), np.asarray(speed_level))
+                                      np.asarray(speed_rpm, float), np.asarray(speed_level),
+                                      loss_cap_n)
     r2 = np.asarray(resid, float) ** 2 / Z95**2
     if event.sum() < MIN_CHECK_ROWS or outside.sum() < MIN_CHECK_ROWS:
         use = event | outside
@@ -503,7 +506,7 @@ def _calibrate_with_missed(resid: np.ndarray, post_var: np.ndarray, noise_var: n
                            z: np.ndarray, event: np.ndarray, outside: np.ndarray, z0: float,
                            s: float, level: float, outside_level: float | None,
                            speed_rpm: np.ndarray, speed_level: np.ndarray,
-                           rounds: int = 4) -> GateShift:
+                           loss_cap_n: np.ndarray | None = None, rounds: int = 4) -> GateShift:
     """`calibrate_gate` with the loss-side widening, in turn: d_quiet covers `outside_level` of
     the outside rows; d_event covers `level` of the event rows the gate calls ventilating;
     the widening per speed level covers `level` of the event rows it calls quiet (ventilation
@@ -533,7 +536,7 @@ def _calibrate_with_missed(resid: np.ndarray, post_var: np.ndarray, noise_var: n
         else:
             de = _bisect_shift(lambda c, a=dq: cover(gated, a, c), level)
         table = missed_widening(u, half(dq, de), g, missed, speed_level, levels, level,
-                                event, speed_rpm)
+                                event, loss_cap_n)
         if gated.sum() >= MIN_CHECK_ROWS:
             more = _bisect_shift(lambda c, a=dq: cover(event, a, c), level)
             de = min(de + EVENT_EXTRA, max(de, more))
@@ -557,32 +560,34 @@ def _speed_knots(speed_rpm: np.ndarray, speed_level: np.ndarray) -> tuple[np.nda
 def missed_widening(u: np.ndarray, half: np.ndarray, g: np.ndarray, missed: np.ndarray,
                     speed_level: np.ndarray, levels: list, level: float,
                     event: np.ndarray | None = None,
-                    speed_rpm: np.ndarray | None = None) -> np.ndarray:
+                    loss_cap_n: np.ndarray | None = None) -> np.ndarray:
     """Per speed knot (`levels`: the speed levels of each knot, from `_speed_knots`), the
     loss-side widening (N, before the factor 1 - gate) that covers `level` of that knot's
     missed-ventilation rows (`missed`: event rows the gate calls quiet) beyond their
-    half-width `half`, as a small-sample upper bound (`upper_quantile`). A knot with fewer
-    than MIN_MISSED_ROWS such rows gets 0 where it has MIN_CHECK_ROWS `event` rows (the gate
-    saw its ventilation), else the bound over every knot's rows scaled by speed^2 (thrust):
-    a training that saw too little ventilation at a level cannot tell the gate sees it."""
+    half-width `half`, as a small-sample upper bound (`upper_quantile`). Where those rows
+    are too few to tell (under MISSED_OWN_ROWS) and the gate misses most of the knot's
+    `event` rows or saw under MIN_CHECK_ROWS of them, at least the loss ventilation can
+    cause there (`loss_cap_n` per row) beyond the half-width, median over the knot's rows."""
     need = np.maximum(-u - half, 0.0) / np.maximum(1.0 - g, 0.5)
     ok = missed & np.isfinite(need)
     out = np.zeros(max(len(levels), 1))
-    pooled = None
-    if speed_rpm is not None:
-        sp2 = np.asarray(speed_rpm, float) ** 2
-        use = ok & np.isfinite(sp2) & (sp2 > 0)
-        pooled = need[use] / sp2[use]
     for j, lvs in enumerate(levels):
         at = np.isin(speed_level, lvs)
         rows = ok & at
-        if rows.sum() >= MIN_MISSED_ROWS:
+        n_missed = int(rows.sum())
+        if n_missed >= MIN_MISSED_ROWS:
             out[j] = upper_quantile(need[rows], level)
-        elif (pooled is not None and pooled.size >= MIN_MISSED_ROWS and event is not None
-              and (event & at).sum() < MIN_CHECK_ROWS):
-            knot_rpm = float(np.median(np.abs(speed_rpm[at & np.isfinite(speed_rpm)])))
-            out[j] = upper_quantile(pooled, level) * knot_rpm**2
+        if n_missed >= MISSED_OWN_ROWS or event is None or loss_cap_n is None:
+            continue
+        n_event = int((event & at).sum())
+        if n_event < MIN_CHECK_ROWS or 2 * n_missed >= n_event:
+            cap = np.maximum(loss_cap_n - half, 0.0)[at & np.isfinite(loss_cap_n)]
+            if cap.size:
+                out[j] = max(out[j], float(np.median(cap)))
     return out
+
+
+MISSED_OWN_ROWS = 45  # missed rows from which their 95 % bound is no longer their largest
 
 
 MISSED_CONFIDENCE = 0.9  # confidence of the upper bound on the missed rows' quantile
