@@ -32,6 +32,7 @@ from rigtool.analysis.gp import (
     GpParams,
     calibrate_gate,
     shift_noise,
+    upper_quantile,
 )
 from rigtool.analysis.results import CavitationParams
 from rigtool.analysis.trainset import TrainingSet
@@ -324,6 +325,57 @@ def test_missed_ventilation_is_covered_by_the_loss_side_widening_alone():
         assert inside[event].mean() >= lo_event
         assert 0.91 <= inside[~event].mean() <= 0.97
     assert inside[event].mean() < 0.93  # without the widening the missed losses fall out
+
+
+def test_a_level_that_saw_too_little_ventilation_gets_the_loss_it_can_cause():
+    """A training whose slow level saw only a few events, all gated, while the gate misses
+    most ventilation at the middle level: the slow level gets the loss ventilation can cause
+    there (its quiet thrust times the loss share) beyond the half-width; it used to get 0,
+    and a new run ventilating there, unseen by the gate, fell out. The fast level, where the
+    gate saw every one of many events, keeps 0."""
+    rng = np.random.default_rng(29)
+    knots_rpm = np.array([700.0, 1200.0, 1600.0])
+
+    def rows(n: int, slow_events: float) -> tuple[np.ndarray, ...]:
+        k = rng.integers(0, 3, n)
+        speed = knots_rpm[k] + rng.normal(0.0, 5.0, n)
+        thrust = 10.0 * (speed / 1000.0) ** 2
+        event = rng.random(n) < np.array([slow_events, 0.3, 0.3])[k]
+        missed = event & (k < 2) & (rng.random(n) < np.array([1.0, 0.7, 0.0])[k])
+        z = np.where(event & ~missed, rng.uniform(1.0, 3.0, n), rng.normal(0.0, 0.05, n))
+        resid = rng.normal(0.0, np.where(event & ~missed, 3.0, 0.3))
+        resid = np.where(missed, -rng.uniform(0.3, 0.8, n) * thrust, resid)
+        return speed, np.array([40.0, 69.0, 90.0])[k], z, resid, event, missed, thrust
+
+    speed, level, z, resid, event, _, thrust = rows(6000, 0.0)
+    seen = (level == 40.0) & (np.cumsum(level == 40.0) <= 10)
+    event, z = event | seen, np.where(seen, 2.0, z)  # 10 event rows there, all gated
+    noise = np.where(event, 1.5, 0.6) ** 2
+    args = (resid, np.zeros(resid.size), noise, z, event, ~event, 0.5, 0.1, CHECK_LEVEL,
+            OUTSIDE_CHECK_LEVEL)
+    shift = calibrate_gate(*args, speed_rpm=speed, speed_level=level, loss_cap_n=0.8 * thrust)
+    slow, mid, fast = shift.missed_lower_n
+    assert mid > 1.0 and fast == 0.0
+    assert 1.5 < slow < 0.8 * 4.9
+    assert calibrate_gate(*args, speed_rpm=speed, speed_level=level).missed_lower_n[0] == 0.0
+    speed, level, z, resid, event, missed, _ = rows(6000, 0.3)  # a new run ventilating at 40 %
+    half = Z95 * np.sqrt(noise.mean() * shift.factor(z))
+    lost = missed & (level == 40.0)
+    assert np.mean(-resid[lost] <= half[lost] + shift.missed(speed[lost], z[lost])) >= 0.9
+    assert np.mean(-resid[lost] <= half[lost]) < 0.5  # with 0 it was mostly outside
+
+
+def test_upper_quantile_is_a_small_sample_bound():
+    """The bound is the largest value for few rows, at or above the sample quantile, and
+    above the population's 95 % quantile in about 90 % of samples of 200."""
+    rng = np.random.default_rng(5)
+    x = rng.exponential(size=20)
+    assert upper_quantile(x, 0.95) == x.max()
+    true_q95 = -math.log(0.05)
+    draws = [rng.exponential(size=200) for _ in range(400)]
+    above = np.mean([upper_quantile(d, 0.95) >= true_q95 for d in draws])
+    assert all(upper_quantile(d, 0.95) >= np.quantile(d, 0.95) for d in draws[:50])
+    assert 0.85 <= above <= 0.97
 
 
 def _binned_mean(z: np.ndarray, y: np.ndarray, bins: int = 20) -> np.ndarray:

@@ -308,7 +308,8 @@ def check_intervals(pool: TrainingSet, gp: ExactGp, params: CavitationParams) ->
     n, z = pool.xf[:, 0], pool.xf[:, 1]
     shift = calibrate_gate(resid, post, noise, z, groups["event"], groups["outside"],
                            gp.noise.gate_z0, gp.noise.gate_s, CHECK_LEVEL, OUTSIDE_CHECK_LEVEL,
-                           speed_rpm=n, speed_level=np.abs(pool.command))
+                           speed_rpm=n, speed_level=np.abs(pool.command),
+                           loss_cap_n=ventilation_loss_cap(pool))
     before = resid**2 <= Z95**2 * (post + noise)
     loss = -resid * np.where(np.sign(n) >= 0, 1.0, -1.0)  # > 0: measured below the estimate
     half = Z95 * np.sqrt(post + noise * shift.factor(z))
@@ -328,6 +329,18 @@ def check_intervals(pool: TrainingSet, gp: ExactGp, params: CavitationParams) ->
                              "basis": MISSED_BASIS},
             "classes": {c: _class_check(resid[g], before[g], after[g])
                         for c, g in groups.items()}}
+
+
+def ventilation_loss_cap(pool: TrainingSet) -> np.ndarray:
+    """The loss (N) ventilation can cause at each row: the quiet thrust (BETM) times the 95 %
+    quantile of the share of it lost during the detected events (NaN without events)."""
+    base = np.abs(np.asarray(pool.betm_n, float))
+    share = (base - np.abs(np.asarray(pool.thrust_n, float))) / np.maximum(base, 1e-9)
+    ev = (pool.block_class == "event") if pool.block_class is not None else pool.ventilated
+    ev = np.asarray(ev, bool) & np.isfinite(share) & (base > 0)
+    if not ev.any():
+        return np.full(len(pool), np.nan)
+    return base * float(np.clip(np.quantile(share[ev], 0.95), 0.0, 1.0))
 
 
 MISSED_BASIS = ("loss-side widening of the interval per speed level, times 1 - gate(z): covers "

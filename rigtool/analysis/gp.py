@@ -21,6 +21,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -445,19 +446,22 @@ def calibrate_gate(resid: np.ndarray, post_var: np.ndarray, noise_var: np.ndarra
                    z: np.ndarray, event: np.ndarray, outside: np.ndarray,
                    z0: float, s: float, level: float = 0.95,
                    outside_level: float | None = None, speed_rpm: np.ndarray | None = None,
-                   speed_level: np.ndarray | None = None) -> GateShift:
+                   speed_level: np.ndarray | None = None,
+                   loss_cap_n: np.ndarray | None = None) -> GateShift:
     """The scale under which held-out residuals are covered at `level` during events and at
     `outside_level` (default `level`) outside them: `class_shifts` on the `outside` and the
     `event` rows, the latter through the rows the gate (z0, s) calls ventilating. Without
     enough rows of a class, one shift for all at `level`; without enough held-out rows at
     all, none. With `speed_rpm` and `speed_level` (a label per row, e.g. the command), the
     event rows the gate calls quiet are covered by a loss-side widening per speed level
-    (`missed_widening`) instead of by wider event intervals."""
+    (`missed_widening`; `loss_cap_n`: the loss ventilation can cause at each row, for speed
+    levels that saw too little missed ventilation) instead of by wider event intervals."""
     if speed_rpm is not None and speed_level is not None and min(
             event.sum(), outside.sum()) >= MIN_CHECK_ROWS:
         return _calibrate_with_missed(np.asarray(resid, float), post_var, noise_var, z, event,
                                       outside, z0, s, level, outside_level,
-                                      np.asarray(speed_rpm, float), np.asarray(speed_level))
+                                      np.asarray(speed_rpm, float), np.asarray(speed_level),
+                                      loss_cap_n)
     r2 = np.asarray(resid, float) ** 2 / Z95**2
     if event.sum() < MIN_CHECK_ROWS or outside.sum() < MIN_CHECK_ROWS:
         use = event | outside
@@ -502,7 +506,7 @@ def _calibrate_with_missed(resid: np.ndarray, post_var: np.ndarray, noise_var: n
                            z: np.ndarray, event: np.ndarray, outside: np.ndarray, z0: float,
                            s: float, level: float, outside_level: float | None,
                            speed_rpm: np.ndarray, speed_level: np.ndarray,
-                           rounds: int = 4) -> GateShift:
+                           loss_cap_n: np.ndarray | None = None, rounds: int = 4) -> GateShift:
     """`calibrate_gate` with the loss-side widening, in turn: d_quiet covers `outside_level` of
     the outside rows; d_event covers `level` of the event rows the gate calls ventilating;
     the widening per speed level covers `level` of the event rows it calls quiet (ventilation
@@ -531,7 +535,8 @@ def _calibrate_with_missed(resid: np.ndarray, post_var: np.ndarray, noise_var: n
             de = dq
         else:
             de = _bisect_shift(lambda c, a=dq: cover(gated, a, c), level)
-        table = missed_widening(u, half(dq, de), g, missed, speed_level, levels, level)
+        table = missed_widening(u, half(dq, de), g, missed, speed_level, levels, level,
+                                event, loss_cap_n)
         if gated.sum() >= MIN_CHECK_ROWS:
             more = _bisect_shift(lambda c, a=dq: cover(event, a, c), level)
             de = min(de + EVENT_EXTRA, max(de, more))
@@ -553,18 +558,50 @@ def _speed_knots(speed_rpm: np.ndarray, speed_level: np.ndarray) -> tuple[np.nda
 
 
 def missed_widening(u: np.ndarray, half: np.ndarray, g: np.ndarray, missed: np.ndarray,
-                    speed_level: np.ndarray, levels: list, level: float) -> np.ndarray:
+                    speed_level: np.ndarray, levels: list, level: float,
+                    event: np.ndarray | None = None,
+                    loss_cap_n: np.ndarray | None = None) -> np.ndarray:
     """Per speed knot (`levels`: the speed levels of each knot, from `_speed_knots`), the
     loss-side widening (N, before the factor 1 - gate) that covers `level` of that knot's
     missed-ventilation rows (`missed`: event rows the gate calls quiet) beyond their
-    half-width `half`; 0 where fewer than MIN_MISSED_ROWS rows."""
+    half-width `half`, as a small-sample upper bound (`upper_quantile`). Where those rows
+    are too few to tell (under MISSED_OWN_ROWS) and the gate misses most of the knot's
+    `event` rows or saw under MIN_CHECK_ROWS of them, at least the loss ventilation can
+    cause there (`loss_cap_n` per row) beyond the half-width, median over the knot's rows."""
     need = np.maximum(-u - half, 0.0) / np.maximum(1.0 - g, 0.5)
+    ok = missed & np.isfinite(need)
     out = np.zeros(max(len(levels), 1))
     for j, lvs in enumerate(levels):
-        rows = missed & np.isin(speed_level, lvs) & np.isfinite(need)
-        if rows.sum() >= MIN_MISSED_ROWS:
-            out[j] = float(np.quantile(need[rows], level))
+        at = np.isin(speed_level, lvs)
+        rows = ok & at
+        n_missed = int(rows.sum())
+        if n_missed >= MIN_MISSED_ROWS:
+            out[j] = upper_quantile(need[rows], level)
+        if n_missed >= MISSED_OWN_ROWS or event is None or loss_cap_n is None:
+            continue
+        n_event = int((event & at).sum())
+        if n_event < MIN_CHECK_ROWS or 2 * n_missed >= n_event:
+            cap = np.maximum(loss_cap_n - half, 0.0)[at & np.isfinite(loss_cap_n)]
+            if cap.size:
+                out[j] = max(out[j], float(np.median(cap)))
     return out
+
+
+MISSED_OWN_ROWS = 45  # missed rows from which their 95 % bound is no longer their largest
+
+
+MISSED_CONFIDENCE = 0.9  # confidence of the upper bound on the missed rows' quantile
+
+
+def upper_quantile(x: np.ndarray, level: float, confidence: float = MISSED_CONFIDENCE) -> float:
+    """A distribution-free upper bound on the `level` quantile of x's population: the order
+    statistic at rank level (n + 1) + z_conf sqrt(n level (1 - level)) (normal approximation
+    of the binomial), the largest value when the rows are too few for that rank."""
+    v = np.sort(np.asarray(x, float))
+    n = v.size
+    z = NormalDist().inv_cdf(confidence)
+    rank = int(np.ceil(level * (n + 1) + z * np.sqrt(n * level * (1.0 - level))))
+    return float(v[min(max(rank, 1), n) - 1])
 
 
 def _coverage(r2: np.ndarray, post_var: np.ndarray, noise_var: np.ndarray, rows: np.ndarray,
