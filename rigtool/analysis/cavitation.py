@@ -343,9 +343,12 @@ def ventilation_loss_cap(pool: TrainingSet) -> np.ndarray:
     return base * float(np.clip(np.quantile(share[ev], 0.95), 0.0, 1.0))
 
 
-MISSED_BASIS = ("loss-side widening of the interval per speed level, times 1 - gate(z): covers "
-                "95 % of the held-out event blocks whose shortfall the gate calls quiet "
-                "(ventilation the current misses, which only ever lowers the thrust)")
+MISSED_BASIS = ("loss-side widening of the interval per speed level, times 1 - gate(z): an upper "
+                "bound (90 % confidence) on the 95 % quantile of what the held-out event blocks "
+                "whose shortfall the gate calls quiet need (ventilation the current misses, "
+                "which only ever lowers the thrust); where a level has too few of them to tell, "
+                "at least the loss ventilation can cause there (quiet thrust x the detected "
+                "events' 95 % loss share)")
 
 
 def _class_check(resid: np.ndarray, before: np.ndarray, after: np.ndarray) -> dict:
