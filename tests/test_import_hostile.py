@@ -258,3 +258,11 @@ def test_two_rows_on_one_line_are_a_bad_row_and_a_note_is_not(tmp_path: Path) ->
     with Store(db, create=False) as store:
         (run_id,) = store.run_ids()
         assert [s["command"] for s in store.steps(run_id)] == [1500, 1600, 1900, 2000]
+
+
+def test_a_column_without_a_name_is_not_two_rows_on_one_line(tmp_path: Path) -> None:
+    """A logger that writes one more (numeric) cell than its header names on every row has a
+    column without a name, not rows run together: its rows are read, the cells ignored."""
+    text = "t,cmd,F\n0,1500,0,7\n1,1600,1.0,7\n2,1700,2.0,7\n3,1800,3.0\n"
+    status, out, err, db = _import(tmp_path, text, *COLS)
+    assert status == 0 and "4 row(s) read, 0 skipped" in out, (out, err)

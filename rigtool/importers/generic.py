@@ -200,6 +200,12 @@ def _overlong_rows(table: RawTable) -> dict[int, list[str]]:
             if len(cells) > width and any(_is_number(c) for c in cells[width:])}
 
 
+def _unnamed_columns(table: RawTable) -> bool:
+    """Whether most rows of the file's first chunk have numbers beyond the header: a logger
+    that writes a column without a name, not rows run together (its cells are ignored)."""
+    return 2 * len(_overlong_rows(table)) > len(table.rows)
+
+
 def _is_number(cell: str) -> bool:
     """Whether a cell reads as a number (either decimal mark)."""
     try:
@@ -218,6 +224,7 @@ def parse_chunks(tables: Iterator[RawTable], mapping: Mapping) -> Parsed:
     """`parse` of a table read in chunks (`read_table_chunks`): each chunk's cells become SI
     columns before the next is read, so only the numbers of the whole file are held."""
     first = next(tables)
+    unnamed = _unnamed_columns(first)
     importer, refs, command_unit, warnings = resolve_columns(first, mapping)
     problems: dict[int, list[str]] = {}
     parts: dict[str, list[np.ndarray]] = {fld: [] for fld in refs}
@@ -227,7 +234,7 @@ def parse_chunks(tables: Iterator[RawTable], mapping: Mapping) -> Parsed:
     for table in itertools.chain([first], tables):
         widths = np.fromiter((len(cells) for _, cells in table.rows), dtype=np.int64,
                              count=len(table.rows))
-        local = _overlong_rows(table)
+        local = {} if unnamed else _overlong_rows(table)
         for fld, ref in refs.items():
             j = ref.index
             cells = [cells[j] if j < len(cells) else "" for _, cells in table.rows]
