@@ -398,19 +398,10 @@ def floor_range(sd: np.ndarray, rows: np.ndarray, rng: np.random.Generator
                 ) -> tuple[float, float]:
     """FLOOR_RANGE quantiles of the floor with its groups (an sd and a row count each) drawn
     with replacement, FLOOR_RESAMPLES times (NaN, NaN with fewer than two groups)."""
-    from scipy.special import erf
-
     if sd.size < 2:
         return math.nan, math.nan
     pick = rng.integers(0, sd.size, (FLOOR_RESAMPLES, sd.size))
-    scale, weight = np.sqrt(2.0) * np.maximum(sd[pick], 1e-12), rows[pick].astype(float)
-    weight /= weight.sum(axis=1, keepdims=True)
-    lo, hi = np.zeros(FLOOR_RESAMPLES), 3.0 * sd[pick].max(axis=1) + 1e-9
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        short = np.sum(weight * erf(mid[:, None] / scale), axis=1) < CHECK_LEVEL
-        lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
-    low, high = np.quantile(hi, FLOOR_RANGE)
+    low, high = np.quantile(weighted_p95(sd[pick], rows[pick].astype(float)), FLOOR_RANGE)
     return float(low), float(high)
 
 
@@ -487,15 +478,23 @@ def _quiet_variances(pool: TrainingSet, quiet: np.ndarray) -> tuple[float, float
 
 def mixture_p95(sd: np.ndarray) -> float:
     """q with mean_i P(|e_i| <= q) = 0.95 for e_i ~ N(0, sd_i^2) (NaN for no rows)."""
-    from scipy.special import erf
-
     if sd.size == 0:
         return math.nan
+    return float(weighted_p95(np.asarray(sd, float)[None, :], np.ones((1, sd.size)))[0])
+
+
+def weighted_p95(sd: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Per row of `sd` (mixtures side by side, each column a component with its `weight`):
+    q with sum_j w_j P(|e_j| <= q) / sum_j w_j = 0.95 for e_j ~ N(0, sd_j^2), by bisection."""
+    from scipy.special import erf
+
     scale = np.sqrt(2.0) * np.maximum(sd, 1e-12)
-    lo, hi = 0.0, 3.0 * float(sd.max()) + 1e-9
+    w = weight / weight.sum(axis=1, keepdims=True)
+    lo, hi = np.zeros(sd.shape[0]), 3.0 * sd.max(axis=1) + 1e-9
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if np.mean(erf(mid / scale)) < CHECK_LEVEL else (lo, mid)
+        short = np.sum(w * erf(mid[:, None] / scale), axis=1) < CHECK_LEVEL
+        lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
     return hi
 
 

@@ -186,7 +186,7 @@ def _column(cells: list[str], fld: str, ref: ColumnRef, widths: np.ndarray, deci
     return values
 
 
-def _overlong_rows(table: RawTable) -> dict[int, list[str]]:
+def _overlong_rows(table: RawTable, decimal: str) -> dict[int, list[str]]:
     """Rows with a number beyond the header's columns: two rows run together, or cells
     shifted, so no cell of the row can be trusted to be in its column. Empty trailing cells
     (a trailing separator) and a text note after the last column are fine, and so is anything
@@ -197,22 +197,21 @@ def _overlong_rows(table: RawTable) -> dict[int, list[str]]:
     return {i: [f"row has {len(cells):,} cells, the header {width}, with numbers beyond it: "
                 "cells shifted or two rows on one line"]
             for i, (_, cells) in enumerate(table.rows)
-            if len(cells) > width and any(_is_number(c) for c in cells[width:])}
+            if len(cells) > width and any(_is_number(c, decimal) for c in cells[width:])}
 
 
-def _unnamed_columns(table: RawTable) -> bool:
-    """Whether most rows of the file's first chunk have numbers beyond the header: a logger
-    that writes a column without a name, not rows run together (its cells are ignored)."""
-    return 2 * len(_overlong_rows(table)) > len(table.rows)
-
-
-def _is_number(cell: str) -> bool:
-    """Whether a cell reads as a number (either decimal mark)."""
+def _is_number(cell: str, decimal: str) -> bool:
+    """Whether a cell reads as a number, as the file's mapped cells are read."""
     try:
-        float(cell.replace(",", "."))
+        return parse_number(cell, decimal) is not None
     except ValueError:
         return False
-    return True
+
+
+def _unnamed_columns(table: RawTable, decimal: str) -> bool:
+    """Whether most rows of the file's first chunk have numbers beyond the header: a logger
+    that writes a column without a name, not rows run together (its cells are ignored)."""
+    return 2 * len(_overlong_rows(table, decimal)) > len(table.rows)
 
 
 def parse(table: RawTable, mapping: Mapping) -> Parsed:
@@ -224,7 +223,7 @@ def parse_chunks(tables: Iterator[RawTable], mapping: Mapping) -> Parsed:
     """`parse` of a table read in chunks (`read_table_chunks`): each chunk's cells become SI
     columns before the next is read, so only the numbers of the whole file are held."""
     first = next(tables)
-    unnamed = _unnamed_columns(first)
+    unnamed = _unnamed_columns(first, mapping.decimal)
     importer, refs, command_unit, warnings = resolve_columns(first, mapping)
     problems: dict[int, list[str]] = {}
     parts: dict[str, list[np.ndarray]] = {fld: [] for fld in refs}
@@ -234,7 +233,7 @@ def parse_chunks(tables: Iterator[RawTable], mapping: Mapping) -> Parsed:
     for table in itertools.chain([first], tables):
         widths = np.fromiter((len(cells) for _, cells in table.rows), dtype=np.int64,
                              count=len(table.rows))
-        local = {} if unnamed else _overlong_rows(table)
+        local = {} if unnamed else _overlong_rows(table, mapping.decimal)
         for fld, ref in refs.items():
             j = ref.index
             cells = [cells[j] if j < len(cells) else "" for _, cells in table.rows]
