@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rigtool.models.qctm import Z95, GatedMean, LogNoise, gate, matern52
+from rigtool.models.qctm import Z95, GatedMean, LogNoise, gate, matern52, quadratic_rows
 
 if TYPE_CHECKING:
     from sklearn.gaussian_process import GaussianProcessRegressor
@@ -153,7 +153,7 @@ class ExactGp:
         mean = self.y_mean + self.mean_term(xs_raw[:, 1]) + self.y_std * (k @ self.alpha)
         var_n = np.full(len(xs), self.hyper.signal_var)
         if self.k_inv is not None:
-            var_n = var_n - np.einsum("ij,jk,ik->i", k, self.k_inv, k)
+            var_n = var_n - quadratic_rows(k, self.k_inv)
         var = self.y_std**2 * np.maximum(var_n, 0.0) + self.noise_n2(x)
         return mean, np.sqrt(var)
 
@@ -741,7 +741,7 @@ class SorGp:
         xs = (np.asarray(x, dtype=float) - self.x_mean) / self.x_scale
         k = self.hyper.signal_var * matern52(xs, self.z, self.hyper.length_scales)
         mean = self.y_mean + self.y_std * (k @ self.beta)
-        var_n = np.einsum("ij,jk,ik->i", k, self.cov, k) + self.hyper.noise_var
+        var_n = quadratic_rows(k, self.cov) + self.hyper.noise_var
         return mean, self.y_std * np.sqrt(var_n)
 
 

@@ -72,6 +72,12 @@ def matern52(a: np.ndarray, b: np.ndarray, length_scales: np.ndarray) -> np.ndar
     return (1.0 + s + s * s / 3.0) * np.exp(-s)
 
 
+def quadratic_rows(k: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """k_i . M . k_i for every row i of k: one matrix product (BLAS), not a three-operand
+    einsum, whose loops are 20-30 x slower on a GP's training-set sized M."""
+    return np.einsum("ij,ij->i", k @ m, k)
+
+
 def segment_runs(segment: np.ndarray | None, size: int) -> list[tuple[int, int]]:
     """(start, stop) of the runs of equal consecutive labels (one run if `segment` is None)."""
     if segment is None or size == 0:
@@ -358,7 +364,7 @@ class ThrustModel:
                                     + self.y_std * (k @ self.alpha))
             var = np.full(len(k), self.signal_var)
             if self.k_inv is not None:
-                var = var - np.einsum("ij,jk,ik->i", k, self.k_inv, k)
+                var = var - quadratic_rows(k, self.k_inv)
             out_var[s:s + 2048] = np.maximum(var, 0.0) + self.noise_var
         var_n2 = self.y_std**2 * out_var
         if self.noise is not None:
