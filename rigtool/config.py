@@ -97,18 +97,25 @@ def read_yaml(path: Path) -> tuple[Any, dict[Loc, int]]:
     Only a regular UTF-8 file of at most MAX_CONFIG_BYTES is read (files.py).
     """
     text = read_regular_text(path, MAX_CONFIG_BYTES)
+    lines: dict[Loc, int] = {}
     try:
-        node = yaml.compose(text, Loader=_LineLoader)
-        data = yaml.load(text, Loader=_LineLoader)
+        loader = _LineLoader(text)  # its reader already refuses characters YAML does not allow
+        try:
+            # Parsed once: the data and the line map from the same nodes (the data first: it
+            # refuses the keys that the map could not hold, such as a list).
+            node = loader.get_single_node()
+            if node is None:
+                return None, lines
+            data = loader.construct_document(node)
+            _line_map(node, (), lines)
+            return data, lines
+        finally:
+            loader.dispose()
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark else str(path)
         problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
         raise ConfigError([f"{where}: YAML syntax error: {problem}"]) from None
-    lines: dict[Loc, int] = {}
-    if node is not None:
-        _line_map(node, (), lines)
-    return data, lines
 
 
 def _line_for(loc: Loc, lines: dict[Loc, int]) -> int | None:
