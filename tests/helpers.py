@@ -1,8 +1,14 @@
-"""Small polling helpers shared by the driver tests over real transports."""
+"""Small helpers shared by the tests over real transports: polling, and `rigtool sim` run as
+its own process."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 
 import can
 
@@ -25,3 +31,37 @@ def drain(bus: can.BusABC, seconds: float = 0.0) -> list[can.Message]:
         if msg is None:
             return out
         out.append(msg)
+
+
+def stop_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
+    """SIGTERM, then SIGKILL if it has not exited within `timeout_s`: no test leaves a child
+    running (an orphan `rigtool sim` keeps its sockets, and the pipes of whatever started the
+    suite, open). Returns the exit status; a kill is an AssertionError after the cleanup."""
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        return proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f"{proc.args[:4]} did not stop within {timeout_s} s of SIGTERM") from None
+
+
+@contextmanager
+def sim_process(rig: Path, profile: str, *extra: str,
+                stdout: int = subprocess.PIPE) -> Iterator[subprocess.Popen]:
+    """`rigtool sim --profile PROFILE --netft 127.0.0.1:0 --rig-out RIG EXTRA` as a process,
+    yielded once it has written its rig file, and always stopped after (stop_process)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rigtool.cli", "sim", "--profile", profile, "--netft",
+         "127.0.0.1:0", "--rig-out", str(rig), *extra],
+        stdout=stdout, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 20
+        while not rig.exists():
+            assert proc.poll() is None, proc.communicate()[1]
+            assert time.monotonic() < deadline, "rigtool sim did not write its rig file"
+            time.sleep(0.05)
+        yield proc
+    finally:
+        stop_process(proc)

@@ -7,14 +7,13 @@ loopback UDP (+ its HTTP calibration page) and the stage twin over a pty.
 from __future__ import annotations
 
 import random
-import subprocess
-import sys
-import time
 
 import pytest
 
 from rigtool.cli import main
 from rigtool.store import Store
+
+from .helpers import sim_process
 
 PROTOCOL = """\
 rigtool_protocol: 1
@@ -37,31 +36,14 @@ limits:
 """
 
 
-def _start_sim(tmp_path, profile: str, *extra: str):
-    rig = tmp_path / "sim-rig.yaml"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "rigtool.cli", "sim", "--profile", profile, "--netft", "127.0.0.1:0",
-         "--depth", "0.3", "--rig-out", str(rig), *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 20
-    while not rig.exists():
-        assert proc.poll() is None, proc.communicate()[1]
-        assert time.monotonic() < deadline, "rigtool sim did not write its rig file"
-        time.sleep(0.05)
-    return proc, rig
-
-
-def _stop(proc) -> None:
-    proc.terminate()
-    proc.wait(timeout=10)
-    assert proc.returncode == 0
-
-
 @pytest.fixture
 def sim_rig(tmp_path):
-    proc, rig = _start_sim(tmp_path, "stm32-pwm")
-    yield rig
-    _stop(proc)
+    """The rig file of a `rigtool sim` process (STM32 bridge, Net F/T, stage), which exits 0
+    on SIGTERM after the test."""
+    rig = tmp_path / "sim-rig.yaml"
+    with sim_process(rig, "stm32-pwm", "--depth", "0.3") as proc:
+        yield rig
+    assert proc.returncode == 0
 
 
 @pytest.mark.slow
@@ -110,14 +92,13 @@ limits:
 @pytest.mark.slow
 def test_can_sweep_against_sim_process_records_feedback(tmp_path, capsys):
     group = f"239.74.{random.randrange(1, 250)}.{random.randrange(1, 250)}"
-    proc, rig = _start_sim(tmp_path, "can-bldc", "--can-channel", group)
-    try:
+    rig = tmp_path / "sim-rig.yaml"
+    with sim_process(rig, "can-bldc", "--depth", "0.3", "--can-channel", group) as proc:
         protocol = tmp_path / "p.yaml"
         protocol.write_text(CAN_PROTOCOL)
         db = tmp_path / "can.sqlite"
         assert main(["sweep", str(protocol), "--rig", str(rig), "--db", str(db)]) == 0, capsys.readouterr()
-    finally:
-        _stop(proc)
+    assert proc.returncode == 0
     store = Store(db)
     steps = store.steps(store.resolve_run_id("last"))
     speed = {s["command"]: s["speed_rpm_mean"] for s in steps}

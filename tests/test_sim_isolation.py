@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import socket
 import struct
-import subprocess
-import sys
 import time
 
 import can
@@ -17,28 +15,9 @@ from can.interfaces.udp_multicast.utils import pack_message
 from rigtool.cli import main
 from rigtool.devices.canbus import open_bus
 
-from .helpers import drain
+from .helpers import drain, sim_process
 
 SET_DUTY, STATUS_1 = 0, 9
-
-
-def _start_sim(tmp_path, name: str, *extra: str):
-    rig = tmp_path / f"{name}.yaml"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "rigtool.cli", "sim", "--profile", "can-bldc", "--netft",
-         "127.0.0.1:0", "--rig-out", str(rig), *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 20
-    while not rig.exists():
-        assert proc.poll() is None, proc.communicate()[1]
-        assert time.monotonic() < deadline, "rigtool sim did not write its rig file"
-        time.sleep(0.05)
-    return proc, rig
-
-
-def _stop(proc) -> None:
-    proc.terminate()
-    proc.wait(timeout=10)
 
 
 def _socket_address(fd: int) -> tuple:
@@ -51,9 +30,8 @@ def _socket_address(fd: int) -> tuple:
 
 @pytest.mark.slow
 def test_check_aimed_at_one_sim_never_reaches_another(tmp_path, capsys) -> None:
-    first, rig1 = _start_sim(tmp_path, "first")
-    second, rig2 = _start_sim(tmp_path, "second")
-    try:
+    rig1, rig2 = tmp_path / "first.yaml", tmp_path / "second.yaml"
+    with sim_process(rig1, "can-bldc"), sim_process(rig2, "can-bldc"):
         act1 = yaml.safe_load(rig1.read_text())["actuator"]
         act2 = yaml.safe_load(rig2.read_text())["actuator"]
         assert act1["channel"] != act2["channel"]
@@ -72,9 +50,6 @@ def test_check_aimed_at_one_sim_never_reaches_another(tmp_path, capsys) -> None:
                 if m.arbitration_id >> 8 == STATUS_1 and len(m.data) >= 4]
         # the second motor never turned: idle noise only (40 % would be about 5000 ERPM)
         assert erpm and max(abs(e) for e in erpm) < 1000
-    finally:
-        _stop(first)
-        _stop(second)
 
 
 def test_can_sim_ignores_datagrams_not_sent_to_its_group_on_loopback() -> None:

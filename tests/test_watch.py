@@ -23,6 +23,8 @@ from rigtool.store import Store
 from rigtool.watch import Watcher, WatchServer
 from rigtool.watch.data import MAX_TRACE, decimate, fit_cp
 
+from .helpers import sim_process, stop_process
+
 ROOT = Path(__file__).resolve().parent.parent
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 needs_chromium = pytest.mark.skipif(
@@ -265,20 +267,6 @@ def _text(dom: str, element_id: str) -> str:
     return html.unescape(re.sub(r"<[^>]+>", "", m.group(2)))
 
 
-def _start_sim(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
-    rig = tmp_path / "sim-rig.yaml"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "rigtool.cli", "sim", "--profile", "stm32-pwm", "--netft",
-         "127.0.0.1:0", "--rig-out", str(rig)],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 20
-    while not rig.exists():
-        assert proc.poll() is None, proc.communicate()[1]
-        assert time.monotonic() < deadline, "rigtool sim did not write its rig file"
-        time.sleep(0.05)
-    return proc, rig
-
-
 def _url_from(proc: subprocess.Popen) -> str:
     """The page address a `watch` or `sweep --watch` process prints on stderr."""
     deadline = time.monotonic() + 30
@@ -301,59 +289,57 @@ def _stored(db: Path) -> int:
 def test_page_follows_a_real_sweep_to_its_end(tmp_path):
     """Sweep over TCP/UDP with `--watch`, and `rigtool watch` beside it: the plotted points
     grow, the trace moves to the newest point, and the page says how the run ended."""
-    sim, rig = _start_sim(tmp_path)
-    protocol = tmp_path / "p.yaml"
-    protocol.write_text(REAL_PROTOCOL)
-    db = tmp_path / "e2e.sqlite"
-    sweep = watch = None
-    try:
-        sweep = subprocess.Popen(
-            [sys.executable, "-m", "rigtool.cli", "sweep", str(protocol), "--rig", str(rig),
-             "--db", str(db), "--watch", "0"],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-            text=True)
-        in_sweep = _url_from(sweep)
-        deadline = time.monotonic() + 60
-        while _stored_or_zero(db) < 2:
-            assert time.monotonic() < deadline and sweep.poll() is None, "no points stored"
-            time.sleep(0.2)
-        code, _, body = _get(in_sweep + "data")  # the server inside the sweep process
-        assert code == 200 and json.loads(body)["run"]["status"] == "running"
-        watch = subprocess.Popen(
-            [sys.executable, "-m", "rigtool.cli", "watch", "--db", str(db), "--port", "0"],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-            text=True)
-        url = _url_from(watch)
-        first = _dom(url)
-        count1 = int(_attr(first, "npoints", "data-count"))
-        step1 = _attr(first, "trace-info", "data-step")
-        assert count1 >= 2 and step1 != ""
-        assert _attr(first, "ended", "hidden") is not None and "run ended" not in _text(first, "ended")
-        target = _stored(db) + 2
-        while _stored(db) < target:
-            assert time.monotonic() < deadline + 60 and sweep.poll() is None, "sweep stalled"
-            time.sleep(0.2)
-        second = _dom(url)
-        count2 = int(_attr(second, "npoints", "data-count"))
-        step2 = _attr(second, "trace-info", "data-step")
-        assert count2 > count1, (count1, count2)
-        assert int(step2) > int(step1)
-        assert _text(second, "state") in ("rest", "settling", "acquiring", "finishing")
-        assert sweep.wait(timeout=120) == 0
-        end = _dom(url)
-        assert "run ended: completed" in _text(end, "ended")
-        assert int(_attr(end, "npoints", "data-count")) == 15
-        assert _text(end, "progress-text").startswith("15 / 15")
-        _chromium(url, f"--screenshot={tmp_path / 'watch.png'}")
-        assert (tmp_path / "watch.png").stat().st_size > 10_000
-    finally:
-        for proc in (sweep, watch):
-            if proc is not None and proc.poll() is None:
-                proc.terminate()
-                proc.wait(timeout=10)
-        sim.terminate()
-        sim.wait(timeout=10)
-    assert watch.returncode in (0, -15)
+    rig = tmp_path / "sim-rig.yaml"
+    with sim_process(rig, "stm32-pwm", stdout=subprocess.DEVNULL):
+        protocol = tmp_path / "p.yaml"
+        protocol.write_text(REAL_PROTOCOL)
+        db = tmp_path / "e2e.sqlite"
+        sweep = watch = None
+        try:
+            sweep = subprocess.Popen(
+                [sys.executable, "-m", "rigtool.cli", "sweep", str(protocol), "--rig", str(rig),
+                 "--db", str(db), "--watch", "0"],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                text=True)
+            in_sweep = _url_from(sweep)
+            deadline = time.monotonic() + 60
+            while _stored_or_zero(db) < 2:
+                assert time.monotonic() < deadline and sweep.poll() is None, "no points stored"
+                time.sleep(0.2)
+            code, _, body = _get(in_sweep + "data")  # the server inside the sweep process
+            assert code == 200 and json.loads(body)["run"]["status"] == "running"
+            watch = subprocess.Popen(
+                [sys.executable, "-m", "rigtool.cli", "watch", "--db", str(db), "--port", "0"],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                text=True)
+            url = _url_from(watch)
+            first = _dom(url)
+            count1 = int(_attr(first, "npoints", "data-count"))
+            step1 = _attr(first, "trace-info", "data-step")
+            assert count1 >= 2 and step1 != ""
+            assert _attr(first, "ended", "hidden") is not None and "run ended" not in _text(first, "ended")
+            target = _stored(db) + 2
+            while _stored(db) < target:
+                assert time.monotonic() < deadline + 60 and sweep.poll() is None, "sweep stalled"
+                time.sleep(0.2)
+            second = _dom(url)
+            count2 = int(_attr(second, "npoints", "data-count"))
+            step2 = _attr(second, "trace-info", "data-step")
+            assert count2 > count1, (count1, count2)
+            assert int(step2) > int(step1)
+            assert _text(second, "state") in ("rest", "settling", "acquiring", "finishing")
+            assert sweep.wait(timeout=120) == 0
+            end = _dom(url)
+            assert "run ended: completed" in _text(end, "ended")
+            assert int(_attr(end, "npoints", "data-count")) == 15
+            assert _text(end, "progress-text").startswith("15 / 15")
+            _chromium(url, f"--screenshot={tmp_path / 'watch.png'}")
+            assert (tmp_path / "watch.png").stat().st_size > 10_000
+        finally:
+            for proc in (sweep, watch):
+                if proc is not None:
+                    stop_process(proc)
+        assert watch.returncode in (0, -15)
 
 
 def _stored_or_zero(db: Path) -> int:
