@@ -47,6 +47,20 @@ def stop_process(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
         raise AssertionError(f"{proc.args[:4]} did not stop within {timeout_s} s of SIGTERM") from None
 
 
+def stop_processes(*procs: subprocess.Popen | None) -> None:
+    """stop_process on each (None: never started), every one of them even when an earlier
+    one had to be killed; then the first such failure is raised."""
+    failures = []
+    for proc in procs:
+        if proc is not None:
+            try:
+                stop_process(proc)
+            except AssertionError as exc:
+                failures.append(exc)
+    if failures:
+        raise failures[0]
+
+
 @contextmanager
 def sim_process(rig: Path, profile: str, *extra: str,
                 stdout: int = subprocess.PIPE) -> Iterator[subprocess.Popen]:
