@@ -414,6 +414,8 @@ EVENT_EXTRA = 1.0  # log-variance the detected events may add to cover ventilati
 # (sd x 0.4) and a new run's events were covered 85 % (cal-dev replay, docs/cavitation.md)
 EVENT_SHRINK = 1.2
 MIN_MISSED_ROWS = 5  # held-out missed-ventilation rows a speed level needs for a widening
+MISSED_OWN_ROWS = 45  # missed rows from which their 95 % bound is no longer their largest
+MISSED_CONFIDENCE = 0.9  # confidence of the upper bound on the missed rows' quantile
 
 
 @dataclass(frozen=True)
@@ -585,12 +587,6 @@ def missed_widening(u: np.ndarray, half: np.ndarray, g: np.ndarray, missed: np.n
             if cap.size:
                 out[j] = max(out[j], float(np.median(cap)))
     return out
-
-
-MISSED_OWN_ROWS = 45  # missed rows from which their 95 % bound is no longer their largest
-
-
-MISSED_CONFIDENCE = 0.9  # confidence of the upper bound on the missed rows' quantile
 
 
 def upper_quantile(x: np.ndarray, level: float, confidence: float = MISSED_CONFIDENCE) -> float:

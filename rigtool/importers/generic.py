@@ -208,12 +208,6 @@ def _is_number(cell: str, decimal: str) -> bool:
         return False
 
 
-def _unnamed_columns(table: RawTable, decimal: str) -> bool:
-    """Whether most rows of the file's first chunk have numbers beyond the header: a logger
-    that writes a column without a name, not rows run together (its cells are ignored)."""
-    return 2 * len(_overlong_rows(table, decimal)) > len(table.rows)
-
-
 def parse(table: RawTable, mapping: Mapping) -> Parsed:
     """Read every data row; a row with an unreadable mapped cell is skipped and reported."""
     return parse_chunks(iter([table]), mapping)
@@ -223,7 +217,10 @@ def parse_chunks(tables: Iterator[RawTable], mapping: Mapping) -> Parsed:
     """`parse` of a table read in chunks (`read_table_chunks`): each chunk's cells become SI
     columns before the next is read, so only the numbers of the whole file are held."""
     first = next(tables)
-    unnamed = _unnamed_columns(first, mapping.decimal)
+    first_overlong = _overlong_rows(first, mapping.decimal)
+    # Most rows of the first chunk with numbers beyond the header: a logger that writes a
+    # column without a name, not rows run together (its cells are ignored).
+    unnamed = 2 * len(first_overlong) > len(first.rows)
     importer, refs, command_unit, warnings = resolve_columns(first, mapping)
     problems: dict[int, list[str]] = {}
     parts: dict[str, list[np.ndarray]] = {fld: [] for fld in refs}
@@ -233,7 +230,10 @@ def parse_chunks(tables: Iterator[RawTable], mapping: Mapping) -> Parsed:
     for table in itertools.chain([first], tables):
         widths = np.fromiter((len(cells) for _, cells in table.rows), dtype=np.int64,
                              count=len(table.rows))
-        local = {} if unnamed else _overlong_rows(table, mapping.decimal)
+        if unnamed:
+            local = {}
+        else:
+            local = first_overlong if table is first else _overlong_rows(table, mapping.decimal)
         for fld, ref in refs.items():
             j = ref.index
             cells = [cells[j] if j < len(cells) else "" for _, cells in table.rows]
