@@ -172,12 +172,59 @@ def locate(path: Path, loc: Loc) -> str:
     return f"{path}:{_line_for(loc, lines) or '?'}"
 
 
+_GONE = object()
+
+
+def _child(value: Any, key: Any) -> Any:
+    """What a validated model, mapping or sequence holds under the file's `key` (_GONE where a
+    validator reshaped it)."""
+    if isinstance(value, BaseModel):
+        known = key in type(value).model_fields or key in (value.model_extra or {})
+        return getattr(value, key, _GONE) if isinstance(key, str) and known else _GONE
+    if isinstance(value, dict):
+        return value.get(key, _GONE)
+    if isinstance(value, list | tuple) and isinstance(key, int) and key < len(value):
+        return value[key]
+    return _GONE
+
+
+def coerced_booleans(data: Any, value: Any, loc: Loc = ()) -> list[Loc]:
+    """Where the file says true/false and the validated model holds something else: pydantic's
+    lax mode reads `true` as 1, so `step: true` would sweep in steps of one."""
+    if isinstance(data, bool):
+        return [] if value is _GONE or isinstance(value, bool) else [loc]
+    if isinstance(data, dict):
+        items = data.items()
+    elif isinstance(data, list):
+        items = enumerate(data)
+    else:
+        return []
+    return [bad for key, item in items
+            for bad in coerced_booleans(item, _child(value, key), (*loc, key))]
+
+
 def load_model(path: Path, model: type[M], context: dict | None = None) -> tuple[M, dict]:
-    """Read `path` and validate it as `model`; return the model and the raw data."""
+    """Read `path` and validate it as `model`; return the model and the raw data.
+
+    true/false are refused wherever the model wants something else (a number, a name)."""
     data, lines = read_yaml(path)
     if not isinstance(data, dict):
         raise ConfigError([f"{path}:1: expected a mapping of fields at the top level"])
     try:
-        return model.model_validate(data, context=context), data
+        checked = model.model_validate(data, context=context)
     except ValidationError as exc:
         raise ConfigError(format_validation_error(path, exc, data, lines)) from None
+    coerced = coerced_booleans(data, checked)
+    if coerced:
+        raise ConfigError([
+            f"{path}:{_line_for(loc, lines) or '?'}: {'.'.join(str(p) for p in loc)}: "
+            f"{str(_at(data, loc)).lower()} is not a value of this field (true/false only fit "
+            f"yes/no fields; write a number or name)" for loc in coerced])
+    return checked, data
+
+
+def _at(data: Any, loc: Loc) -> Any:
+    """The raw value at `loc`."""
+    for key in loc:
+        data = data[key]
+    return data

@@ -375,7 +375,7 @@ def _json(shape: Shape, null: bool = False, max_len: int = MAX_JSON_BYTES) -> Co
 
 _ROWID = Column("int", lo=1, hi=INT64 - 1)
 _TIME = Column("real", finite=True)
-_STAT = Column("real", null=True)
+_STAT = Column("real", null=True, finite=True)  # a point's summary of finite samples
 
 RUN_COLUMNS: dict[str, Column] = {
     "id": _text(MAX_ID_TEXT), "name": _text(), "status": Column(

@@ -65,6 +65,14 @@ HOSTILE = {
     "override-value": ({"simulator__overrides": {"cp_forward": "inf"}}, "simulator.overrides"),
     "profile": ({"simulator__profile": "warp-drive"}, "simulator.profile"),
     "thrust-limit": ({"limits__max_thrust_n": float("nan")}, "limits.max_thrust_n"),
+    # true/false where a number belongs: pydantic's lax mode would read them as 1 and 0
+    "bool-step": ({"command__values": None, "command__range": {"start": -80, "stop": 80,
+                                                                "step": True}}, "command.range.step"),
+    "bool-samples": ({"timing__acquire__samples": True}, "timing.acquire.samples"),
+    "bool-seed": ({"simulator__seed": False}, "simulator.seed"),
+    "bool-override": ({"simulator__overrides": {"cp_forward": True}},
+                      "simulator.overrides.cp_forward"),
+    "bool-depth": ({"depth__values": [1.0, True]}, "depth.values.1"),
 }
 
 
@@ -86,7 +94,7 @@ def test_hostile_protocol_is_a_located_config_error(tmp_path, case):
 
 
 @pytest.mark.parametrize("case", ["samples", "repeats", "points", "rate", "settle", "slew",
-                                  "sim-seed", "override-name"])
+                                  "sim-seed", "override-name", "bool-step"])
 def test_dry_run_of_hostile_protocol_exits_2_in_bounded_memory(tmp_path, case):
     changes, field = HOSTILE[case]
     path = _protocol(tmp_path, **changes)

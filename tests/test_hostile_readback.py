@@ -168,6 +168,8 @@ FIELDS = {
                               "sample_blocks.t_s"),
     "text in a numeric column": ([_sql("UPDATE steps SET command = 'abc' WHERE idx = 2")],
                                  ("show", "export", "calibrate"), "point 2, steps.command"),
+    "an infinite point summary": ([_sql("UPDATE steps SET thrust_n_max = 9e999 WHERE idx = 1")],
+                                  ("show", "export"), "point 1, steps.thrust_n_max"),
     "a blob in a numeric column": ([_sql("UPDATE steps SET t_end_s = X'00' WHERE idx = 0")],
                                    ("report",), "steps.t_end_s"),
     "garbage protocol_json": ([_sql("UPDATE runs SET protocol_json = 'not json'")],
@@ -266,6 +268,8 @@ SOURCES = {
     "blocks that do not add up": ([_sql("UPDATE steps SET n = 5 WHERE idx = 3")],
                                   "point 3, steps.n"),
     "text in a numeric column": ([_sql("UPDATE steps SET rate_hz = 'fast'")], "steps.rate_hz"),
+    "an infinite point summary": ([_sql("UPDATE steps SET current_a_mean = -9e999")],
+                                  "steps.current_a_mean"),
     "a 400 MB blob": ([*QUICK_WRITE, _sql(f"UPDATE sample_blocks SET seq = zeroblob(400000000) "
                                           f"WHERE id = {FIRST_BLOCK}")], "sample_blocks.seq"),
 }

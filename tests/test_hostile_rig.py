@@ -35,6 +35,8 @@ HOSTILE = {
     "override-value": (SIM, ("simulator", "overrides"), {"tau_s": "nan"}),
     "override-huge": (SIM, ("simulator", "overrides"), {"tau_s": 1e300}),
     "mount": (SIM, ("mount",), {"rotation_deg": float("inf")}),
+    "bool-arr": (BENCH, ("actuator", "arr"), True),  # lax pydantic would read it as 1
+    "bool-scale": (BENCH, ("sensor", "scale"), True),
 }
 
 
