@@ -1,7 +1,5 @@
 """`python -m rigtool`: the same as the `rigtool` command."""
 
-import sys
+from rigtool.launch import run
 
-from rigtool.cli import main
-
-sys.exit(main())
+run()

@@ -149,7 +149,8 @@ RANKS = {
     "foundation": ("rigtool.errors", "rigtool.units", "rigtool.bounds", "rigtool.clock",
                    "rigtool.files", "rigtool.outpaths", "rigtool.readback", "rigtool.spool",
                    "rigtool.ids", "rigtool.dbpath", "rigtool.counters",
-                   "rigtool.thruster_profiles", "rigtool.version", "rigtool.models"),
+                   "rigtool.thruster_profiles", "rigtool.version", "rigtool.models",
+                   "rigtool.stopping"),
     "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan"),
     "devices": ("rigtool.devices", "rigtool.sim", "rigtool.rig"),
     "store": ("rigtool.store",),
@@ -159,7 +160,7 @@ RANKS = {
     "workflows": ("rigtool.workflows", "rigtool.engine", "rigtool.safety", "rigtool.sweep",
                   "rigtool.progress", "rigtool.check", "rigtool.importers",
                   "rigtool.limit_sources", "rigtool.sensor_rate"),
-    "interfaces": ("rigtool", "rigtool.__main__", "rigtool.cli", "rigtool.api",
+    "interfaces": ("rigtool", "rigtool.__main__", "rigtool.launch", "rigtool.cli", "rigtool.api",
                    "rigtool.watch", "rigtool.export", "rigtool.dataset"),
 }
 ORDER = list(RANKS)

@@ -6,22 +6,15 @@ import contextlib
 import signal
 
 from rigtool.cli.console import err
-
-
-class Stopped(KeyboardInterrupt):
-    """A signal stopped the command outside a run (opening devices): SIGINT exits 130, others
-    1, as a run stopped by them does."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
+from rigtool.stopping import Stopped, mark_ended
 
 
 @contextlib.contextmanager
 def closing_signals(reporter: object):
     """Around a sweep: a signal before the run starts stops the command (devices closed); once
     the run has ended (the actuator sent to neutral), a further signal while the rig closes and
-    the outcome prints is only noted, so the exit status stays the run's."""
+    the outcome prints is only noted, so the exit status stays the run's (and, under the
+    `rigtool` command, until the process has exited: rigtool.launch)."""
     def _on_signal(signum: int, frame: object) -> None:
         if getattr(reporter, "finished", False):
             err.print(f"rigtool: {signal.Signals(signum).name} while closing: the run has "
@@ -35,6 +28,8 @@ def closing_signals(reporter: object):
     try:
         yield
     finally:
+        if getattr(reporter, "finished", False):
+            mark_ended()
         for sig, handler in old.items():
             signal.signal(sig, handler)
 
