@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import re
 import secrets
+import unicodedata
 from datetime import datetime, timezone
 
 from rigtool.readback import show
 
 RUN_ID_GRAMMAR = re.compile(r"\d{8}T\d{9}Z-[0-9a-f]{6}")  # what new_run_id makes
+_UNSEEN = {"Cc": "control character", "Cf": "invisible format character",
+           "Zl": "line separator", "Zp": "paragraph separator"}
 
 
 def utc_now(timespec: str = "seconds") -> str:
@@ -34,3 +37,15 @@ def is_run_id(text: object) -> bool:
 def run_label(run_id: object) -> str:
     """A run id for a one-line message: as it is when well formed, else quoted and cut."""
     return run_id if is_run_id(run_id) else show(run_id)  # type: ignore[return-value]
+
+
+def label_problem(text: str) -> str | None:
+    """Why `text` cannot be a run name or thruster id, or None: a character that prints as
+    nothing (a control or format character) would let two ids read alike in the C headers,
+    SDF and YAML files they name."""
+    for i, char in enumerate(text):
+        kind = _UNSEEN.get(unicodedata.category(char))
+        if kind:
+            return (f"{kind} U+{ord(char):04X} at position {i + 1} (names and ids go into "
+                    "generated files: use printable characters)")
+    return None

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
@@ -51,6 +52,7 @@ from rigtool.bounds import (
 )
 from rigtool.config import FieldError, load_model
 from rigtool.errors import UsageError
+from rigtool.ids import label_problem
 from rigtool.thruster_profiles import PROFILES, profile_with_overrides
 from rigtool.units import COMMAND_UNITS
 
@@ -59,6 +61,17 @@ assert set(CommandUnit.__args__) == set(COMMAND_UNITS)  # type: ignore[attr-defi
 
 DEPTH_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 RateHz = Annotated[float, Field(ge=MIN_RATE_HZ, le=MAX_RATE_HZ, allow_inf_nan=False)]
+
+
+def _label(text: str) -> str:
+    """A name or id that ends up in generated files: every character visible."""
+    problem = label_problem(text)
+    if problem:
+        raise ValueError(problem)
+    return text
+
+
+Label = Annotated[str, AfterValidator(_label)]
 
 
 class _Strict(BaseModel):
@@ -297,9 +310,9 @@ class Limits(_Strict):
 class Metadata(_Strict):
     """Stored with the run; diameter and density enable K_T in calibrations."""
 
-    thruster_id: str | None = None
-    propeller: str | None = None
-    operator: str | None = None
+    thruster_id: Label | None = None
+    propeller: Label | None = None
+    operator: Label | None = None
     notes: str | None = None
     propeller_diameter_m: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] | None = None
     water_density_kg_m3: Annotated[float, Field(gt=0, le=10_000, allow_inf_nan=False)] | None = None
@@ -337,7 +350,7 @@ class Protocol(_Strict):
     """A whole sweep protocol file."""
 
     rigtool_protocol: Literal[1] = 1
-    name: str = Field(min_length=1)
+    name: Label = Field(min_length=1)
     description: str = ""
     rig: str | None = None
     simulator: SimulatorSpec | None = None

@@ -405,6 +405,18 @@ def test_cli_refuses_a_missing_joint_and_writes_nothing(lab, capsys):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("ns", ["a b", "auv//t1", "1auv", "auv/", "auv-1", "ns\x07"])
+def test_cli_refuses_a_namespace_no_node_could_use(lab, capsys, ns):
+    """The escaped text would be a valid file but a topic namespace nobody publishes under."""
+    tmp, db, steady, _, _ = lab
+    with pytest.raises(SystemExit) as info:
+        main(["export-cal", steady.name, "--db", str(db), "--out", str(tmp / "ns"), "--format",
+              "gazebo", "--joint", "j", "--namespace", ns])
+    assert info.value.code == 2
+    assert "is not a namespace" in capsys.readouterr().err
+    assert not (tmp / "ns").exists()
+
+
 SDF_CHECKER = """\
 #include <iostream>
 #include <iterator>

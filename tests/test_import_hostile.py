@@ -49,6 +49,8 @@ def _n_runs(db: Path) -> int:
     ("--depth", "inf", "--depth"),
     ("--col", "thrust=²", "no column"),
     ("--col", "thrust=" + "9" * 5000, "--col"),
+    ("--thruster-id", "t200\x1b[2J", "U+001B"),
+    ("--name", "run\u2066one", "U+2066"),
 ])
 def test_bad_option_is_a_usage_error(tmp_path: Path, option: str, value: str, words: str) -> None:
     cols = COLS[:2] + COLS[4:] if option == "--col" else COLS

@@ -173,8 +173,10 @@ def _differences(got: str, want: str, rel: float = 1e-4) -> list[tuple[str, str]
     """Where `got` differs from `want`: all text outside numbers byte for byte, and each number
     within `rel` of the golden one. The last digits of a fitted value move with the machine's
     BLAS kernels (same wheels, another CPU: C_p in its tenth digit, an ill-conditioned 70 us
-    step delay by 2e-5 of itself); a restructuring's change does not hide in the fifth."""
-    got_parts, want_parts = NUMBER.split(got), NUMBER.split(want)
+    step delay by 2e-5 of itself); a restructuring's change does not hide in the fifth. Runs
+    of white space compare equal: a list of numbers wraps where its numbers' lengths put it."""
+    got_parts, want_parts = ([" ".join(part.split()) for part in NUMBER.split(text)]
+                             for text in (got, want))
     if got_parts != want_parts:
         return [("text", next(f"{g!r} != {w!r}" for g, w in zip(got_parts, want_parts, strict=False)
                               if g != w) if len(got_parts) == len(want_parts) else "layout")]

@@ -11,6 +11,8 @@ from rigtool.errors import StoreError, UsageError
 from rigtool.ids import new_run_id
 from rigtool.store import SCHEMA_VERSION, StepRecord, Store
 
+from .hostile import run_cli
+
 
 def _run(store: Store) -> str:
     return store.create_run(name="r", protocol={"a": 1}, protocol_path="p.yaml", rig={"b": 2},
@@ -46,6 +48,21 @@ def test_newer_schema_is_refused(db_path):
     conn.close()
     with pytest.raises(StoreError, match="upgrade rigtool"):
         Store(db_path)
+
+
+def test_newer_schema_is_a_usage_error_for_every_command(db_path, tmp_path):
+    """Exit 2 from the commands that write (calibrate, sweep) and those that only read, as
+    from merge: the database is not this rigtool's to use."""
+    Store(db_path).close()
+    conn = sqlite3.connect(db_path)
+    conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    conn.close()
+    for args in (["calibrate", "last"], ["report", "last"], ["runs"], ["merge", str(db_path)]):
+        target = ["--db", str(db_path)] if args[0] != "merge" else ["-o", str(tmp_path / "o.sqlite")]
+        proc = run_cli(*args, *target, cwd=tmp_path)
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert "upgrade rigtool" in proc.stderr or "schema version" in proc.stderr, proc.stderr
+        assert "Traceback" not in proc.stderr
 
 
 def test_run_ids_sort_by_time_and_are_unique():

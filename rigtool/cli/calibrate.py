@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 from rigtool.cli.calibration_table import calibration_table
 from rigtool.cli.console import err, out
-from rigtool.cli.options import CALIBRATIONS_OUT, DB, RUN, positive_int
+from rigtool.cli.options import CALIBRATIONS_OUT, DB, RUN, namespace, positive_int
 from rigtool.dbpath import resolve_db_path
 from rigtool.store import Store
 
@@ -61,7 +61,8 @@ def _export_options(p: argparse.ArgumentParser) -> None:
                    "auv-controllers)")
     p.add_argument("--link", help="thruster or propeller link in the vehicle model (uuv, "
                    "stonefish)")
-    p.add_argument("--namespace", help="robot or topic namespace (gazebo)")
+    p.add_argument("--namespace", type=namespace, help="robot or topic namespace (gazebo, uuv): "
+                   "names of letters, digits and _ joined by /")
     p.add_argument("--mesh", help="the propeller's mesh file in the vehicle model (stonefish)")
     p.add_argument("--material", help="the propeller's material in the scenario (stonefish)")
     p.add_argument("--index", type=positive_int, help="the thruster's number on the vehicle, "

@@ -8,6 +8,8 @@ import os
 from rigtool.cli.console import err, out
 from rigtool.cli.options import DB
 from rigtool.dbpath import resolve_db_path
+from rigtool.errors import UsageError
+from rigtool.ids import label_problem
 from rigtool.progress import stage
 from rigtool.store import Store
 
@@ -51,6 +53,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 def cmd_import(args: argparse.Namespace) -> int:
     from rigtool.importers import Mapping, import_file, load_mapping, with_overrides
 
+    for option, text in (("--name", args.name), ("--thruster-id", args.thruster_id)):
+        problem = label_problem(text) if text is not None else None
+        if problem:
+            raise UsageError(f"{option}: {problem}")
     base = load_mapping(args.mapping) if args.mapping else Mapping()
     mapping = with_overrides(
         base, cols=args.col, units=args.unit, command_unit=args.command_unit,

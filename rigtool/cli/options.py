@@ -4,6 +4,7 @@ the run, the output folder; and the argument types they check."""
 from __future__ import annotations
 
 import argparse
+import re
 
 from rigtool.dbpath import DB_ENV
 
@@ -51,3 +52,17 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number from 1")
     return value
+
+
+NAMESPACE = re.compile(r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
+
+
+def namespace(text: str) -> str:
+    """A ROS 2 / gz topic namespace: names of letters, digits and _ (not led by a digit),
+    joined by /, a leading / allowed; anything else would be escaped into a name no node
+    publishes under."""
+    if NAMESPACE.fullmatch(text) is None:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a namespace: names of letters, digits and _ (none starting with "
+            "a digit) joined by /")
+    return text

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rigtool.errors import StoreError
+from rigtool.errors import DataError, StoreError
 from rigtool.readback import show
 from rigtool.spool import SAMPLES_PER_CHUNK
 from rigtool.store.codec import SAMPLE_COLUMNS, block_row
@@ -202,8 +202,8 @@ def upgrade(conn: sqlite3.Connection, path: Path) -> None:
     database at once never apply the same migration twice.
     """
     while (current := version(conn)) != SCHEMA_VERSION:
-        if current > SCHEMA_VERSION:
-            raise StoreError(
+        if current > SCHEMA_VERSION:  # exit 2, as for a merge source of that version
+            raise DataError(
                 f"{path} has schema version {current}; this rigtool knows up to "
                 f"{SCHEMA_VERSION}: upgrade rigtool"
             )
@@ -217,7 +217,7 @@ def check_readable(conn: sqlite3.Connection, path: Path) -> None:
     """A read-only open cannot migrate: an older schema asks for one writing command."""
     current = version(conn)
     if current > SCHEMA_VERSION:
-        raise StoreError(f"{path} has schema version {current}; this rigtool knows up "
+        raise DataError(f"{path} has schema version {current}; this rigtool knows up "
                          f"to {SCHEMA_VERSION}: upgrade rigtool")
     if current < SCHEMA_VERSION:
         raise StoreError(
