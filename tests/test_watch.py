@@ -8,6 +8,7 @@ import json
 import re
 import shutil
 import socket
+import sqlite3
 import subprocess
 import sys
 import time
@@ -360,9 +361,14 @@ HOSTILE_DETAIL = '</td><td><b>bold</b><iframe src="javascript:alert(1)"></iframe
 
 @needs_chromium
 def test_hostile_text_is_shown_literally(tmp_path):
-    db = _sim_run(tmp_path, HOSTILE_NAME)
+    db = _sim_run(tmp_path, HOSTILE_NAME.replace("\u202e", ""))
     with Store(db) as store:
         run_id = store.resolve_run_id("last")
+    with sqlite3.connect(db) as con:  # a protocol refuses U+202E; a merged database may hold it
+        con.execute("UPDATE runs SET name = ?, protocol_json = json_set(protocol_json, '$.name', "
+                    "?) WHERE id = ?", (HOSTILE_NAME, HOSTILE_NAME, run_id))
+    con.close()
+    with Store(db) as store:
         store.add_event(run_id, "warning", {"message": HOSTILE_DETAIL}, t_s=1.0, step_idx=2)
         store.add_event(run_id, "<svg onload=alert(1)>", {"x": HOSTILE_NAME}, t_s=2.0)
     watcher = Watcher(db)
