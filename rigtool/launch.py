@@ -7,9 +7,11 @@ before it starts.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
+from rigtool import stopping
 from rigtool.errors import EXIT_FAILED, EXIT_INTERRUPTED
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -18,23 +20,31 @@ _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 def run() -> None:
     """Run the command line and exit with its status.
 
-    SIGINT exits 130 and SIGTERM/SIGHUP 1 wherever they stop the command, as inside a run;
-    once the command has returned, further signals are ignored while the process exits.
+    SIGINT exits 130 and SIGTERM/SIGHUP 1 wherever they stop the command, as inside a run,
+    also when the stop broke an import the command was making (which then fails with another
+    error); once the command has returned, signals are ignored while the process exits.
     """
-    from rigtool import stopping
-
     for sig in _SIGNALS:
         if signal.getsignal(sig) is not signal.SIG_IGN:
             signal.signal(sig, stopping.on_signal)
+    status = None
     try:
-        from rigtool.cli import main
+        try:
+            from rigtool.cli import main
 
-        status = main()
-    except KeyboardInterrupt as exc:
-        signum = getattr(exc, "signum", signal.SIGINT)
-        sys.stderr.write("rigtool: interrupted\n" if signum == signal.SIGINT
-                         else f"rigtool: stopped by {signal.Signals(signum).name}\n")
-        status = EXIT_INTERRUPTED if signum == signal.SIGINT else EXIT_FAILED
-    for sig in _SIGNALS:
-        signal.signal(sig, signal.SIG_IGN)
+            status = main()
+        finally:
+            stopping.mark_ended()  # from here a signal is only noted, then ignored
+            for sig in _SIGNALS:
+                signal.signal(sig, signal.SIG_IGN)
+    except BaseException as exc:
+        signum = getattr(exc, "signum", None) or stopping.requested()
+        if isinstance(exc, SystemExit) or signum is None and not isinstance(
+                exc, KeyboardInterrupt):
+            raise
+        if status is None:  # else the command had returned: its status stands
+            signum = signum or signal.SIGINT
+            os.write(2, b"rigtool: interrupted\n" if signum == signal.SIGINT
+                     else f"rigtool: stopped by {signal.Signals(signum).name}\n".encode())
+            status = EXIT_INTERRUPTED if signum == signal.SIGINT else EXIT_FAILED
     sys.exit(status)

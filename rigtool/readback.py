@@ -138,9 +138,10 @@ class _Anything(Shape):
                                                    else item))
 
 
-_KINDS = {"string": (str,), "integer": (int,), "number": (int, float),
-          "scalar": (str, int, float, bool)}
+_KINDS = {"string": (str,), "integer": (int,), "number": (int, float), "finite": (int, float),
+          "positive": (int, float), "scalar": (str, int, float, bool)}
 _NAMES = {"string": "a string", "integer": "an integer", "number": "a number",
+          "finite": "a finite number", "positive": "a finite number above 0",
           "scalar": "a string or number"}
 
 
@@ -157,6 +158,9 @@ class _Scalar(Shape):
             raise Invalid(f"expected {_NAMES[self.kind]}, found {show(value)}")
         if isinstance(value, int) and not -INT64 <= value < INT64:
             raise Invalid(f"integer {show(value)} is out of range")
+        if self.kind in ("finite", "positive") and not math.isfinite(value) or (
+                self.kind == "positive" and not value > 0):
+            raise Invalid(f"expected {_NAMES[self.kind]}, found {show(value)}")
 
 
 @dataclass(frozen=True)
@@ -253,19 +257,22 @@ ANY = _Anything()
 STR = _Scalar("string")
 INT = _Scalar("integer")
 NUM = _Scalar("number")
+FINITE = _Scalar("finite")  # NaN and Infinity are JSON to json.loads, never written here
+POSITIVE = _Scalar("positive")
 SCALAR = _Scalar("scalar")
 
 # What the readers of stored runs use (report, analysis, show, export, resume).
-METADATA = Obj({"thruster_id": Opt(SCALAR), "propeller_diameter_m": Opt(NUM),
-                "water_density_kg_m3": Opt(NUM), "extra": Opt(MapOf(ANY))})
+METADATA = Obj({"thruster_id": Opt(SCALAR), "propeller_diameter_m": Opt(POSITIVE),
+                "water_density_kg_m3": Opt(POSITIVE), "extra": Opt(MapOf(ANY))})
 PROTOCOL = Obj({"name": Opt(STR), "description": Opt(STR), "metadata": Opt(METADATA),
                 "command": Opt(Obj({"unit": Opt(STR), "neutral": Opt(NUM)}))})
 AXIS = Obj({"channel": Opt(SCALAR), "sign": Opt(SCALAR)})
 RIG = Obj({"name": Opt(STR), "thrust": Opt(AXIS),
            "resolved": Opt(Obj({"kind": Opt(STR), "profile": Opt(SCALAR), "thrust": Opt(AXIS)}))})
-PLAN = ListOf(Obj({"idx": INT, "command": NUM, "depth_m": Opt(NUM), "repeat": INT,
-                   "direction": STR, "voltage_v": Opt(NUM)}))
-ACTUATOR = Obj({"command_unit": STR, "neutral": NUM, "command_min": NUM, "command_max": NUM,
+PLAN = ListOf(Obj({"idx": INT, "command": FINITE, "depth_m": Opt(FINITE), "repeat": INT,
+                   "direction": STR, "voltage_v": Opt(FINITE)}))
+ACTUATOR = Obj({"command_unit": STR, "neutral": FINITE, "command_min": FINITE,
+                "command_max": FINITE,
                 "feedback": Opt(ListOf(STR))},
                required=("command_unit", "neutral", "command_min", "command_max"))
 COUNTERS = MapOf(MapOf(NUM))
@@ -333,7 +340,9 @@ class Column:
             name = "an integer" if kind is int else "a number"
             raise Invalid(f"expected {name}, found {show(value)}")
         if isinstance(value, float) and math.isnan(value) or self.finite and not math.isfinite(
-                value) or not self.lo <= value <= self.hi:
+                value):
+            raise Invalid(f"{show(value)} is not a finite number")
+        if not self.lo <= value <= self.hi:
             raise Invalid(f"{show(value)} is outside {self.lo:g} .. {self.hi:g}")
         return value
 
@@ -405,7 +414,7 @@ STEP_COLUMNS: dict[str, Column] = {
     "voltage_v": Column("real", null=True, finite=True),
 }
 EVENT_COLUMNS: dict[str, Column] = {
-    "id": _ROWID, "run_id": _text(MAX_ID_TEXT), "t_s": Column("real", null=True),
+    "id": _ROWID, "run_id": _text(MAX_ID_TEXT), "t_s": Column("real", null=True, finite=True),
     "kind": _text(MAX_ID_TEXT), "step_idx": Column("int", null=True, lo=-INT64, hi=INT64 - 1),
     "detail_json": _json(EVENT_DETAIL),
 }

@@ -170,6 +170,15 @@ FIELDS = {
                                  ("show", "export", "calibrate"), "point 2, steps.command"),
     "an infinite point summary": ([_sql("UPDATE steps SET thrust_n_max = 9e999 WHERE idx = 1")],
                                   ("show", "export"), "point 1, steps.thrust_n_max"),
+    "an infinite event time": ([_sql("UPDATE events SET t_s = 9e999")], ("show", "export"),
+                               "events.t_s"),
+    "Infinity in metadata_json": ([_sql(
+        "UPDATE runs SET metadata_json = '{\"propeller_diameter_m\": Infinity}'")],
+        ("show", "calibrate"), "propeller_diameter_m"),
+    "NaN in actuator_json": ([_sql(
+        "UPDATE runs SET actuator_json = '{\"command_unit\": \"percent\", \"neutral\": NaN, "
+        "\"command_min\": -100, \"command_max\": 100}'")], ("calibrate", "export"),
+        "runs.actuator_json"),
     "a blob in a numeric column": ([_sql("UPDATE steps SET t_end_s = X'00' WHERE idx = 0")],
                                    ("report",), "steps.t_end_s"),
     "garbage protocol_json": ([_sql("UPDATE runs SET protocol_json = 'not json'")],
@@ -270,6 +279,10 @@ SOURCES = {
     "text in a numeric column": ([_sql("UPDATE steps SET rate_hz = 'fast'")], "steps.rate_hz"),
     "an infinite point summary": ([_sql("UPDATE steps SET current_a_mean = -9e999")],
                                   "steps.current_a_mean"),
+    "an infinite event time": ([_sql("UPDATE events SET t_s = -9e999")], "events.t_s"),
+    "Infinity in a plan": ([_sql("UPDATE runs SET plan_json = replace(plan_json, "
+                                 "'\"command\": -100.0', '\"command\": Infinity')")],
+                           "runs.plan_json"),
     "a 400 MB blob": ([*QUICK_WRITE, _sql(f"UPDATE sample_blocks SET seq = zeroblob(400000000) "
                                           f"WHERE id = {FIRST_BLOCK}")], "sample_blocks.seq"),
 }

@@ -24,6 +24,28 @@ from rigtool.launch import run
 run()
 """
 
+# What pydantic-core and matplotlib do when a signal's exception breaks their import: raise
+# another error from it.
+BROKEN_IMPORT = """
+import importlib.abc, os, signal, sys
+
+class Interrupt(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == "rigtool.cli":
+            try:
+                os.kill(os.getpid(), signal.{sig})
+                for _ in range(1000):
+                    pass
+            except KeyboardInterrupt as exc:
+                raise RuntimeError("Error building validator") from exc
+        return None
+
+sys.meta_path.insert(0, Interrupt())
+sys.argv = ["rigtool", "runs"]
+from rigtool.launch import run
+run()
+"""
+
 AFTER_THE_RUN = """
 import os, signal, sys
 import rigtool.cli
@@ -69,3 +91,11 @@ def test_a_signal_after_the_run_ended_keeps_the_runs_exit_status(tmp_path):
         assert proc.returncode == 0, (sig, proc.returncode, proc.stderr)
         assert "returned" in proc.stdout and "Traceback" not in proc.stderr
         assert f"{sig} while closing: the run has ended" in proc.stderr
+
+
+def test_a_stop_that_broke_an_import_ends_as_that_stop(tmp_path):
+    for sig, status, words in (("SIGTERM", EXIT_FAILED, "stopped by SIGTERM"),
+                               ("SIGINT", EXIT_INTERRUPTED, "rigtool: interrupted")):
+        proc = _python(BROKEN_IMPORT.format(sig=sig), tmp_path)
+        assert proc.returncode == status, (sig, proc.stderr)
+        assert "Traceback" not in proc.stderr and words in proc.stderr

@@ -5,8 +5,7 @@ from __future__ import annotations
 import contextlib
 import signal
 
-from rigtool.cli.console import err
-from rigtool.stopping import Stopped, mark_ended
+from rigtool.stopping import mark_ended, note_closing, stop
 
 
 @contextlib.contextmanager
@@ -17,10 +16,9 @@ def closing_signals(reporter: object):
     `rigtool` command, until the process has exited: rigtool.launch)."""
     def _on_signal(signum: int, frame: object) -> None:
         if getattr(reporter, "finished", False):
-            err.print(f"rigtool: {signal.Signals(signum).name} while closing: the run has "
-                      "ended; finishing")
+            note_closing(signum)
             return
-        raise Stopped(signum)
+        stop(signum)
 
     sigs = [s for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
             if signal.getsignal(s) is not signal.SIG_IGN]
@@ -39,7 +37,7 @@ def stop_on_signals():
     """Turn SIGTERM/SIGHUP into KeyboardInterrupt (`Stopped`, which names the signal, so the
     command exits 1 as for a sweep, not Ctrl-C's 130) so `finally` blocks (neutral) still run."""
     def _raise(signum, frame):
-        raise Stopped(signum)
+        stop(signum)
 
     old = {sig: signal.signal(sig, _raise) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:
