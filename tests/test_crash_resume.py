@@ -184,3 +184,21 @@ def test_last_is_the_resumed_run(write_yaml, tmp_path, capsys):
     capsys.readouterr()
     assert main(["show", "last", "--db", str(db)]) == 0
     assert f"run {older}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("edit", [
+    "json_set(protocol_json, '$.timing.acquire.samples', json('true'))",
+    "json_set(protocol_json, '$.timing.rest_s', json('true'))",
+])
+def test_resume_refuses_true_where_a_number_was_stored(write_yaml, tmp_path, capsys, edit):
+    """A stored protocol is read as a protocol file is: `samples: true` is not one sample."""
+    db = tmp_path / "b.sqlite"
+    assert main(["sweep", str(write_yaml(SMALL_PROTOCOL)), "--sim", "--db", str(db)]) == 0
+    run_id = _cut_last_point(db)
+    with sqlite3.connect(db) as con:
+        con.execute(f"UPDATE runs SET protocol_json = {edit} WHERE id = ?", (run_id,))
+    con.close()
+    capsys.readouterr()
+    assert main(["sweep", "--resume", run_id, "--db", str(db)]) == 2
+    assert "holds true/false" in capsys.readouterr().err
+    assert len(Store(db, read_only=True).steps(run_id)) == 3
