@@ -41,14 +41,19 @@ def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> li
         store.check_run(run_id)  # a damaged run is refused before any file is written
         out_dir.mkdir(parents=True, exist_ok=True)
         record = store.run_record(run_id)
-        for table in TABLES:
-            path = inside(out_dir, f"{run_id}-{table}.{fmt}")
-            chunks = _table(store, record, table)
-            if fmt == "csv":
-                atomic_write(path, lambda p, chunks=chunks: _write_csv(p, chunks))
-            else:
-                atomic_write(path, lambda p, chunks=chunks: _write_parquet(p, chunks, record))
-            written.append(path)
+        try:
+            for table in TABLES:
+                path = inside(out_dir, f"{run_id}-{table}.{fmt}")
+                chunks = _table(store, record, table)
+                if fmt == "csv":
+                    atomic_write(path, lambda p, chunks=chunks: _write_csv(p, chunks))
+                else:
+                    atomic_write(path, lambda p, chunks=chunks: _write_parquet(p, chunks, record))
+                written.append(path)
+        except BaseException:  # a bad sample found late, or a stop: no export in part
+            for path in written:
+                path.unlink(missing_ok=True)
+            raise
     return written
 
 

@@ -166,6 +166,15 @@ FIELDS = {
                                    ("calibrate",), "sample_blocks.thrust_n"),
     "text in a blob column": ([_sql("UPDATE sample_blocks SET t_s = 'abc'")], ("export",),
                               "sample_blocks.t_s"),
+    "an infinite sample": ([_sql(f"UPDATE sample_blocks SET thrust_n = CAST(X'000000000000F07F' "
+                                 f"|| substr(thrust_n, 9) AS BLOB) WHERE id = {FIRST_BLOCK}")],
+                           ("export", "calibrate"), "column thrust_n holds a sample of inf"),
+    "a 1e308 sample": ([_sql(f"UPDATE sample_blocks SET current_a = CAST(X'FFFFFFFFFFFFDF7F' "
+                             f"|| substr(current_a, 9) AS BLOB) WHERE id = {FIRST_BLOCK}")],
+                       ("export", "calibrate"), "column current_a"),
+    "a NaN time": ([_sql(f"UPDATE sample_blocks SET t_s = CAST(X'000000000000F87F' || substr(t_s, 9) "
+                         f"AS BLOB) WHERE id = {FIRST_BLOCK}")], ("calibrate", "report"),
+                   "column t_s holds a sample of nan"),
     "text in a numeric column": ([_sql("UPDATE steps SET command = 'abc' WHERE idx = 2")],
                                  ("show", "export", "calibrate"), "point 2, steps.command"),
     "an infinite point summary": ([_sql("UPDATE steps SET thrust_n_max = 9e999 WHERE idx = 1")],

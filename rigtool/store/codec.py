@@ -20,6 +20,7 @@ SAMPLE_COLUMNS = (
 INT_SAMPLE_COLUMNS = ("step_idx", "seq")
 MISSING_INT = -1  # an integer column's value where the store has none (seq of old runs)
 BLOB_DTYPE = np.dtype("<f8")
+MAX_SAMPLE = 1e15  # |any stored sample|: far beyond any reading, exact for integer counters
 
 
 def encode(values: np.ndarray | None) -> bytes | None:
@@ -38,7 +39,8 @@ def block_row(step_id: int, chunk: int, columns: dict[str, np.ndarray | None]) -
 
 def decode(blob: bytes | None, n: int, column: str, path: Path) -> np.ndarray:
     """One stored column block as float64 (an absent channel: NaN), its count and size
-    checked before anything is allocated; `path` is the run database a DataError names."""
+    checked before anything is allocated, its values after (a crafted inf or 1e308 would
+    reach the fits); `path` is the run database a DataError names."""
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= SAMPLES_PER_CHUNK:
         raise DataError(f"run database {path}: a block of column {column} claims "
                         f"{show(n)} samples (0 .. {SAMPLES_PER_CHUNK:,} allowed); the file "
@@ -48,7 +50,15 @@ def decode(blob: bytes | None, n: int, column: str, path: Path) -> np.ndarray:
     if not isinstance(blob, bytes) or len(blob) != n * BLOB_DTYPE.itemsize:
         raise DataError(f"run database {path}: a block of column {column} holds "
                         f"{show(blob)} for {n} samples; the file is damaged")
-    return np.frombuffer(blob, dtype=BLOB_DTYPE)
+    values = np.frombuffer(blob, dtype=BLOB_DTYPE)
+    magnitude = np.abs(values)  # NaN is a missing value, except in t_s
+    bad = ~(magnitude <= MAX_SAMPLE) if column == "t_s" else magnitude > MAX_SAMPLE
+    if bad.any():
+        raise DataError(f"run database {path}: a block of column {column} holds a sample of "
+                        f"{show(float(values[np.argmax(bad)]))} (finite, within "
+                        f"+-{MAX_SAMPLE:g}{', never NaN' if column == 't_s' else ''}); the "
+                        "file is damaged")
+    return values
 
 
 def decode_blocks(blocks: list[tuple], cols: list[str], path: Path) -> dict[str, np.ndarray]:
