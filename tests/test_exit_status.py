@@ -139,9 +139,10 @@ def test_unconfirmed_neutral_after_an_error_exits_3(write_yaml, db_path, monkeyp
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_after_the_run_ended_leaves_the_exit_status_the_runs(write_yaml, db_path,
-                                                                     monkeypatch, capsys, sig):
+                                                                     monkeypatch, capfd, sig):
     """After an attack: a second signal while the rig closed and the outcome printed killed
-    the process (-15, -2). It is noted, and the status stays the run's (0 here)."""
+    the process (-15, -2). It is noted (on file descriptor 2: a handler must not print
+    through the console it may have interrupted), and the status stays the run's (0 here)."""
     from rigtool.cli import sweep
 
     report = sweep._report_outcome
@@ -152,7 +153,7 @@ def test_a_signal_after_the_run_ended_leaves_the_exit_status_the_runs(write_yaml
 
     monkeypatch.setattr(sweep, "_report_outcome", signalled)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 0
-    assert "while closing" in capsys.readouterr().err
+    assert "while closing" in capfd.readouterr().err
 
 
 def test_sigterm_before_the_run_starts_exits_1(write_yaml, db_path, monkeypatch, capsys):
