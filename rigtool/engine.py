@@ -396,7 +396,8 @@ class Engine:
             except Exception:  # noqa: BLE001 - the run is ending; an unread actuator proves nothing
                 return None
             speeds = fb.speed_rpm if fb.speed_rpm is not None else np.empty(0)
-            fresh = speeds[(fb.t_s >= t_sent) & np.isfinite(speeds)]
+            # a reading stamped at the instant neutral was sent was taken before it took effect
+            fresh = speeds[(fb.t_s > t_sent) & np.isfinite(speeds)]
             for speed in np.abs(fresh):
                 first = speed if first is None else first
                 if speed <= NEUTRAL_SPEED_RPM or speed <= NEUTRAL_FALL_FRAC * first:
