@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import signal
 import socket
 import sqlite3
 import sys
@@ -311,7 +312,24 @@ def run_sweep(setup: SweepSetup, store: Store, reporter=None,
             tool_version=__version__,
             actuator=dataclasses.asdict(rigset.actuator.info),
         )
-        engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter, confirm)
-        return engine.run()
+        try:
+            engine = Engine(setup.protocol, setup.plan, rigset, store, run_id, reporter, confirm)
+            return engine.run()
+        except BaseException as exc:  # before the engine took the run over: close it here
+            _close_unstarted(store, run_id, exc)
+            raise
     finally:
         rigset.close()
+
+
+def _close_unstarted(store: Store, run_id: str, exc: BaseException) -> None:
+    """Record how a run ended that a signal or an error stopped before the engine's own
+    handling began (it would stay `running`); the devices close with neutral after this."""
+    if store.run(run_id)["status"] != "running":
+        return
+    if isinstance(exc, KeyboardInterrupt):
+        name = getattr(exc, "signum", None)
+        why = f"stopped by {signal.Signals(name).name}" if name else "stopped by the operator"
+        store.finish_run(run_id, "aborted", f"{why} before the first point")
+    else:
+        store.finish_run(run_id, "failed", f"{type(exc).__name__} before the first point")

@@ -170,3 +170,25 @@ def test_sigterm_before_the_run_starts_exits_1(write_yaml, db_path, monkeypatch,
     monkeypatch.setattr(sweep, "open_checked", slow_open)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 1
     assert "stopped by SIGTERM" in capsys.readouterr().err
+
+
+def test_sigterm_just_after_the_run_was_created_closes_it(write_yaml, db_path, monkeypatch,
+                                                          capsys):
+    """A SIGTERM between the run's creation and the engine's own handling left the run
+    `running` with no reason (an attack's timed signal): it is stored `aborted`, saying why."""
+    from rigtool import sweep
+
+    engine = sweep.Engine
+
+    def signalled(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return engine(*args, **kwargs)
+
+    monkeypatch.setattr(sweep, "Engine", signalled)
+    assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 1
+    assert "stopped by SIGTERM" in capsys.readouterr().err
+    with Store(db_path, read_only=True) as store:
+        (listed,) = store.runs()
+        run = store.run(listed["id"])
+        assert (run["status"], run["stop_reason"]) == (
+            "aborted", "stopped by SIGTERM before the first point")
