@@ -80,3 +80,20 @@ def test_two_sweeps_on_one_database_both_complete(write_yaml, db_path):
     runs = store.runs()
     assert len(runs) == 2 and {r["status"] for r in runs} == {"completed"}
     assert all(len(store.steps(r["id"])) == 4 for r in runs)
+
+
+def test_a_transaction_a_signal_left_open_does_not_block_the_runs_end(write_yaml, db_path):
+    """A SIGTERM between BEGIN and the block that writes a point left the transaction open;
+    the run's end then failed ('cannot start a transaction within a transaction') and the run
+    stayed `running`. The leftover is rolled back: its half-written point is not kept."""
+    assert main(["sweep", str(write_yaml(SMALL_PROTOCOL)), "--sim", "--db", str(db_path)]) == 0
+    store = Store(db_path)
+    run_id = store.resolve_run_id("last")
+    name = store.run(run_id)["name"]
+    store.conn.execute("BEGIN IMMEDIATE")  # as the interrupted write left it
+    store.conn.execute("UPDATE runs SET name = 'half-written' WHERE id = ?", (run_id,))
+    store.finish_run(run_id, "aborted", "stopped by SIGTERM")
+    store.close()
+    with Store(db_path, read_only=True) as again:
+        run = again.run(run_id)
+        assert (run["status"], run["name"]) == ("aborted", name)

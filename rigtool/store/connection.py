@@ -87,11 +87,17 @@ class Transaction:
         return StoreError(f"run database {self.path}: {text}; nothing already committed is lost")
 
     def __enter__(self) -> sqlite3.Connection:
+        if self.conn.in_transaction:  # left open by a signal between BEGIN and the with block
+            self.conn.execute("ROLLBACK")  # (nothing nests transactions): its writes are not kept
         try:
             self.conn.execute("BEGIN IMMEDIATE")
+            return self.conn
         except sqlite3.OperationalError as exc:
             raise self._explain(exc) from exc
-        return self.conn
+        except BaseException:
+            if self.conn.in_transaction:
+                self.conn.execute("ROLLBACK")
+            raise
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
