@@ -188,11 +188,15 @@ def _child(value: Any, key: Any) -> Any:
     return _GONE
 
 
-def coerced_booleans(data: Any, value: Any, loc: Loc = ()) -> list[Loc]:
-    """Where the file says true/false and the validated model holds something else: pydantic's
-    lax mode reads `true` as 1, so `step: true` would sweep in steps of one."""
+def coerced_values(data: Any, value: Any, loc: Loc = ()) -> list[Loc]:
+    """Where the file's value is not the kind the model kept: true/false where the model holds
+    something else (pydantic's lax mode reads `true` as 1, so `step: true` would sweep in steps
+    of one), or a quoted text where it holds a number ('10')."""
     if isinstance(data, bool):
         return [] if value is _GONE or isinstance(value, bool) else [loc]
+    if isinstance(data, str):
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        return [loc] if number else []
     if isinstance(data, dict):
         items = data.items()
     elif isinstance(data, list):
@@ -200,13 +204,22 @@ def coerced_booleans(data: Any, value: Any, loc: Loc = ()) -> list[Loc]:
     else:
         return []
     return [bad for key, item in items
-            for bad in coerced_booleans(item, _child(value, key), (*loc, key))]
+            for bad in coerced_values(item, _child(value, key), (*loc, key))]
+
+
+def coerced_problem(raw: Any) -> str:
+    """What is wrong with a value coerced_values found."""
+    if isinstance(raw, bool):
+        return (f"{str(raw).lower()} is not a value of this field (true/false, yes/no and on/off "
+                "only fit yes/no fields; write a number or name)")
+    return f"{raw!r} is text where a number belongs (write the number without quotes)"
 
 
 def load_model(path: Path, model: type[M], context: dict | None = None) -> tuple[M, dict]:
     """Read `path` and validate it as `model`; return the model and the raw data.
 
-    true/false are refused wherever the model wants something else (a number, a name)."""
+    true/false are refused wherever the model wants something else (a number, a name), and
+    quoted numbers wherever it wants a number: the file says what it means."""
     data, lines = read_yaml(path)
     if not isinstance(data, dict):
         raise ConfigError([f"{path}:1: expected a mapping of fields at the top level"])
@@ -214,12 +227,11 @@ def load_model(path: Path, model: type[M], context: dict | None = None) -> tuple
         checked = model.model_validate(data, context=context)
     except ValidationError as exc:
         raise ConfigError(format_validation_error(path, exc, data, lines)) from None
-    coerced = coerced_booleans(data, checked)
+    coerced = coerced_values(data, checked)
     if coerced:
         raise ConfigError([
             f"{path}:{_line_for(loc, lines) or '?'}: {'.'.join(str(p) for p in loc)}: "
-            f"{str(_at(data, loc)).lower()} is not a value of this field (true/false only fit "
-            f"yes/no fields; write a number or name)" for loc in coerced])
+            f"{coerced_problem(_at(data, loc))}" for loc in coerced])
     return checked, data
 
 

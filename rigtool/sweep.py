@@ -15,7 +15,7 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from rigtool.bounds import MAX_RUN_S, MAX_SEED
-from rigtool.config import coerced_booleans, locate
+from rigtool.config import coerced_values, locate
 from rigtool.dbpath import DB_ENV, resolve_db_path
 from rigtool.devices.base import ActuatorInfo
 from rigtool.engine import Engine, Outcome
@@ -230,10 +230,10 @@ def resolve_resume(store: Store, run_ref: str,
     coerced = [f"{what}.{'.'.join(map(str, loc))}"
                for what, data, model in (("protocol", run["protocol"], protocol),
                                          ("rig", rig_data, stored))
-               for loc in coerced_booleans(data, model)]
+               for loc in coerced_values(data, model)]
     if coerced:
         raise UsageError(f"run {run_id}: its stored {', '.join(coerced[:5])} holds true/false "
-                         "where a number or name belongs; cannot resume")
+                         "or text where a number or name belongs; cannot resume")
     if rig is not None and _rig_kind(rig) != _rig_kind(stored):
         raise UsageError(f"run {run_id} was recorded on rig {stored.name!r}; the rig given to "
                          "--resume must have the same drivers, thrust axis and mount (only "

@@ -73,6 +73,8 @@ HOSTILE = {
     "bool-override": ({"simulator__overrides": {"cp_forward": True}},
                       "simulator.overrides.cp_forward"),
     "bool-depth": ({"depth__values": [1.0, True]}, "depth.values.1"),
+    "quoted-samples": ({"timing__acquire__samples": "1000"}, "timing.acquire.samples"),
+    "quoted-seed": ({"simulator__seed": "7"}, "simulator.seed"),
     # characters that print as nothing: two ids would read alike in the files they name
     "control-thruster-id": ({"metadata__thruster_id": "de\x07mo"}, "metadata.thruster_id"),
     "rtl-override-name": ({"name": "demo\u202eomed"}, "name"),
