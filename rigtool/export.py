@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
 from rigtool.artefacts.encode import csv_safe_text
-from rigtool.artefacts.write import atomic_write
 from rigtool.errors import UsageError
 from rigtool.outpaths import inside
 from rigtool.store import MISSING_INT, RunRecord, Store
@@ -41,18 +41,22 @@ def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> li
         store.check_run(run_id)  # a damaged run is refused before any file is written
         out_dir.mkdir(parents=True, exist_ok=True)
         record = store.run_record(run_id)
+        staged = {}  # every table beside its file first: an earlier export stays whole
         try:
             for table in TABLES:
                 path = inside(out_dir, f"{run_id}-{table}.{fmt}")
+                staged[path] = tmp = path.with_name(path.name + ".tmp")
                 chunks = _table(store, record, table)
                 if fmt == "csv":
-                    atomic_write(path, lambda p, chunks=chunks: _write_csv(p, chunks))
+                    _write_csv(tmp, chunks)
                 else:
-                    atomic_write(path, lambda p, chunks=chunks: _write_parquet(p, chunks, record))
+                    _write_parquet(tmp, chunks, record)
+            for path, tmp in staged.items():
+                os.replace(tmp, path)
                 written.append(path)
         except BaseException:  # a bad sample found late, or a stop: no export in part
-            for path in written:
-                path.unlink(missing_ok=True)
+            for tmp in staged.values():
+                tmp.unlink(missing_ok=True)
             raise
     return written
 

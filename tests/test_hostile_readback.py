@@ -236,6 +236,22 @@ def test_crafted_fields_end_in_exit_2(base, tmp_path, case):
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*.*"))
 
 
+def test_a_refused_export_leaves_an_earlier_export_whole(base, tmp_path):
+    """The tables are staged and renamed together: a bad sample found in the second table no
+    longer deletes the first table's file of an earlier, complete export."""
+    db = shutil.copyfile(base.db, tmp_path / "good.sqlite")
+    out = tmp_path / "out"
+    assert run_cli("export", base.run_id, "--db", db, "--out", out, cwd=tmp_path).returncode == 0
+    before = {p.name: _digest(p) for p in out.iterdir()}
+    assert len(before) == 3
+    bad = _crafted(db, tmp_path / "bad.sqlite", _sql(
+        f"UPDATE sample_blocks SET thrust_n = CAST(X'000000000000F07F' || substr(thrust_n, 9) "
+        f"AS BLOB) WHERE id = {FIRST_BLOCK}"))
+    line, _ = _cli(tmp_path, "export", base.run_id, "--db", bad, "--out", out)
+    assert "thrust_n" in line
+    assert {p.name: _digest(p) for p in out.iterdir()} == before
+
+
 def test_export_cal_never_takes_a_folder_from_the_state_blob(base, tmp_path):
     """A state blob whose calibration names another run: refused, nothing written anywhere."""
     blob = _state_of_run(base.db, "../../evil")
