@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 import signal
 
-_ended = False  # a sweep of this process has ended: its exit status is settled
+_ended = False  # the run or the command has ended: its exit status is settled
 _requested: int | None = None  # the first signal that stopped the command
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import signal
@@ -324,12 +325,14 @@ def run_sweep(setup: SweepSetup, store: Store, reporter=None,
 
 def _close_unstarted(store: Store, run_id: str, exc: BaseException) -> None:
     """Record how a run ended that a signal or an error stopped before the engine's own
-    handling began (it would stay `running`); the devices close with neutral after this."""
-    if store.run(run_id)["status"] != "running":
-        return
-    if isinstance(exc, KeyboardInterrupt):
-        name = getattr(exc, "signum", None)
-        why = f"stopped by {signal.Signals(name).name}" if name else "stopped by the operator"
-        store.finish_run(run_id, "aborted", f"{why} before the first point")
-    else:
-        store.finish_run(run_id, "failed", f"{type(exc).__name__} before the first point")
+    handling began (it would stay `running`); the devices close with neutral after this. A
+    store that fails here leaves the first error to be reported."""
+    with contextlib.suppress(Exception):
+        if store.run(run_id)["status"] != "running":
+            return
+        if isinstance(exc, KeyboardInterrupt):
+            name = getattr(exc, "signum", None)
+            why = f"stopped by {signal.Signals(name).name}" if name else "stopped by the operator"
+            store.finish_run(run_id, "aborted", f"{why} before the first point")
+        else:
+            store.finish_run(run_id, "failed", f"{type(exc).__name__} before the first point")
