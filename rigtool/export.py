@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
 from rigtool.artefacts.encode import csv_safe_text
+from rigtool.artefacts.write import write_all
 from rigtool.errors import UsageError
 from rigtool.outpaths import inside
 from rigtool.store import MISSING_INT, RunRecord, Store
@@ -36,29 +36,17 @@ def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> li
     """Write <run>-points, <run>-samples and <run>-events files into `out_dir`; return them."""
     if fmt not in FORMATS:
         raise UsageError(f"unknown export format {fmt!r}; choose {' or '.join(FORMATS)}")
-    written = []
     with store.snapshot():  # points, samples and events of one moment, even mid-sweep
         store.check_run(run_id)  # a damaged run is refused before any file is written
         out_dir.mkdir(parents=True, exist_ok=True)
         record = store.run_record(run_id)
-        staged = {}  # every table beside its file first: an earlier export stays whole
-        try:
-            for table in TABLES:
-                path = inside(out_dir, f"{run_id}-{table}.{fmt}")
-                staged[path] = tmp = path.with_name(path.name + ".tmp")
-                chunks = _table(store, record, table)
-                if fmt == "csv":
-                    _write_csv(tmp, chunks)
-                else:
-                    _write_parquet(tmp, chunks, record)
-            for path, tmp in staged.items():
-                os.replace(tmp, path)
-                written.append(path)
-        except BaseException:  # a bad sample found late, or a stop: no export in part
-            for tmp in staged.values():
-                tmp.unlink(missing_ok=True)
-            raise
-    return written
+        writer = _write_csv if fmt == "csv" else (
+            lambda path, chunks: _write_parquet(path, chunks, record))
+        # all tables or none: a bad sample found late, or a stop, leaves an earlier export whole
+        return write_all({
+            inside(out_dir, f"{run_id}-{table}.{fmt}"):
+                lambda path, table=table: writer(path, _table(store, record, table))
+            for table in TABLES})
 
 
 def _table(store: Store, record: RunRecord, table: str) -> Iterator[Chunk]:

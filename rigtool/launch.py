@@ -12,7 +12,6 @@ import signal
 import sys
 
 from rigtool import stopping
-from rigtool.errors import EXIT_FAILED, EXIT_INTERRUPTED
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -43,8 +42,6 @@ def run() -> None:
                 exc, KeyboardInterrupt):
             raise
         if status is None:  # else the command had returned: its status stands
-            signum = signum or signal.SIGINT
-            os.write(2, b"rigtool: interrupted\n" if signum == signal.SIGINT
-                     else f"rigtool: stopped by {signal.Signals(signum).name}\n".encode())
-            status = EXIT_INTERRUPTED if signum == signal.SIGINT else EXIT_FAILED
+            line, status = stopping.ending(signum or signal.SIGINT)
+            os.write(2, f"{line}\n".encode())
     sys.exit(status)

@@ -11,6 +11,8 @@ from __future__ import annotations
 import os
 import signal
 
+from rigtool.errors import EXIT_FAILED, EXIT_INTERRUPTED
+
 _ended = False  # the run or the command has ended: its exit status is settled
 _requested: int | None = None  # the first signal that stopped the command
 
@@ -22,6 +24,14 @@ class Stopped(KeyboardInterrupt):
     def __init__(self, signum: int) -> None:
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
+
+
+def ending(signum: int) -> tuple[str, int]:
+    """The line a command stopped by `signum` prints, and its exit status: Ctrl-C 130, the
+    others 1 (docs/cli.md)."""
+    if signum == signal.SIGINT:
+        return "rigtool: interrupted", EXIT_INTERRUPTED
+    return f"rigtool: stopped by {signal.Signals(signum).name}", EXIT_FAILED
 
 
 def mark_ended() -> None:

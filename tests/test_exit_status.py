@@ -137,6 +137,17 @@ def test_unconfirmed_neutral_after_an_error_exits_3(write_yaml, db_path, monkeyp
     assert "Traceback" not in err
 
 
+def _signal_on_call(monkeypatch, module, name: str, sig: int) -> None:
+    """Make `module.name` send `sig` to this process before it does its work."""
+    original = getattr(module, name)
+
+    def signalled(*args, **kwargs):
+        os.kill(os.getpid(), sig)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, signalled)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_after_the_run_ended_leaves_the_exit_status_the_runs(write_yaml, db_path,
                                                                      monkeypatch, capfd, sig):
@@ -145,13 +156,7 @@ def test_a_signal_after_the_run_ended_leaves_the_exit_status_the_runs(write_yaml
     through the console it may have interrupted), and the status stays the run's (0 here)."""
     from rigtool.cli import sweep
 
-    report = sweep._report_outcome
-
-    def signalled(*args, **kwargs):
-        os.kill(os.getpid(), sig)
-        return report(*args, **kwargs)
-
-    monkeypatch.setattr(sweep, "_report_outcome", signalled)
+    _signal_on_call(monkeypatch, sweep, "_report_outcome", sig)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 0
     assert "while closing" in capfd.readouterr().err
 
@@ -161,13 +166,7 @@ def test_sigterm_before_the_run_starts_exits_1(write_yaml, db_path, monkeypatch,
     SIGTERM during a run does (it was killed by the signal: -15)."""
     from rigtool import sweep
 
-    opened = sweep.open_checked
-
-    def slow_open(*args, **kwargs):
-        os.kill(os.getpid(), signal.SIGTERM)
-        return opened(*args, **kwargs)
-
-    monkeypatch.setattr(sweep, "open_checked", slow_open)
+    _signal_on_call(monkeypatch, sweep, "open_checked", signal.SIGTERM)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 1
     assert "stopped by SIGTERM" in capsys.readouterr().err
 
@@ -178,13 +177,7 @@ def test_sigterm_just_after_the_run_was_created_closes_it(write_yaml, db_path, m
     `running` with no reason (an attack's timed signal): it is stored `aborted`, saying why."""
     from rigtool import sweep
 
-    engine = sweep.Engine
-
-    def signalled(*args, **kwargs):
-        os.kill(os.getpid(), signal.SIGTERM)
-        return engine(*args, **kwargs)
-
-    monkeypatch.setattr(sweep, "Engine", signalled)
+    _signal_on_call(monkeypatch, sweep, "Engine", signal.SIGTERM)
     assert _sweep(write_yaml, db_path, SMALL_PROTOCOL) == 1
     assert "stopped by SIGTERM" in capsys.readouterr().err
     with Store(db_path, read_only=True) as store:

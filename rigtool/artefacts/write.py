@@ -41,16 +41,21 @@ def atomic_write(path: Path, content: str | bytes | Callable[[Path], object]) ->
     return path
 
 
-def write_all(texts: dict[Path, str]) -> list[Path]:
-    """Write every text to its path or none: each goes to a temporary file beside its path
-    first, and only when all are written (and no path is a directory) are they renamed into
-    place; on a failure the temporary files are removed and the error raised."""
+def write_all(texts: dict[Path, str | Callable[[Path], object]]) -> list[Path]:
+    """Write every text (or what a function writes to the path it is given) to its path or
+    none: each goes to a temporary file beside its path first, and only when all are written
+    (and no path is a directory) are they renamed into place; on a failure or a stop the
+    temporary files are removed and the error raised, and files already there stay whole."""
     tmps = {path: path.with_name(path.name + ".tmp") for path in texts}
     try:
         for path, tmp in tmps.items():
             if path.is_dir():
                 raise IsADirectoryError(f"{path} is a directory")
-            tmp.write_text(texts[path], encoding="utf-8", newline="\n")
+            content = texts[path]
+            if isinstance(content, str):
+                tmp.write_text(content, encoding="utf-8", newline="\n")
+            else:
+                content(tmp)
     except BaseException:
         for tmp in tmps.values():
             tmp.unlink(missing_ok=True)

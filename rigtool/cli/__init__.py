@@ -9,7 +9,8 @@ from collections.abc import Sequence
 
 from rigtool.cli import calibrate, check, compare, export, importing, merge, runs, sim, sweep, watch
 from rigtool.cli.console import err
-from rigtool.errors import EXIT_FAILED, EXIT_INTERRUPTED, RigtoolError
+from rigtool.errors import EXIT_FAILED, RigtoolError
+from rigtool.stopping import ending
 from rigtool.version import __version__
 
 # In the order `rigtool --help` lists them.
@@ -39,7 +40,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         err.print(f"rigtool: error: {exc}")
         return EXIT_FAILED
     except KeyboardInterrupt as exc:
-        stopped_by = getattr(exc, "signum", signal.SIGINT)
-        err.print("rigtool: interrupted" if stopped_by == signal.SIGINT
-                  else f"rigtool: stopped by {signal.Signals(stopped_by).name}")
-        return EXIT_INTERRUPTED if stopped_by == signal.SIGINT else EXIT_FAILED
+        line, status = ending(getattr(exc, "signum", signal.SIGINT))
+        err.print(line)
+        return status
