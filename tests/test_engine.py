@@ -404,3 +404,25 @@ def test_feedback_limits_count_frames_not_held_samples(write_yaml, db_path, spik
     store, outcome = _run(setup, rigset, db_path)
     assert (outcome.status == "aborted") == trips
     assert bool(store.events(outcome.run_id, "limit_trip")) == trips
+
+
+@pytest.mark.parametrize(("after_s", "alarm"), [(0.0, False), (0.01, True)])
+def test_neutral_check_reads_only_feedback_taken_after_neutral(write_yaml, db_path, after_s,
+                                                               alarm):
+    """A speed reading stamped at the instant neutral was sent was taken before it: it made a
+    stopped twin run exit 3 ('may not be at neutral'). One stamped after it still counts."""
+    from rigtool.devices.base import FeedbackBlock
+
+    setup, rigset = _setup(write_yaml)
+    store = Store(db_path)
+    run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                              metadata={}, seed=1, command_unit="percent", tool_version="test")
+    engine = Engine(setup.protocol, setup.plan, rigset, store, run_id)
+    assert "speed_rpm" in rigset.actuator.info.feedback
+    now = rigset.clock.now()
+    rigset.actuator.inner.world.feedback.append(
+        FeedbackBlock(np.array([now + after_s]), speed_rpm=np.array([1060.0])))
+    problem = engine._spin_after_neutral()
+    assert (problem is not None) == alarm, problem
+    if alarm:
+        assert "still reads 1060 r/min" in problem
