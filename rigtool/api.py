@@ -287,6 +287,7 @@ class _Depth:
     curve_command: np.ndarray
     curve_thrust: np.ndarray
     lut: list[tuple[str, np.ndarray, np.ndarray]]  # (direction, thrust ascending, command)
+    thrust_law: dict[str, dict]  # per direction ("fwd"/"rev"): family and params
 
 
 class Calibration:
@@ -404,11 +405,21 @@ class Calibration:
 
     def thrust_from_speed(self, speed_rpm: Any, depth: float | None = None,
                           voltage: float | None = None) -> Any:
-        """Thrust (N) from propeller speed (r/min): f = C_p |n| n, C_p_fwd for n > 0 and
-        C_p_rev for n < 0 (NaN where that direction was not fitted)."""
-        coef = self._at(depth, voltage).coefficients
-        fwd, rev = (_value(coef, k) for k in ("C_p_fwd", "C_p_rev"))
-        return _like(speed_rpm, laws.thrust_from_speed(speed_rpm, fwd, rev))
+        """Thrust (N) from propeller speed (r/min) by the law calibrate chose per direction
+        (`thrust_law`: f = C_p n^2, C_p n^2 + C_l n or C n^k, signed like n), else
+        f = C_p |n| n with C_p_fwd for n > 0 and C_p_rev for n < 0 (NaN where that direction
+        was not fitted)."""
+        here = self._at(depth, voltage)
+        fwd, rev = (_value(here.coefficients, k) for k in ("C_p_fwd", "C_p_rev"))
+        n = np.asarray(speed_rpm, dtype=float)
+        out = laws.thrust_from_speed(n, fwd, rev)
+        for key, sign in (("fwd", 1.0), ("rev", -1.0)):
+            law = here.thrust_law.get(key)
+            if law is not None and law["family"] != "quadratic":
+                side = np.sign(n) == sign
+                out = np.where(side, sign * laws.thrust_law(law["family"], law["params"], n),
+                               out)
+        return _like(speed_rpm, out)
 
     def thrust_from_current(self, current_a: Any, direction: str = "forward",
                             depth: float | None = None, voltage: float | None = None) -> Any:
@@ -493,7 +504,8 @@ def _depth_from(doc: dict, curve: Columns, lut: Columns) -> _Depth:
         tables.append((direction, f[order_f], c[order_f]))
     coefficients = {name: _coefficient_value(name, c)
                     for name, c in (doc.get("coefficients") or {}).items()}
-    return _Depth(depth, volts, coefficients, cmd[ok], fit[ok], tables)
+    return _Depth(depth, volts, coefficients, cmd[ok], fit[ok], tables,
+                  dict(doc.get("thrust_law") or {}))
 
 
 def _coefficient_value(name: str, c: dict) -> Value:

@@ -443,13 +443,17 @@ DYNAMICS = Obj({"selected": STR, "models": MapOf(Opt(DYNAMICS_MODEL)),
                 "levels": ListOf(Obj({"command": NUM, "thrust_n": Opt(NUM)},
                                      required=("command", "thrust_n")))},
                required=("selected", "models", "levels"))
+THRUST_LAW_FAMILIES = {"quadratic": ("C_p",), "quadratic+linear": ("C_p", "C_l"),
+                       "power": ("C", "k")}  # as rigtool.analysis.thrust_law
+THRUST_LAW = Obj({"family": STR, "params": MapOf(NUM)}, required=("family", "params"))
 CALIBRATION_DOCUMENT = Obj({
     "format": STR, "format_version": INT,
     "source": Opt(Obj({"run_id": Opt(STR), "command_unit": Opt(STR),
                        "neutral_command": Opt(NUM)})),
     "warnings": Opt(ListOf(STR)),
     "depths": Opt(ListOf(Obj({"depth_m": Opt(NUM), "supply_voltage_v": Opt(NUM),
-                              "coefficients": Opt(MapOf(COEFFICIENT))}))),
+                              "coefficients": Opt(MapOf(COEFFICIENT)),
+                              "thrust_law": Opt(MapOf(THRUST_LAW))}))),
     "voltage_laws": Opt(ListOf(VOLTAGE_LAW)), "dynamics": Opt(DYNAMICS),
 }, required=("format",))
 
@@ -459,6 +463,12 @@ def calibration_document(document: Any) -> dict:
     CALIBRATION_DOCUMENT.check(document)
     if document["format"] != CALIBRATION_FORMAT:
         raise Invalid(f"format: {show(document['format'])} is not {CALIBRATION_FORMAT!r}")
+    for i, depth in enumerate(document.get("depths") or []):
+        for key, law in (depth.get("thrust_law") or {}).items():
+            need = THRUST_LAW_FAMILIES.get(law["family"])
+            if key not in ("fwd", "rev") or need is None or sorted(need) != sorted(law["params"]):
+                raise Invalid(f"depths[{i}].thrust_law.{show(key)}: not a known law with its "
+                              f"parameters ({show(law['family'])})")
     dynamics = document.get("dynamics")
     if dynamics is not None and dynamics["models"].get(dynamics["selected"]) is None:
         raise Invalid(f"dynamics.selected: no model {show(dynamics['selected'])} in "

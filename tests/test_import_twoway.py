@@ -70,9 +70,14 @@ def test_two_way_thruster_is_recovered(case: int, tmp_path: Path, capsys) -> Non
     for key, true in _truths(th):
         c = coef[key]
         assert abs(c["value"] / true - 1) < 0.02, (key, c["value"], true)
+        if _drift_hidden(case):
+            continue
         # Each 95 % interval must hold the truth at 99.9 %; the 95 % rate is checked below.
         half = (c["hi"] - c["lo"]) / 2 * Z_999 / Z_95
         assert abs(c["value"] - true) <= half, (key, c, true)
+    if _drift_hidden(case):
+        assert depth["zero"]["drift_design"].startswith("not estimable: one pass")
+        assert any(w.startswith("zero drift not estimable") for w in depth["warnings"])
     assert depth["speed_sign"] == ("measured" if th.signed else "inferred from command")
     assert not any("disagrees" in w for w in depth["warnings"])
     ((lo, hi),) = depth["command_curve"]["dead_zones"]
@@ -83,15 +88,24 @@ def test_two_way_thruster_is_recovered(case: int, tmp_path: Path, capsys) -> Non
         assert "zero_drift" not in coef  # no time column: no time axis to drift along
 
 
+def _drift_hidden(case: int) -> bool:
+    """The averaged step tables: one pass, one row per command, neutral once and no tare,
+    while the stand's zero drifts. No design there separates the drift from the law (issue
+    47), so none is fitted, the warning says so, and the drift the stand had stays in C_p."""
+    return CASES[case][0] == "steps"
+
+
 def test_95_percent_intervals_hold_the_truth_nearly_always(tmp_path_factory) -> None:
-    """Of the 20 C_p intervals at least 17 hold the truth (a 95 % rate fails this 1.6 % of
-    the time; intervals as narrow as those of the unweighted table fit, 85 %, 35 %)."""
+    """Of the 16 C_p intervals of designs that separate the drift or have none to separate
+    (no time column) at least 14 hold the truth (a 95 % rate fails this 4 % of the time)."""
     held = []
     for case in range(len(CASES)):
+        if _drift_hidden(case):
+            continue
         th, depth = _calibrate(case, tmp_path_factory.mktemp(f"case{case}"))
         held += [depth["coefficients"][k]["lo"] <= v <= depth["coefficients"][k]["hi"]
                  for k, v in _truths(th)]
-    assert sum(held) >= 17, held
+    assert len(held) == 16 and sum(held) >= 14, held
 
 
 def test_signed_speed_contradicting_the_thrust_is_named(tmp_path: Path, capsys) -> None:

@@ -10,10 +10,18 @@ import numpy as np
 from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, command_curve
 from rigtool.analysis.dataset import RunData, Tares, load_run
 from rigtool.analysis.depth_fits import (
+    STOPPED_FRAC,
     ModelFits,
     candidate_points,
     fit_models,
     speed_sign,
+)
+from rigtool.analysis.drift_design import (
+    DriftDesign,
+    drift_design,
+    neutral_zero,
+    reads_zero,
+    row_noise,
 )
 from rigtool.analysis.dynamics import Dynamics, StepSeries, identify, no_dynamics_reason
 from rigtool.analysis.efficiency import overall_efficiency
@@ -42,6 +50,7 @@ from rigtool.analysis.results import (
 )
 from rigtool.analysis.steady import PointTable
 from rigtool.analysis.voltage import fit_voltage_law, voltage_point
+from rigtool.analysis.zero_search import section_anchors
 from rigtool.store import Store
 from rigtool.version import __version__
 
@@ -162,7 +171,8 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
     direction = speed_sign(points, run.neutral_command, usable)
     points.speed_sign = direction.sign
     shallow = bool(np.isfinite(points.depth_m[0]) and points.depth_m[0] < p.deep_depth_m)
-    fixed_zero = None
+    design, design_zero = _drift_design(run, points, ok)
+    fixed_zero = None if shallow or design.estimable else design_zero
 
     def make_curve(zero: ZeroLine | None) -> CommandCurve | None:
         if run.command_unit not in CURVE_UNITS:
@@ -175,8 +185,16 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
             zero_scatter_n=drift.zero_scatter_n if drift else None,
             speed_se=points.speed.se[ok], params=p.curve, tare_t_s=run.tares.t_s,
             tare_drift=_drift_per_s(drift, _tare_sessions(run)),
-            sessions=run.session_starts_s)
+            sessions=run.session_starts_s, drifts=design.estimable,
+            sweep=None if run.step_response else points.direction[ok])
 
+    if not points.speed.measured:
+        # Without feedback the dead commands read the zero: find them first.
+        design = DriftDesign(True, "")
+        first = make_curve(None)
+        if first is not None:
+            design, design_zero = _drift_design(run, points, ok, first.is_dead(points.command))
+            fixed_zero = None if shallow or design.estimable else design_zero
     if shallow:
         # Points near the surface may be ventilating: the zero comes from dead points or tares.
         curve = make_curve(None)
@@ -189,7 +207,8 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
         samples.clear()
         return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
                           density_kg_m3=run.water_density_kg_m3, params=p.fit, zero=fixed_zero,
-                          direction=direction, sessions=run.session_starts_s)
+                          direction=direction, sessions=run.session_starts_s,
+                          drift=design.estimable)
 
     models = fit()
     if not shallow:
@@ -217,6 +236,8 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
     rep = repeatability(points.command[ok], points.direction[ok], points.repeat[ok], f[ok])
     depth = float(points.depth_m[0]) if np.isfinite(points.depth_m[0]) else None
     warnings = _section_warnings(points, models.coefficients, curve, zero, p) + models.warnings
+    if not design.estimable and not shallow:  # shallow: the zero is the tares' as ever
+        warnings.append(_design_warning(design, zero))
     if curve is not None:
         warnings += curve.warnings
     if zero is not None and zero.source.startswith("assumed"):
@@ -227,7 +248,53 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
                         "these coefficients include any thrust loss; the thruster's own "
                         "coefficients come from a deep run")
     return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep, warnings,
-                        models.speed_sign)
+                        models.speed_sign, drift_design=_design_text(design),
+                        thrust_law=models.thrust_law)
+
+
+def _drift_design(run: RunData, points: PointTable, ok: np.ndarray,
+                  dead: np.ndarray | None = None) -> tuple[DriftDesign, ZeroLine | None]:
+    """Whether this section's design separates a zero drift from the law, and the zero to use
+    where it does not: the neutral rows' mean (the points that read the zero: `dead`, else
+    stopped or at the neutral command), else 0 at the tare before the points (None: neither,
+    the fits then take one constant offset)."""
+    t = points.t_mid_s
+    ok = ok & np.isfinite(t) & np.isfinite(points.thrust.mean)
+    speed = points.speed.mean if points.speed.measured else np.full(len(points), np.nan)
+    zero_rows = ok & (reads_zero(points.command, speed, run.neutral_command, STOPPED_FRAC)
+                      if dead is None else dead)
+    tares = run.tares.t_s[np.isfinite(run.tares.t_s)]
+    anchors = section_anchors(tares, t[ok], None, run.session_starts_s)
+    if ok.any():
+        tares = np.concatenate([anchors.t_s, tares[(tares >= t[ok].min()) & (tares <= t[ok].max())]])
+    design = drift_design(t[ok], points.command[ok], zero_rows[ok], tares)
+    if ok.any() and occupied_starts(t[ok], run.session_starts_s):
+        return design, None  # each session keeps its own offset, fitted with the law
+    zero = neutral_zero(t[zero_rows], points.thrust.mean[zero_rows], points.thrust.se[zero_rows],
+                        row_noise(points.command[ok], points.thrust.mean[ok]))
+    if zero is None and anchors.t_s.size:
+        zero = ZeroLine(0.0, 0.0, float(anchors.t_s[-1]), "tare", ((0.0, 0.0), (0.0, 0.0)))
+    return design, zero
+
+
+def _design_text(design: DriftDesign) -> str:
+    """The design judgement as calibration.json records it."""
+    return ("estimated: " if design.estimable else "not estimable: ") + design.reason
+
+
+def _design_warning(design: DriftDesign, zero: ZeroLine | None) -> str:
+    """Where the design cannot separate a drift: what the zero is instead, and from where."""
+    if zero is None:
+        held = "no sensor zero could be read"
+    elif zero.source == "neutral rows":
+        held = (f"the zero is the mean of the neutral rows ({zero.offset_n:.4g} N) and no "
+                "measured thrust is moved by a drift")
+    elif zero.source == "model fit":
+        held = ("with no neutral row, the zero is one constant fitted with the law, and no "
+                "measured thrust is moved by a drift")
+    else:
+        held = f"the zero is constant, from the {zero.source}, and no drift is removed"
+    return f"zero drift not estimable: {design.reason}; {held}"
 
 
 def _drift_per_s(drift: TareDrift | None, sessions: int = 1) -> tuple[float, float] | None:

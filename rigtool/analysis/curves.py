@@ -16,6 +16,7 @@ and named in `CommandCurve.warnings`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -110,6 +111,9 @@ class CommandCurve:
     saturated: list[tuple[float, float]] = field(default_factory=list)
     break_aways: list[float] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # zero/dead-zone doubts, naming commands
+    # Per side of neutral ("forward"/"reverse" by command side: "above"/"below"), where the
+    # motor starts from rest and where it stops coming back, when those differ (start_stop).
+    start_stop: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def is_dead(self, commands: np.ndarray) -> np.ndarray:
         """True for commands that fall inside a dead zone."""
@@ -187,7 +191,8 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
                   zero_scatter_n: float | None = None, speed_se: np.ndarray | None = None,
                   params: CurveParams | None = None, tare_t_s: np.ndarray | None = None,
                   tare_drift: tuple[float, float] | None = None,
-                  sessions: tuple[float, ...] = ()) -> CommandCurve:
+                  sessions: tuple[float, ...] = (), drifts: bool = True,
+                  sweep: np.ndarray | None = None) -> CommandCurve:
     """Analyse thrust vs command of one depth's points (one entry per point, any order).
 
     Thrust is taken relative to `zero` (offset + drift of the sensor zero at each point's
@@ -198,13 +203,18 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
     `speed_se` its standard errors), a command is dead when the propeller does not turn, and
     branches follow the direction it turns: near a deadband the thrust is too small to tell
     either. Live commands beside a dead zone that a drift could equally make dead are counted
-    as dead and named in `warnings`.
+    as dead and named in `warnings`. `drifts`: False where the design cannot separate a drift
+    from the thrust (drift_design.py): the zero found is then flat. `sweep` ("up"/"down" per
+    point): where the motor starts from rest further from neutral than it stops coming back
+    (an ESC's hysteretic band), the inverse table keeps only commands that start it.
     """
     p = params or CurveParams()
     floor = max(p.floor_n, p.k_tare * zero_scatter_n if zero_scatter_n else 0.0)
     ok = np.isfinite(thrust_mean) & np.isfinite(t_s)
     pts = ZeroPoints(command[ok], t_s[ok], thrust_mean[ok], np.nan_to_num(thrust_se[ok]))
     anchors = section_anchors(tare_t_s, t_s, tare_drift, sessions)
+    if not drifts:
+        anchors = dataclasses.replace(anchors, drift=None, drifts=False)
     hint = _not_turning(speed_mean[ok], None if speed_se is None else speed_se[ok], p)
     line = zero or _find_zero(pts, anchors, hint, neutral_command, floor, p)
     z = line.at(t_s) if line else np.zeros(command.size)
@@ -226,7 +236,7 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
                                            p.speed_floor_frac * float(np.max(np.abs(spd))))
         dead = ~turning
         direction = np.where(spd != 0, np.sign(spd), direction)
-    elif zero is None and line is not None:
+    elif zero is None and line is not None and drifts:
         dead, notes = _imitated(pts, anchors, cmd, dead, floor, neutral_command, command_unit, p)
     state = np.where(dead, "dead", "live").astype("<U9")
     branch_of = np.full(cmd.size, -1)
@@ -240,6 +250,13 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
         if b.saturated:
             state[sl][(cmd[sl] >= b.saturated[0]) & (cmd[sl] <= b.saturated[1])] = "saturated"
         branches.append(b)
+    start_stop = {} if sweep is None else start_stop_edges(
+        command[ok], sweep[ok], _live_points(pts, line, speed_mean[ok], p, floor),
+        neutral_command)
+    for b in branches:
+        side = "above" if b.command_lo >= neutral_command else "below"
+        if side in start_stop:
+            _trim_to_start(b, start_stop[side][1], neutral_command)
     return CommandCurve(
         command_unit=command_unit, neutral_command=neutral_command, floor_n=floor, zero=line,
         command=cmd, n_points=k, thrust_mean_n=m, thrust_se_n=se, thrust_min_n=lo,
@@ -247,7 +264,52 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
         branch=branch_of, branches=branches, dead_zones=ranges(cmd, dead),
         saturated=[b.saturated for b in branches if b.saturated],
         break_aways=sorted(c for b in branches for c in b.break_aways), warnings=notes,
+        start_stop=start_stop,
     )
+
+
+def _live_points(pts: ZeroPoints, line: ZeroLine | None, speed: np.ndarray, p: CurveParams,
+                 floor: float) -> np.ndarray:
+    """Per point: the motor turns (speed feedback), or its thrust stands clear of the zero."""
+    if speed.size and np.isfinite(speed).all() and np.any(speed != 0):
+        return np.abs(speed) > p.speed_floor_frac * float(np.max(np.abs(speed)))
+    z = line.at(pts.t_s) if line is not None else np.zeros(pts.t_s.size)
+    return np.abs(pts.mean - z) > np.maximum(p.k_se * pts.se, floor)
+
+
+def start_stop_edges(command: np.ndarray, sweep: np.ndarray, live: np.ndarray,
+                     neutral: float) -> dict[str, tuple[float, float]]:
+    """Per side of neutral ("above"/"below"), (stop edge, start edge) where they differ: the
+    start edge is the command nearest neutral from which every point swept away from neutral
+    turns the motor; the stop edge the same for the points swept back towards neutral."""
+    out = {}
+    for side, sign in (("above", 1.0), ("below", -1.0)):
+        mine = sign * (command - neutral) > 0
+        away = mine & (sweep == ("up" if sign > 0 else "down"))
+        back = mine & (sweep == ("down" if sign > 0 else "up"))
+        start, stop = _edge(command[away], live[away], sign), _edge(command[back], live[back], sign)
+        if start is not None and stop is not None and sign * (start - stop) > 0:
+            out[side] = (stop, start)
+    return out
+
+
+def _edge(command: np.ndarray, live: np.ndarray, sign: float) -> float | None:
+    """The command nearest neutral beyond the last dead point of one sweep direction (its
+    nearest live point when none is dead; None without a live point)."""
+    if not live.any():
+        return None
+    dist = sign * command
+    last_dead = float(np.max(dist[~live])) if (~live).any() else -np.inf
+    beyond = live & (dist > last_dead)
+    return float(sign * np.min(dist[beyond])) if beyond.any() else None
+
+
+def _trim_to_start(b: Branch, start: float, neutral: float) -> None:
+    """Drop from a branch's inverse table the commands between neutral and `start`: from
+    rest they do not turn the motor, whatever the way back gave there."""
+    keep = np.abs(b.lut_command - neutral) >= abs(start - neutral)
+    if keep.any():
+        b.lut_thrust_n, b.lut_command = b.lut_thrust_n[keep], b.lut_command[keep]
 
 
 def _not_turning(speed: np.ndarray, speed_se: np.ndarray | None,

@@ -53,6 +53,7 @@ from rigtool.analysis.fits import (
     with_systematic,
 )
 from rigtool.analysis.steady import PointTable
+from rigtool.analysis.thrust_law import LOW_FRAC, choose_law
 from rigtool.models import laws
 
 DIRECTIONS = (("fwd", 1.0), ("rev", -1.0))
@@ -115,6 +116,7 @@ class ModelFits:
     torque_zero: ZeroLine | None = None  # zero of the torque about the thrust axis
     speed_sign: str = "measured"  # or "inferred from command" / "inferred from thrust"
     warnings: list[str] = field(default_factory=list)
+    thrust_law: dict[str, dict] = field(default_factory=dict)  # per direction: thrust_law.py
 
 
 @dataclass
@@ -225,13 +227,14 @@ def _stopped_thrust(points: PointTable, ok: np.ndarray, top_rpm: float) -> float
 def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float | None,
                density_kg_m3: float | None, params: FitParams | None = None,
                zero: ZeroLine | None = None, direction: SpeedSign | None = None,
-               sessions: tuple[float, ...] = ()) -> ModelFits:
+               sessions: tuple[float, ...] = (), drift: bool = True) -> ModelFits:
     """All speed/current model coefficients of one depth.
 
     The thrust zero is fitted jointly with C_p unless `zero` is given (points that may be
     ventilating must not set the zero). `direction` gives unsigned speed feedback its sign
     (see `speed_sign`; default: the feedback as measured). `sessions` are the start times of
     a resumed run's later sessions: each has its own zero offset (and torque offset).
+    `drift`: the design separates a zero drift from the law (drift_design.py), so one is fitted.
     """
     p = params or FitParams()
     use = candidate_points(points, p)
@@ -249,13 +252,14 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
             n = np.abs(n) * direction.sign
     n_min = max(p.min_speed_rpm, p.min_speed_frac * float(np.max(np.abs(n[use]))))
     masks = {"fwd": use & (n > n_min), "rev": use & (n < -n_min)}
-    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions)
+    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions, drift)
     if thrust_fit is None:
         return result
     single = single_readings(points, p)
     if (single & thrust_fit.used).any():
         se_f = _scatter_weights(thrust_fit, se_f, single)
-        thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions) or thrust_fit
+        thrust_fit = (fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions, drift)
+                      or thrust_fit)
     out = result.coefficients
     cp = {}
     for key in ("fwd", "rev"):
@@ -271,6 +275,9 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
     result.used = thrust_fit.used
     result.zero = thrust_fit.zero
     zero = result.zero.at(t)
+    result.thrust_law, law_warnings = _thrust_laws(n, f - zero, se_f, masks, thrust_fit.used,
+                                                   result.zero.var_at(t))
+    result.warnings = result.warnings + law_warnings
     pred = _signed_model(cp, n, lambda c, v: laws.thrust_from_speed(v, c, c))
     inferred = direction is not None and direction.source != "measured"
 
@@ -292,7 +299,7 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
         "windows; no interval (samples are autocorrelated)", sample_residual)
     if points.torque.measured:
         out.update(_torque_models(points, n, se_n, t, masks, result, diameter_m,
-                                  density_kg_m3, p, sessions))
+                                  density_kg_m3, p, sessions, drift))
     if points.current.measured:
         weighted = _current_scatter_weights(points, n, single & result.used)
         coefs, warnings = _current_models(weighted, samples, n, masks, thrust_fit, cp, p,
@@ -302,17 +309,42 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
     return result
 
 
+def _thrust_laws(n: np.ndarray, f: np.ndarray, se_f: np.ndarray, masks: dict[str, np.ndarray],
+                 used: np.ndarray, zero_var: np.ndarray) -> tuple[dict[str, dict], list[str]]:
+    """Per direction, the thrust law the points follow (thrust_law.py), with `zero_var` the
+    variance of the zero at each point, and a warning where C_p |n| n misses it by more than
+    its allowance."""
+    out, warnings = {}, []
+    for key, word in (("fwd", "forward"), ("rev", "reverse")):
+        m = masks[key] & used
+        sd = math.sqrt(float(np.mean(zero_var[m]))) if m.any() else 0.0
+        law = choose_law(n[m], f[m], se_f[m], sd) if m.any() else None
+        if law is None:
+            continue
+        out[key] = law
+        if not law["quadratic_adequate"]:
+            warnings.append(
+                f"thrust law ({word}): f = C_p |n| n misses the chosen law, {law['formula']}, "
+                f"by up to {100 * law['quadratic_max_miss_frac']:.1f} % of full scale between "
+                f"{100 * LOW_FRAC:g} and 100 % speed: use thrust_law in calibration.json "
+                "(cal.thrust_from_speed evaluates it); a format that takes one coefficient "
+                "carries that error")
+    return out, warnings
+
+
 def _torque_models(points: PointTable, n: np.ndarray, se_n: np.ndarray, t: np.ndarray,
                    masks: dict[str, np.ndarray], result: ModelFits, diameter_m: float | None,
                    density_kg_m3: float | None, p: FitParams,
-                   sessions: tuple[float, ...] = ()) -> dict[str, Coefficient]:
+                   sessions: tuple[float, ...] = (), drift: bool = True
+                   ) -> dict[str, Coefficient]:
     """Q = C_q |n| n per direction about the thrust axis, with its own zero and drift (an
     offset per session), and K_Q = |Q| / (rho n^2 D^5) where diameter and density are known."""
     q, se_q = points.torque.mean, points.torque.se
     ok = np.isfinite(q) & np.isfinite(se_q)
     fit = fit_directional(np.abs(n) * n, np.where(ok, q, 0.0), np.where(ok, se_q, np.inf),
                           None if se_n is None else 2 * np.abs(n) * se_n, t,
-                          {k: m & ok for k, m in masks.items()}, sessions=sessions)
+                          {k: m & ok for k, m in masks.items()}, sessions=sessions,
+                          drift=drift)
     if fit is None:
         return {}
     result.torque_zero = fit.zero

@@ -437,11 +437,13 @@ class DirectionalFit:
 def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.ndarray | None,
                     t_s: np.ndarray, masks: dict[str, np.ndarray],
                     min_points: int = 3, zero: ZeroLine | None = None,
-                    sessions: tuple[float, ...] = ()) -> DirectionalFit | None:
+                    sessions: tuple[float, ...] = (), drift: bool = True
+                    ) -> DirectionalFit | None:
     """Fit y = sum_k c_k x [mask_k] + a + b (t - t_ref) by WLS (effective variance for dx_se).
 
     Directions with fewer than `min_points` points are left out; the drift term only enters
-    when the points span time and leave enough degrees of freedom. Errors are treated as
+    when `drift` (the design separates it from the law: drift_design.py), the points span
+    time and leave enough degrees of freedom. Errors are treated as
     serially correlated in time (see module docstring). With `zero` given, y - zero(t) is
     fitted without the offset and drift terms. `sessions` are the start times of a resumed
     run's later sessions: each session that holds points gets its own offset a_k (columns
@@ -463,7 +465,7 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
         starts = occupied_starts(t, sessions)
         names += ["offset"] + [f"offset_{k}" for k in range(1, len(starts) + 1)]
         cols += session_columns(t, starts)
-        if np.ptp(t) > 0 and used.sum() >= len(cols) + 4:
+        if drift and np.ptp(t) > 0 and used.sum() >= len(cols) + 4:
             cols.append((t - t_ref) / SECONDS_PER_HOUR)
             names.append("drift")
     design = np.column_stack(cols)
@@ -472,19 +474,33 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
         slope = sum(np.where(masks[k][used], fit.beta[i], 0.0) for i, k in enumerate(keys))
         fit = wls(design, yy, np.sqrt(se**2 + (slope * np.nan_to_num(dx_se[used])) ** 2), t,
                   scale_down=True)
+    if zero is not None:
+        _add_zero_error(fit, zero, t)
     return DirectionalFit(fit, names, masks, used, yy, t_ref, zero, starts)
+
+
+def _add_zero_error(fit: LinearFit, zero: ZeroLine, t: np.ndarray) -> None:
+    """Add to `fit.cov` what the given zero's own error moves the coefficients by: every point
+    shares it, so it does not average out over the points (a resumed run's zero: not added)."""
+    if zero.cov is None or zero.session_starts_s:
+        return
+    sens = np.column_stack([fit.influence @ np.ones(t.size),
+                            fit.influence @ (t - zero.t_ref_s)])
+    fit.cov = fit.cov + sens @ np.array(zero.cov, dtype=float) @ sens.T
 
 
 def fit_thrust_speed(n_rpm: np.ndarray, f_n: np.ndarray, se_f: np.ndarray,
                      se_n: np.ndarray | None, t_s: np.ndarray,
                      masks: dict[str, np.ndarray],
                      zero: ZeroLine | None = None,
-                     sessions: tuple[float, ...] = ()) -> DirectionalFit | None:
+                     sessions: tuple[float, ...] = (), drift: bool = True
+                     ) -> DirectionalFit | None:
     """f = C_p |n| n with C_p per direction (`masks`: "fwd"/"rev" point masks) + zero terms,
-    an offset per session of `sessions` (or against a given `zero`)."""
+    an offset per session of `sessions` (or against a given `zero`); a drift only with
+    `drift`."""
     dx = None if se_n is None else 2 * np.abs(n_rpm) * se_n
     return fit_directional(np.abs(n_rpm) * n_rpm, f_n, se_f, dx, t_s, masks, zero=zero,
-                           sessions=sessions)
+                           sessions=sessions, drift=drift)
 
 
 def thrust_coefficient(cp: Coefficient, diameter_m: float, density_kg_m3: float,

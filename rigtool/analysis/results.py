@@ -146,6 +146,11 @@ class DepthSection:
     speed_sign: str = "measured"  # or "inferred from command" / "inferred from thrust"
     voltage_v: float | None = None  # supply voltage set for these points (None: not swept)
     bus_v: float = NAN  # mean bus voltage measured over them (NaN: not recorded)
+    # Whether the sweep's design separates a zero drift from the law, and why (drift_design.py;
+    # empty in calibrations stored before it was judged).
+    drift_design: str = ""
+    # Per direction ("fwd", "rev"), the thrust-speed law chosen (thrust_law.py; empty before).
+    thrust_law: dict[str, dict] = field(default_factory=dict)
 
     @property
     def label(self) -> str:

@@ -61,11 +61,13 @@ class ZeroPoints:
 class Anchors:
     """Where the zero is known: 0 at the tare times `t_s`, and drift (N/s, SE) from the tares;
     `sessions` are the start times of a resumed run's later sessions (each re-zeroed: its own
-    offset, one drift for all)."""
+    offset, one drift for all). `drifts`: False where the sweep's design cannot separate a
+    drift from the thrust (drift_design.py): every line is then flat."""
 
     t_s: np.ndarray
     drift: tuple[float, float] | None = None
     sessions: tuple[float, ...] = ()
+    drifts: bool = True
 
     @property
     def empty(self) -> bool:
@@ -160,7 +162,7 @@ def search_zero(pts: ZeroPoints, anchors: Anchors, neutral: float, floor: float,
         return None
     search = _Search(pts, anchors, neutral, np.maximum(k_se * pts.se, floor), k_se, start,
                      bounds)
-    limit = _max_drift(pts.t_s, floor)
+    limit = _max_drift(pts.t_s, floor) if anchors.drifts else 0.0
     line = _settle(search, _consensus_drift(search, (-limit, limit)))
     window = _neutral_window(search, line)
     return line if window is None else _settle(search, _consensus_drift(search, window))
@@ -322,13 +324,15 @@ def fit_zero_line(pts: ZeroPoints, anchors: Anchors, force_drift: bool = False
     t, y, se = _with_anchors(pts, anchors)
     if t.size == 0:
         return None
+    force_drift = force_drift and anchors.drifts
     starts = occupied_starts(t, anchors.sessions)
     if starts:
         return _session_zero_line(t, y, se, anchors, starts, force_drift)
     t_ref = float(np.mean(t))
     flat = _robust_wls(np.ones((t.size, 1)), y, se, t)
     design, y2, se2, t2 = _sloped_design(t, y, se, t_ref, anchors)
-    if (design.shape[0] >= 3 and np.ptp(t) > 0) or anchors.drift is not None:
+    if anchors.drifts and ((design.shape[0] >= 3 and np.ptp(t) > 0)
+                           or anchors.drift is not None):
         sloped = _robust_wls(design, y2, se2, t2)
         c = sloped.cov
         if force_drift or abs(sloped.beta[1]) > DRIFT_K * math.sqrt(max(c[1, 1], 0.0)):

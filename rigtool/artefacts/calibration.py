@@ -195,6 +195,8 @@ def _section_doc(sec: DepthSection) -> dict:
         curve = {
             "dead_floor_n": sec.curve.floor_n,
             "dead_zones": [list(r) for r in sec.curve.dead_zones],
+            "start_stop": {side: {"stop": stop, "start": start}
+                           for side, (stop, start) in sec.curve.start_stop.items()} or None,
             "saturated": [list(r) for r in sec.curve.saturated],
             "break_aways": list(sec.curve.break_aways),
             "branches": [{
@@ -216,12 +218,13 @@ def _section_doc(sec: DepthSection) -> dict:
         "depth_m": sec.depth_m,
         "supply_voltage_v": sec.voltage_v,
         "bus_voltage_mean_v": sec.bus_v,
-        "zero": None if z is None else _zero_doc(z),
+        "zero": None if z is None else _zero_doc(z, sec.drift_design),
         "n_points": len(sec.points),
         "n_points_used_in_fits": int(sec.points.used_in_fits.sum()),
         "speed_sign": sec.speed_sign,
         "coefficients": {name: _coef_doc(c) for name, c in sec.fits.items()},
         "current_law": _current_law_doc(sec.fits),
+        "thrust_law": sec.thrust_law or None,
         "command_curve": curve,
         "hysteresis": None if h is None else {
             "max_abs_n": h.max_abs_n, "at_command": h.at_command, "n_commands": int(h.command.size)},
@@ -233,11 +236,14 @@ def _section_doc(sec: DepthSection) -> dict:
     }
 
 
-def _zero_doc(z: ZeroLine) -> dict:
-    """The zero entry: offset at t_ref and drift; a resumed run's later sessions (each tared
-    again) add `sessions`, the time each begins and its own offset at t_ref."""
+def _zero_doc(z: ZeroLine, design: str = "") -> dict:
+    """The zero entry: offset at t_ref and drift, and whether the design let a drift be
+    estimated (`drift_design`); a resumed run's later sessions (each tared again) add
+    `sessions`, the time each begins and its own offset at t_ref."""
     doc = {"source": z.source, "offset_n": z.offset_n,
            "drift_n_per_h": z.drift_n_per_s * 3600.0, "t_ref_s": z.t_ref_s}
+    if design:
+        doc["drift_design"] = design
     if z.session_starts_s:
         doc["sessions"] = [{"start_s": start, "offset_n": offset} for start, offset in
                            zip((None, *z.session_starts_s), z.offsets.tolist(), strict=True)]

@@ -36,7 +36,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--decimal-comma", action="store_true", help="numbers use ',' as decimal sep. "
                    "(delimiter then defaults to ';')")
     p.add_argument("--delimiter", help="field delimiter (default: sniffed from the header)")
-    p.add_argument("--format", choices=("auto", "timeseries", "points", "steps"),
+    p.add_argument("--format", choices=("auto", "timeseries", "points", "steps", "ramp"),
                    help="time series (rows grouped by command), one row per point, or `steps`: "
                         "a step log kept whole, imported as a step-response run")
     p.add_argument("--settle-s", type=float, help="time series: drop this many seconds at the "

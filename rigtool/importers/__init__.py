@@ -20,6 +20,7 @@ from rigtool.importers.steps import (
     ImportedPoints,
     choose_format,
     point_steps,
+    ramp_keys,
     timeseries_steps,
 )
 from rigtool.importers.table import read_table_chunks, scan
@@ -168,13 +169,15 @@ def _points(path: Path, parsed: Parsed, fmt: str, m: Mapping,
             depth_m: float | None) -> tuple[ImportedPoints, list[str]]:
     """The points of a table in format `fmt`: a time series (or step log: every sample kept,
     each command's first row its step time) grouped by command, or one point per row."""
-    if fmt in ("timeseries", "steps") and "time" not in parsed.values:
+    if fmt in ("timeseries", "steps", "ramp") and "time" not in parsed.values:
         raise UsageError(f"{path}: format {fmt} needs a time column (--col time=COLUMN)")
     if fmt == "steps" and m.settle_s > 0:
         raise UsageError(f"{path}: a step log keeps every sample from each step on: drop "
                          f"--settle-s {m.settle_s:g} (format steps)")
     if fmt in ("timeseries", "steps"):
         return timeseries_steps(parsed, m.settle_s, depth_m)
+    if fmt == "ramp":
+        return timeseries_steps(parsed, 0.0, depth_m, ramp_keys(parsed, depth_m))
     return point_steps(parsed, depth_m)
 
 

@@ -12,7 +12,7 @@ from rigtool.errors import UsageError
 
 FIELDS = ("time", "command", "thrust", "speed", "current", "voltage", "depth", "supply",
           "thrust_std", "n_samples", "torque", "temperature")
-FORMATS = ("auto", "timeseries", "points", "steps")
+FORMATS = ("auto", "timeseries", "points", "steps", "ramp")
 # Characters a delimiter may not be: the quote, line ends, and what numbers are written with.
 NOT_DELIMITERS = frozenset('"\r\n0123456789.+-eE')
 # Mapping field -> the command-line option that sets it, to name it in errors.
@@ -67,7 +67,7 @@ class Mapping(_Strict):
     units: Units = Field(default_factory=Units)
     command_unit: str | None = None
     neutral: float | None = Field(default=None, allow_inf_nan=False)
-    format: Literal["auto", "timeseries", "points", "steps"] = "auto"
+    format: Literal["auto", "timeseries", "points", "steps", "ramp"] = "auto"
     delimiter: str | None = None
     decimal: Literal[".", ","] = "."
     header_row: int | None = Field(default=None, ge=1)

@@ -24,6 +24,10 @@ CHANNELS = {"thrust": "thrust_n", "speed": "speed_rpm", "current": "current_a",
 MAX_SYNTH_SAMPLES = 10_000
 MAX_IMPORT_SAMPLES = 10_000_000  # samples one import may synthesise from a per-point table
 TIMESERIES_MIN_RUN = 3  # median rows per command above which `auto` reads a time series
+RAMP_MAX_DT_S = 1.0  # a log sampled faster than this whose command moves on most rows: a ramp
+RAMP_MIN_ROWS = 20
+RAMP_ROWS_PER_POINT = 5  # a ramp's command bins hold at least this many rows ...
+RAMP_MAX_POINTS = 200  # ... and there are at most this many of them
 MAX_LISTED_DROPS = 10  # dropped points named one by one; the rest are counted
 NO_DEPTH = -1e300  # stands for "no depth" in grouping keys
 
@@ -82,7 +86,33 @@ def choose_format(p: Parsed, requested: str, depth_m: float | None) -> str:
     if "thrust_std" in p.values or "n_samples" in p.values or "time" not in p.values:
         return "points"
     lengths = np.diff(_edges(_keys(p, depth_m)))
-    return "timeseries" if lengths.size and np.median(lengths) >= TIMESERIES_MIN_RUN else "points"
+    if lengths.size and np.median(lengths) >= TIMESERIES_MIN_RUN:
+        return "timeseries"
+    dt = np.diff(p.values["time"])
+    if p.lines.size >= RAMP_MIN_ROWS and dt.size and 0 < np.median(dt) < RAMP_MAX_DT_S:
+        return "ramp"
+    return "points"
+
+
+def ramp_keys(p: Parsed, depth_m: float | None) -> np.ndarray:
+    """Grouping keys of a command ramp: the command's bin, of a width that puts at least
+    RAMP_ROWS_PER_POINT rows in a bin and makes at most RAMP_MAX_POINTS bins over the range
+    (consecutive rows in one bin are one point; a ramp back down makes points of its own).
+    A command held for TIMESERIES_MIN_RUN rows or more (neutral at the ends) keeps its own
+    value: it is a point of its own, not part of a bin."""
+    keys = _keys(p, depth_m)
+    cmd = keys[:, 0].copy()
+    finite = cmd[np.isfinite(cmd)]
+    span = float(np.ptp(finite)) if finite.size else 0.0
+    bins = max(min(RAMP_MAX_POINTS, finite.size // RAMP_ROWS_PER_POINT), 1)
+    if span > 0:
+        width = span / bins
+        keys[:, 0] = finite.min() + (np.floor((cmd - finite.min()) / width) + 0.5) * width
+    edges = _edges(_keys(p, depth_m))
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        if b - a >= TIMESERIES_MIN_RUN:
+            keys[a:b, 0] = cmd[a:b]
+    return keys
 
 
 def _depths(p: Parsed, rows: np.ndarray, depth_m: float | None) -> np.ndarray:
@@ -150,15 +180,16 @@ def _dropped_warnings(p: Parsed, starts: np.ndarray, lengths: np.ndarray,
     return out
 
 
-def timeseries_steps(p: Parsed, settle_s: float, depth_m: float | None) -> tuple[
-        ImportedPoints, list[str]]:
-    """One point per run of equal command; the first `settle_s` of each run is dropped."""
+def timeseries_steps(p: Parsed, settle_s: float, depth_m: float | None,
+                     keys: np.ndarray | None = None) -> tuple[ImportedPoints, list[str]]:
+    """One point per run of equal command (equal `keys`, given: a ramp's command bins, each
+    point's command then the mean of its rows'); the first `settle_s` of each run is dropped."""
     t = p.values["time"]
     t = t - t[0] if t.size else t
     warnings = []
     if t.size > 1 and np.any(np.diff(t) < 0):
         warnings.append("time column goes backwards: rows are kept in file order")
-    edges = _edges(_keys(p, depth_m))
+    edges = _edges(_keys(p, depth_m) if keys is None else keys)
     starts, stops = edges[:-1], edges[1:]
     run_of_row = np.repeat(np.arange(starts.size), stops - starts)
     keep = t >= (t[starts] + settle_s)[run_of_row]
@@ -178,6 +209,8 @@ def timeseries_steps(p: Parsed, settle_s: float, depth_m: float | None) -> tuple
     a, b = starts[~empty], stops[~empty]
     first_rows = rows[first]
     command = p.values["command"][a]
+    if keys is not None:
+        command = np.bincount(point_of_row, p.values["command"][rows]) / np.bincount(point_of_row)
     depth = _depths(p, a, depth_m)
     voltage = _supplies(p, a)
     repeat, direction = _labels(command, depth, voltage)

@@ -358,7 +358,8 @@ def _speed_figures(sec: DepthSection, cal: CalibrationResult, suffix: str, at: s
                               "error bars and the forward/reverse C_p |n| n model; below, the "
                               "residuals thrust − zero − C_p |n| n (N). Thrust is shown after "
                               f"removing the estimated sensor zero and its drift{zero}, as the "
-                              "fit saw it.", fg.encode(fg.thrust_speed(p, fits), fmt)))
+                              f"fit saw it.{_design_text(sec)}{_law_text(sec)}",
+                              fg.encode(fg.thrust_speed(p, fits), fmt)))
     else:
         out.append(FigureItem(*ts, "No thrust-vs-speed fit: too few points with significant "
                               "propeller speed."))
@@ -370,6 +371,26 @@ def _speed_figures(sec: DepthSection, cal: CalibrationResult, suffix: str, at: s
     else:
         out.append(FigureItem(*cs, "No current fit: too few points with current feedback."))
     return out
+
+
+def _design_text(sec: DepthSection) -> str:
+    """The sentence on whether the sweep's design let a zero drift be estimated."""
+    return f" Zero drift {sec.drift_design}." if sec.drift_design else ""
+
+
+def _law_text(sec: DepthSection) -> str:
+    """The sentences on the thrust law chosen per direction and how far C_p |n| n misses it."""
+    out = []
+    for key, word in (("fwd", "Forward"), ("rev", "Reverse")):
+        law = sec.thrust_law.get(key)
+        if law is None:
+            continue
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in law["params"].items())
+        verdict = ("adequate" if law["quadratic_adequate"] else "inadequate: use the chosen law")
+        out.append(f" {word} thrust law chosen on held-out points: {law['formula']} ({params}); "
+                   f"C_p |n| n misses it by up to {100 * law['quadratic_max_miss_frac']:.1f} % "
+                   f"of full scale between 10 and 100 % speed ({verdict}).")
+    return "".join(out)
 
 
 def _hysteresis_figure(sec: DepthSection, unit: str, suffix: str, at: str,

@@ -1,0 +1,88 @@
+"""Issue 47 figures on logs in other stands' designs, built from known truth by
+tests/standlogs.py (not the twin), through `rigtool import` and `rigtool calibrate`.
+
+Per case and seed range: how often the right thrust-law family is chosen, how often the
+quadratic-adequacy flag is right (set exactly when C_p n^2 misses the truth by more than 2 %
+of full scale between 10 and 100 % speed), the C_p interval coverage and worst error where
+the law is quadratic, the worst thrust_from_speed error (% of full scale), and, for the
+hysteretic ESC, whether cal.command ever answers between the stop and start edges.
+
+    python benchmarks/bench_other_stands.py 47000 47030   # held-out seeds
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import rigtool  # noqa: E402
+from tests.standlogs import Stand, step_table  # noqa: E402
+
+CASES = {
+    "quadratic, one-way": (Stand(offset_n=0.1), "quadratic", False),
+    "power k=2.15": (Stand(law="power", k=2.15), "power", False),
+    "power k=1.85": (Stand(law="power", k=1.85), "power", False),
+    "quadratic+linear": (Stand(law="quadratic+linear", cp=4e-7, linear=3e-4),
+                         "quadratic+linear", False),
+    "hysteretic ESC, up-down": (Stand(start_us=40.0, stop_us=5.0), "quadratic", True),
+}
+
+
+def run_case(stand: Stand, seed: int, updown: bool, tmp: Path) -> tuple[dict, object]:
+    """Import and calibrate one log through the CLI; (depth section, API calibration)."""
+    csv, db, out = tmp / f"{seed}.csv", tmp / "b.sqlite", tmp / "cal"
+    csv.write_text(step_table(stand, seed, step_us=5.0 if updown else 25.0, updown=updown)[0],
+                   encoding="utf-8")
+    text = subprocess.run(["rigtool", "import", str(csv), "--db", str(db)], check=True,
+                          capture_output=True, text=True).stdout
+    run_id = text.split("run ")[-1].strip()
+    subprocess.run(["rigtool", "calibrate", run_id, "--db", str(db), "--out", str(out)],
+                   check=True, capture_output=True)
+    (depth,) = json.loads((out / run_id / "calibration.json").read_text())["depths"]
+    return depth, rigtool.load_calibration(out / run_id)
+
+
+def main(first: int, stop: int) -> None:
+    for name, (stand, family, updown) in CASES.items():
+        right, flag_right, cover, cp_err, curve_err, in_band = [], [], [], [], [], 0
+        with tempfile.TemporaryDirectory() as tmp:
+            for seed in range(first, stop):
+                depth, cal = run_case(stand, seed, updown, Path(tmp))
+                law = depth["thrust_law"]["fwd"]
+                n = np.linspace(0.1, 1.0, 50) * stand.top_rpm
+                truth = stand.thrust(n)
+                full = float(stand.thrust(np.array([stand.top_rpm]))[0])
+                miss = np.max(np.abs(law["quadratic_c_p"] * n**2 - truth)) / full
+                right.append(law["family"] == family)
+                flag_right.append(law["quadratic_adequate"] == bool(miss <= 0.02))
+                curve_err.append(float(np.max(np.abs(cal.thrust_from_speed(n) - truth)) / full))
+                if stand.law == "quadratic":
+                    c = depth["coefficients"]["C_p_fwd"]
+                    cover.append(c["lo"] <= stand.cp <= c["hi"])
+                    cp_err.append(abs(c["value"] / stand.cp - 1))
+                if updown:
+                    edges = (depth["command_curve"]["start_stop"] or {}).get("above")
+                    cmd = cal.command(np.linspace(0.0, full, 400))
+                    start = edges["start"] if edges else 1500 + stand.start_us
+                    in_band += int(np.any((cmd > 1500) & (cmd < start)))
+        k = stop - first
+        line = (f"{name}: family {sum(right)}/{k}, flag {sum(flag_right)}/{k}, "
+                f"thrust_from_speed worst {100 * max(curve_err):.2f} % FS "
+                f"(median {100 * float(np.median(curve_err)):.2f} %)")
+        if cover:
+            line += (f", C_p coverage {sum(cover)}/{k}, worst C_p error "
+                     f"{100 * max(cp_err):.2f} %")
+        if updown:
+            line += f", commands between the edges in {in_band}/{k} seeds"
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main(int(sys.argv[1]), int(sys.argv[2]))

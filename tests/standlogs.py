@@ -1,0 +1,72 @@
+"""Thrust-stand logs in other stands' designs, built from known truth by physics of their own
+(not the twin): one-way step tables tared once, up-down tables with a hysteretic ESC, and
+thrust laws other than C_p |n| n. Used through `rigtool import` and `rigtool calibrate`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+HEADER = "Time (s),ESC signal (µs),Thrust (N),Voltage (V),Current (A),Motor Optical Speed (RPM)"
+
+
+@dataclass(frozen=True)
+class Stand:
+    """A forward-only ESC thruster: n = top (cmd - 1500) / 400 once turning; it starts from
+    rest at 1500 + start_us and stops coming back below 1500 + stop_us. Thrust by `law`."""
+
+    law: str = "quadratic"  # or "quadratic+linear", "power"
+    cp: float = 5e-7  # N/(r/min)^2
+    linear: float = 0.0  # N/(r/min), for quadratic+linear
+    k: float = 2.0  # for power: f = cp top^2 (n / top)^k
+    top_rpm: float = 3000.0
+    start_us: float = 25.0
+    stop_us: float = 25.0
+    noise_n: float = 0.01
+    offset_n: float = 0.0
+
+    def thrust(self, n: np.ndarray) -> np.ndarray:
+        """True thrust (N) at speed n (r/min, >= 0)."""
+        if self.law == "quadratic":
+            return self.cp * n**2
+        if self.law == "quadratic+linear":
+            return self.cp * n**2 + self.linear * n
+        return self.cp * self.top_rpm**2 * (n / self.top_rpm) ** self.k
+
+
+def step_table(stand: Stand, seed: int, step_us: float = 25.0, updown: bool = False,
+               hold_s: float = 5.0) -> tuple[str, np.ndarray, np.ndarray]:
+    """One averaged row per command, 1500 -> 1900 us (and back with `updown`): the CSV text,
+    the commands and the true speeds."""
+    rng = np.random.default_rng(seed)
+    up = np.arange(1500.0, 1900.0 + step_us / 2, step_us)
+    cmds = np.concatenate([up, up[-2::-1]]) if updown else up
+    n = np.zeros(cmds.size)
+    spinning = False
+    for i, c in enumerate(cmds):
+        d = c - 1500.0
+        spinning = d >= (stand.stop_us if spinning else stand.start_us)
+        n[i] = stand.top_rpm * d / 400.0 if spinning else 0.0
+    t = 2.0 + hold_s * np.arange(cmds.size)
+    f = stand.thrust(n) + stand.offset_n + rng.normal(0.0, stand.noise_n, n.size)
+    current = 0.3 + 2e-10 * n**3 + rng.normal(0.0, 0.01, n.size)
+    rpm = np.where(n > 0, n + rng.normal(0.0, 2.0, n.size), 0.0)
+    rows = [HEADER] + [f"{a:.2f},{c:g},{b:.5f},16.00,{i:.4f},{s:.1f}"
+                       for a, c, b, i, s in zip(t, cmds, f, current, rpm, strict=True)]
+    return "\n".join(rows) + "\n", cmds, n
+
+
+def ramp_log(stand: Stand, seed: int, rate_hz: float = 5.0, ramp_s: float = 60.0,
+             hold_s: float = 5.0) -> str:
+    """A continuous command ramp 1500 -> 1900 us sampled at `rate_hz`, neutral held
+    `hold_s` before it, no speed column (a command ramp of a stand without a tachometer)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, hold_s + ramp_s, 1.0 / rate_hz)
+    cmd = 1500.0 + 400.0 * np.clip((t - hold_s) / ramp_s, 0.0, 1.0)
+    d = cmd - 1500.0
+    n = np.where(d >= stand.start_us, stand.top_rpm * d / 400.0, 0.0)
+    f = stand.thrust(n) + stand.offset_n + rng.normal(0.0, stand.noise_n, n.size)
+    rows = ["Time (s),ESC signal (µs),Thrust (N)"]
+    rows += [f"{a:.3f},{c:.2f},{b:.5f}" for a, c, b in zip(t, cmd, f, strict=True)]
+    return "\n".join(rows) + "\n"
