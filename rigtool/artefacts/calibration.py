@@ -225,6 +225,7 @@ def _section_doc(sec: DepthSection) -> dict:
         "coefficients": {name: _coef_doc(c) for name, c in sec.fits.items()},
         "current_law": _current_law_doc(sec.fits),
         "thrust_law": sec.thrust_law or None,
+        "sensor_accuracy": sec.sensor_accuracy or None,
         "command_curve": curve,
         "hysteresis": None if h is None else {
             "max_abs_n": h.max_abs_n, "at_command": h.at_command, "n_commands": int(h.command.size)},
@@ -609,5 +610,7 @@ def performance_text(cal: CalibrationResult) -> str:
     """performance.csv: a plain table (no comment lines) that spreadsheets and `rigtool
     import` read as they are (docs/artefacts.md)."""
     lines = [",".join(performance_header(cal.command_unit, _voltage_swept(cal)))]
-    lines += [",".join(csv_cell(v) for v in row) for row in performance_rows(cal)]
+    # a value that cannot be measured is an empty cell, as in a stand's own table
+    lines += [",".join("" if isinstance(v, float) and math.isnan(v) else csv_cell(v)
+                       for v in row) for row in performance_rows(cal)]
     return "\n".join(lines) + "\n"

@@ -36,6 +36,7 @@ PATTERNS: dict[str, tuple[str, ...]] = {
                     r"(?: ?(?:probe )?\d{1,2})?",),
 }
 ELECTRICAL = re.compile(r"electrical", re.IGNORECASE)
+ELECTRICAL_SPEED = (r"motor electrical speed", r"electrical speed")  # eRPM, most preferred first
 ALWAYS_RECOGNISED = ("supply",)  # recognised by header in any table, with a mapping too
 
 
@@ -57,6 +58,13 @@ def guess_columns(header: list[str]) -> dict[str, str]:
                 out[field] = hit
                 break
     return out
+
+
+def electrical_speed_column(header: list[str]) -> str | None:
+    """The eRPM column of a log, if any: read beside the optical speed to check either."""
+    bases = [split_header(h)[0].lower() for h in header]
+    return next((h for name in ELECTRICAL_SPEED
+                 for h, b in zip(header, bases, strict=True) if re.fullmatch(name, b)), None)
 
 
 def is_electrical(header_cell: str) -> bool:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import codecs
 import csv
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +26,8 @@ class RawTable:
 
     `bad` holds the rows the CSV reader itself refused (a cell over the field size limit, say),
     each with its line and the reason, so they are reported and counted like unreadable rows.
+    `headerless`: the header line held only numbers, so it is the first data row and the
+    header is `column 1`, `column 2`, ... (columns can only be given by number).
     """
 
     path: Path
@@ -33,6 +36,7 @@ class RawTable:
     rows: list[tuple[int, list[str]]]
     delimiter: str
     bad: list[tuple[int, str]] = field(default_factory=list)
+    headerless: bool = False
 
 
 def sniff_delimiter(line: str, decimal: str) -> str:
@@ -40,6 +44,19 @@ def sniff_delimiter(line: str, decimal: str) -> str:
     choices = [d for d in CANDIDATE_DELIMITERS if not (decimal == "," and d == ",")]
     best = max(choices, key=line.count)
     return best if line.count(best) else choices[0]
+
+
+def is_data_row(cells: list[str], decimal: str) -> bool:
+    """Whether a would-be header holds only numbers (and empty cells): a file with no header
+    line, whose first line is data."""
+    filled = [c.strip() for c in cells if c.strip()]
+    for cell in filled:
+        try:
+            if not math.isfinite(float(cell.replace(",", ".") if decimal == "," else cell)):
+                return False
+        except ValueError:
+            return False
+    return bool(filled)
 
 
 def scan(path: Path) -> tuple[bytes, str]:
@@ -134,6 +151,7 @@ def read_table_chunks(path: Path, *, encoding: str, digest: Any, delimiter: str 
     delim = delimiter or sniff_delimiter(head, decimal)
     reader = csv.reader(_body(head, lines), delimiter=delim)
     header: list[str] = []
+    headerless = False
     rows: list[tuple[int, list[str]]] = []
     bad: list[tuple[int, str]] = []
     while True:  # the reader goes on after a row it refused: note the row and carry on
@@ -143,10 +161,14 @@ def read_table_chunks(path: Path, *, encoding: str, digest: Any, delimiter: str 
                     header = [c.strip() for c in cells]
                     while header and not header[-1]:
                         header.pop()
+                    headerless = is_data_row(header, decimal)
+                    if headerless:  # no header line: keep the row, number the columns
+                        header = [f"column {i}" for i in range(1, len(header) + 1)]
+                        rows.append((header_row + reader.line_num - 1, cells))
                 elif (cells and cells[0].strip()) or any(c.strip() for c in cells):
                     rows.append((header_row + reader.line_num - 1, cells))
                     if len(rows) >= per_chunk:
-                        yield RawTable(path, header, header_row, rows, delim, bad)
+                        yield RawTable(path, header, header_row, rows, delim, bad, headerless)
                         rows, bad = [], []
             break
         except csv.Error as exc:
@@ -154,7 +176,7 @@ def read_table_chunks(path: Path, *, encoding: str, digest: Any, delimiter: str 
             if not header:
                 raise UsageError(f"{path}:{line}: header cannot be read: {_reason(exc)}") from None
             bad.append((line, _reason(exc)))
-    yield RawTable(path, header, header_row, rows, delim, bad)
+    yield RawTable(path, header, header_row, rows, delim, bad, headerless)
 
 
 def _reason(exc: csv.Error) -> str:

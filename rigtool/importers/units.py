@@ -38,10 +38,11 @@ OFFSETS = {"temperature": {"k": -273.15, "°f": -32 * 5 / 9, "f": -32 * 5 / 9,
 DEFAULT_UNITS = {"time": "s", "thrust": "n", "speed": "rpm", "current": "a", "voltage": "v",
                  "depth": "m", "supply": "v", "thrust_std": "n", "torque": "n·m",
                  "temperature": "°c"}
-# header unit -> rigtool command unit
+# header unit -> rigtool command unit; `volts`: an analog throttle (`Throttle (V)`, 0.5-4.5 V)
 COMMAND_UNITS = {"us": "pulse_us", "pulse_us": "pulse_us", "%": "percent", "percent": "percent",
                  "pwm": "pwm_counts", "pwm_counts": "pwm_counts", "counts": "pwm_counts",
-                 "rpm": "rpm", "a": "amps", "amps": "amps"}
+                 "rpm": "rpm", "a": "amps", "amps": "amps", "v": "volts", "volts": "volts"}
+KNOWN_COMMAND_UNITS = tuple(dict.fromkeys(COMMAND_UNITS.values()))  # what --command-unit takes
 
 
 def split_header(header: str) -> tuple[str, str | None]:
