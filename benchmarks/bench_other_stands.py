@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import rigtool  # noqa: E402
-from tests.standlogs import Stand, step_table  # noqa: E402
+from tests.standlogs import Stand, ramp_log, step_table  # noqa: E402
 
 CASES = {
     "quadratic, one-way": (Stand(offset_n=0.1), "quadratic", False),
@@ -47,6 +47,29 @@ def run_case(stand: Stand, seed: int, updown: bool, tmp: Path) -> tuple[dict, ob
                    check=True, capture_output=True)
     (depth,) = json.loads((out / run_id / "calibration.json").read_text())["depths"]
     return depth, rigtool.load_calibration(out / run_id)
+
+
+def ramp_case(seed: int, tmp: Path, end_hold_s: float) -> tuple[float, bool]:
+    """A 5 Hz ramp without speed: the worst error of cal.command over 10-90 % of full-scale
+    thrust (% FS, the thrust the stand gives at the command answered), and whether a drift
+    warning was given (there is none in the log)."""
+    stand = Stand(offset_n=0.05)
+    csv, db, out = tmp / f"r{seed}.csv", tmp / "r.sqlite", tmp / "cal"
+    csv.write_text(ramp_log(stand, seed, 5.0, end_hold_s=end_hold_s), encoding="utf-8")
+    text = subprocess.run(["rigtool", "import", str(csv), "--db", str(db)], check=True,
+                          capture_output=True, text=True).stdout
+    run_id = text.split("run ")[-1].strip()
+    subprocess.run(["rigtool", "calibrate", run_id, "--db", str(db), "--out", str(out)],
+                   check=True, capture_output=True)
+    (depth,) = json.loads((out / run_id / "calibration.json").read_text())["depths"]
+    cal = rigtool.load_calibration(out / run_id)
+    full = float(stand.thrust(np.array([stand.top_rpm]))[0])
+    want = np.linspace(0.1, 0.9, 17) * full
+    cmd = np.asarray(cal.command(want))
+    got = stand.thrust(np.where(cmd - 1500 >= stand.start_us, stand.top_rpm * (cmd - 1500) / 400,
+                                0.0))
+    warned = any(w.startswith("sensor zero drifts") for w in depth["warnings"])
+    return float(np.max(np.abs(got - want)) / full), warned
 
 
 def main(first: int, stop: int) -> None:
@@ -82,6 +105,14 @@ def main(first: int, stop: int) -> None:
         if updown:
             line += f", commands between the edges in {in_band}/{k} seeds"
         print(line, flush=True)
+    for end_hold_s in (0.0, 10.0):
+        with tempfile.TemporaryDirectory() as tmp:
+            res = [ramp_case(seed, Path(tmp), end_hold_s) for seed in range(first, stop)]
+        errs = [e for e, _ in res]
+        print(f"ramp 5 Hz, no speed{', neutral at both ends' if end_hold_s else ''}: "
+              f"cal.command worst {100 * max(errs):.2f} % FS (median "
+              f"{100 * float(np.median(errs)):.2f} %), drift warned in "
+              f"{sum(w for _, w in res)}/{stop - first}", flush=True)
 
 
 if __name__ == "__main__":

@@ -267,7 +267,10 @@ METADATA = Obj({"thruster_id": Opt(SCALAR), "propeller_diameter_m": Opt(POSITIVE
 PROTOCOL = Obj({"name": Opt(STR), "description": Opt(STR), "metadata": Opt(METADATA),
                 "command": Opt(Obj({"unit": Opt(STR), "neutral": Opt(NUM)}))})
 AXIS = Obj({"channel": Opt(SCALAR), "sign": Opt(SCALAR)})
-RIG = Obj({"name": Opt(STR), "thrust": Opt(AXIS),
+ACCURACY = Obj({k: Opt(FINITE) for k in ("full_scale_n", "nonlinearity_pct_fs",
+                                          "hysteresis_pct_fs", "crosstalk_pct_fs")})
+RIG = Obj({"name": Opt(STR), "thrust": Opt(AXIS), "sensor_accuracy": Opt(ACCURACY),
+           "import": Opt(Obj({"sensor_accuracy": Opt(ACCURACY)})),
            "resolved": Opt(Obj({"kind": Opt(STR), "profile": Opt(SCALAR), "thrust": Opt(AXIS)}))})
 PLAN = ListOf(Obj({"idx": INT, "command": FINITE, "depth_m": Opt(FINITE), "repeat": INT,
                    "direction": STR, "voltage_v": Opt(FINITE)}))

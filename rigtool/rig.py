@@ -12,6 +12,7 @@ from typing import Annotated, Literal, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from rigtool.accuracy import SensorAccuracy
 from rigtool.bounds import DepthM
 from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model, locate
@@ -79,6 +80,7 @@ class Rig(BaseModel):
     supply: SupplyConfig | None = None
     thrust: ThrustAxis | None = None
     mount: Mount | None = None
+    sensor_accuracy: SensorAccuracy | None = None
 
     @model_validator(mode="after")
     def _has_devices(self) -> Rig:

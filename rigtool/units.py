@@ -6,11 +6,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 FT_CHANNELS = ("fx", "fy", "fz", "tx", "ty", "tz")  # N and N m, in the sensor frame
-COMMAND_UNITS = ("percent", "pwm_counts", "pulse_us", "rpm", "amps")
+COMMAND_UNITS = ("percent", "pwm_counts", "pulse_us", "rpm", "amps")  # protocols and drivers
 UNIT_LABEL = {"percent": "%", "pwm_counts": "PWM counts", "pulse_us": "µs", "rpm": "r/min",
-              "amps": "A"}
+              "amps": "A", "volts": "V"}  # volts: an analog throttle voltage (imports only)
 NEUTRAL_BY_UNIT = {"percent": 0.0, "pwm_counts": 0.0, "pulse_us": 1500.0, "rpm": 0.0,
-                   "amps": 0.0}
+                   "amps": 0.0, "volts": 0.0}
 
 
 def unit_label(unit: str) -> str:

@@ -60,6 +60,7 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     stored (calibrate --export checks the formats' prerequisites there).
     """
     from rigtool.analysis.calibrate import calibrate as analyse
+    from rigtool.analysis.calibrate import mark_ventilated
     from rigtool.analysis.cavitation import EVENT_KIND, calibrate_cavitation
     from rigtool.analysis.cavitation_runs import cavitation_stage, training_runs, unchecked_thruster
     from rigtool.analysis.dataset import load_run
@@ -84,20 +85,21 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
         check(cal)
     created = utc_now()
     folder = run_folder(out_dir, run_id)
-    paths = write_artefacts(cal, out_dir, created_utc=created)
     remove_exports(folder)
     (folder / REPORT_FILE).unlink(missing_ok=True)  # the earlier calibration's: write it again
-    cav, notes = None, list(stage_notes)
+    cav, notes, paths = None, list(stage_notes), []
     if cav_stage.base_run_id is not None:
         with stage(f"quasi-cavitation model of run {run_id} (base run {cav_stage.base_run_id})"):
             cav = calibrate_cavitation(store, run_id, cav_stage.base_run_id,
                                        params=CavitationParams(causal=causal), train_with=extra,
                                        run=run)
         store.replace_events(run_id, EVENT_KIND, cav.events)
+        cal.warnings += mark_ventilated(cal, cav.events)
         paths += write_cavitation_artefacts(cav, out_dir, created_utc=created)
         notes = [*stage_notes, *(f"quasi-cavitation: {w}" for w in cav.warnings)]
         if causal:
             notes.append(CAUSAL_WARNING)
+    paths = write_artefacts(cal, out_dir, created_utc=created) + paths
     results = Results(run_id, created, cal, cav, notes, folder, paths)
     store.add_calibration(run_id, str(folder), calibration_document(cal, created),
                           __version__, state=_encode(results), created_utc=created)

@@ -25,6 +25,7 @@ class Stand:
     stop_us: float = 25.0
     noise_n: float = 0.01
     offset_n: float = 0.0
+    drift_n_per_h: float = 0.0  # the load cell's zero drifting after its one tare
 
     def thrust(self, n: np.ndarray) -> np.ndarray:
         """True thrust (N) at speed n (r/min, >= 0)."""
@@ -49,7 +50,8 @@ def step_table(stand: Stand, seed: int, step_us: float = 25.0, updown: bool = Fa
         spinning = d >= (stand.stop_us if spinning else stand.start_us)
         n[i] = stand.top_rpm * d / 400.0 if spinning else 0.0
     t = 2.0 + hold_s * np.arange(cmds.size)
-    f = stand.thrust(n) + stand.offset_n + rng.normal(0.0, stand.noise_n, n.size)
+    f = (stand.thrust(n) + stand.offset_n + stand.drift_n_per_h * t / 3600.0
+         + rng.normal(0.0, stand.noise_n, n.size))
     current = 0.3 + 2e-10 * n**3 + rng.normal(0.0, 0.01, n.size)
     rpm = np.where(n > 0, n + rng.normal(0.0, 2.0, n.size), 0.0)
     rows = [HEADER] + [f"{a:.2f},{c:g},{b:.5f},16.00,{i:.4f},{s:.1f}"
@@ -58,15 +60,42 @@ def step_table(stand: Stand, seed: int, step_us: float = 25.0, updown: bool = Fa
 
 
 def ramp_log(stand: Stand, seed: int, rate_hz: float = 5.0, ramp_s: float = 60.0,
-             hold_s: float = 5.0) -> str:
+             hold_s: float = 5.0, end_hold_s: float = 0.0, tau_s: float = 0.5) -> str:
     """A continuous command ramp 1500 -> 1900 us sampled at `rate_hz`, neutral held
-    `hold_s` before it, no speed column (a command ramp of a stand without a tachometer)."""
+    `hold_s` before it, no speed column (a command ramp of a stand without a tachometer).
+    `end_hold_s`: then a step back to neutral held that long, the propeller spinning down
+    with time constant `tau_s` (its thrust decays over the first seconds there)."""
     rng = np.random.default_rng(seed)
-    t = np.arange(0.0, hold_s + ramp_s, 1.0 / rate_hz)
+    t = np.arange(0.0, hold_s + ramp_s + end_hold_s, 1.0 / rate_hz)
     cmd = 1500.0 + 400.0 * np.clip((t - hold_s) / ramp_s, 0.0, 1.0)
+    cmd[t >= hold_s + ramp_s] = 1500.0 if end_hold_s else cmd[t >= hold_s + ramp_s]
     d = cmd - 1500.0
     n = np.where(d >= stand.start_us, stand.top_rpm * d / 400.0, 0.0)
+    after = t - (hold_s + ramp_s)
+    n = np.where(end_hold_s and after >= 0, stand.top_rpm * np.exp(-np.maximum(after, 0) / tau_s),
+                 n)
     f = stand.thrust(n) + stand.offset_n + rng.normal(0.0, stand.noise_n, n.size)
     rows = ["Time (s),ESC signal (µs),Thrust (N)"]
     rows += [f"{a:.3f},{c:.2f},{b:.5f}" for a, c, b in zip(t, cmd, f, strict=True)]
+    return "\n".join(rows) + "\n"
+
+
+def rov_table(seed: int, cp_fwd: float = 5e-6, rev_ratio: float = 0.8, per_side: int = 10,
+              noise_frac: float = 0.015, stated_std: float | None = None) -> str:
+    """An in-water thruster table: `per_side` commands each way beyond a +-25 us dead band,
+    one row each with unsigned RPM, thrust off by white noise of `noise_frac` of full scale.
+    With `stated_std` (N) the table also gives a thrust std over 100 samples per row, so the
+    rows state errors `stated_std / 10` that the scatter may exceed (lack of fit)."""
+    rng = np.random.default_rng(seed)
+    side = np.linspace(1540.0, 1900.0, per_side)
+    cmds = np.concatenate([3000.0 - side[::-1], side])
+    n = 3000.0 * (cmds - 1500.0) / 400.0
+    f = np.where(n > 0, cp_fwd, cp_fwd * rev_ratio) * np.abs(n) * n
+    full = cp_fwd * 2700.0**2
+    f_read = f + rng.normal(0.0, noise_frac * full, n.size)
+    head = "PWM (µs),RPM,Force (N)" + (",Force std (N),Samples" if stated_std else "")
+    rows = [head]
+    for c, s, b in zip(cmds, np.abs(n), f_read, strict=True):
+        row = f"{c:g},{s:.0f},{b:.4f}"
+        rows.append(row + (f",{stated_std:.4f},100" if stated_std else ""))
     return "\n".join(rows) + "\n"

@@ -488,3 +488,28 @@ def test_calibrate_writes_no_unused_gp_terms_and_both_readers_agree(qctm_eval, t
     assert load_model(out).alpha is None
     worst, flags = _agree(qctm_eval, out, *_mixed(rec, betm))
     assert worst < ATOL and np.any(flags & CURRENT_FAULT)
+
+
+def test_a_one_run_model_says_its_intervals_are_not_validated(qctm_eval, twin, tmp_path):
+    """Issue 47 item 9: trained on one run, cavitation.json, the model file, load_model and
+    the C evaluator all say its 95 % intervals were not validated on another run; a model
+    that says true gets no note, and a flag that is not a boolean is refused by both."""
+    folder = twin[0]
+    summary = json.loads((folder / "cavitation.json").read_text())["training"]
+    assert summary["training_runs"] == 1 and summary["intervals_validated"] is False
+    doc = json.loads((folder / MODEL_FILE).read_text())
+    assert doc["training_runs"] == 1 and doc["intervals_validated"] is False
+    assert load_model(folder).intervals_validated is False
+    out = subprocess.run([str(qctm_eval), str(folder)], input="1000,1,0.3,0\n",
+                         capture_output=True, text=True, check=True)
+    assert "not validated" in out.stderr
+    for value, note in ((True, False), ("yes", None)):
+        shutil.copy(folder / VARIANCE_FILE, tmp_path / VARIANCE_FILE)
+        (tmp_path / MODEL_FILE).write_text(json.dumps({**doc, "intervals_validated": value}))
+        if note is None:
+            _both_refuse(qctm_eval, tmp_path, "intervals_validated")
+            continue
+        assert load_model(tmp_path).intervals_validated is True
+        out = subprocess.run([str(qctm_eval), str(tmp_path)], input="1000,1,0.3,0\n",
+                             capture_output=True, text=True, check=True)
+        assert out.stderr == ""

@@ -151,7 +151,7 @@ RANKS = {
                    "rigtool.ids", "rigtool.dbpath", "rigtool.counters",
                    "rigtool.thruster_profiles", "rigtool.version", "rigtool.models",
                    "rigtool.stopping"),
-    "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan"),
+    "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan", "rigtool.accuracy"),
     "devices": ("rigtool.devices", "rigtool.sim", "rigtool.rig"),
     "store": ("rigtool.store",),
     "analysis": ("rigtool.analysis", "rigtool.run_warnings"),

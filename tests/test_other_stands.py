@@ -17,7 +17,7 @@ import rigtool
 from rigtool.cli import main
 from rigtool.store import Store
 
-from .standlogs import Stand, ramp_log, step_table
+from .standlogs import Stand, ramp_log, rov_table, step_table
 
 Z_999_OVER_95 = 3.29 / 1.96
 
@@ -51,11 +51,18 @@ def test_one_way_step_table_fits_no_drift_and_holds_c_p(tmp_path, seed):
     assert depth["thrust_law"]["fwd"]["quadratic_adequate"] is True
 
 
-def test_up_down_table_separates_the_drift(tmp_path):
-    """Commands measured again on the way down: the design separates a drift, which is fitted."""
-    depth, _ = _calibrate(tmp_path, step_table(Stand(), 4703, updown=True)[0])
+@pytest.mark.parametrize("drift", [0.0, 5.0])
+def test_up_down_table_separates_the_drift(tmp_path, drift):
+    """Commands measured again on the way down: the design separates a drift, which is fitted
+    (its interval holding the truth) and, from a table of one reading per row, warned about
+    exactly when it moves the zero by more than the rows' noise."""
+    stand = Stand(drift_n_per_h=drift)
+    depth, _ = _calibrate(tmp_path, step_table(stand, 4703, updown=True)[0])
     assert depth["zero"]["drift_design"].startswith("estimated: ")
-    assert "zero_drift" in depth["coefficients"]
+    c = depth["coefficients"]["zero_drift"]
+    assert c["lo"] <= drift <= c["hi"], c
+    warned = [w for w in depth["warnings"] if w.startswith("sensor zero drifts")]
+    assert len(warned) == (1 if drift else 0), depth["warnings"]
 
 
 @pytest.mark.parametrize("stand, family", [
@@ -96,14 +103,21 @@ def test_hysteretic_band_never_answered(tmp_path, seed):
     assert not between.any(), command[between]
 
 
-@pytest.mark.parametrize("seed, rate_hz", [(4709, 5.0), (4710, 5.0), (4711, 20.0)])
-def test_sparse_ramp_without_speed_is_binned_with_its_forward_branch(tmp_path, seed, rate_hz):
+@pytest.mark.parametrize("seed, rate_hz, end_hold_s", [
+    (4709, 5.0, 0.0), (4710, 5.0, 0.0), (4711, 20.0, 0.0), (4718, 5.0, 10.0),
+    (4719, 5.0, 10.0)])
+def test_sparse_ramp_without_speed_is_binned_with_its_forward_branch(tmp_path, seed, rate_hz,
+                                                                     end_hold_s):
     """A ramp logged at 5-20 Hz without a speed column is read as a ramp (command bins), no
     drift is fitted from it, no dead zone reaches commands whose true thrust exceeds 5 % of
-    full scale, and the inverse table answers forward thrusts within 2 % of full scale."""
+    full scale, and the inverse table answers forward thrusts within 2 % of full scale. With
+    a step back to neutral at its end (the propeller spinning down there), the zero comes
+    from the two neutral ends alone and no drift is warned of."""
     stand = Stand(offset_n=0.05)
-    depth, cal = _calibrate(tmp_path, ramp_log(stand, seed, rate_hz))
-    assert depth["zero"]["drift_design"].startswith("not estimable")
+    depth, cal = _calibrate(tmp_path, ramp_log(stand, seed, rate_hz, end_hold_s=end_hold_s))
+    assert depth["zero"]["drift_design"].startswith("estimated" if end_hold_s else
+                                                    "not estimable")
+    assert not any(w.startswith("sensor zero drifts") for w in depth["warnings"])
     full = stand.thrust(np.array([stand.top_rpm]))[0]
     for lo, hi in depth["command_curve"]["dead_zones"]:
         n = np.where(hi - 1500 >= stand.start_us, stand.top_rpm * (hi - 1500) / 400, 0.0)
@@ -113,3 +127,58 @@ def test_sparse_ramp_without_speed_is_binned_with_its_forward_branch(tmp_path, s
     cmd = cal.command(thrust)
     given = stand.thrust(stand.top_rpm * (cmd - 1500) / 400)
     assert np.max(np.abs(given - thrust)) <= 0.02 * full, (cmd, given, thrust)
+
+
+def _table(tmp: Path, text: str, *args: str) -> dict:
+    """Import a table (columns by name) and calibrate it; its depth section."""
+    tmp.mkdir(parents=True, exist_ok=True)
+    path, db, out = tmp / "table.csv", tmp / "t.sqlite", tmp / "cal"
+    path.write_text(text, encoding="utf-8")
+    cols = ["--col", "command=PWM", "--col", "speed=RPM", "--col", "thrust=Force",
+            "--command-unit", "pulse_us", *args]
+    assert main(["import", str(path), "--db", str(db), *cols]) == 0
+    assert main(["calibrate", "last", "--db", str(db), "--out", str(out)]) == 0
+    run_id = Store(db).resolve_run_id("last")
+    (depth,) = json.loads((out / run_id / "calibration.json").read_text())["depths"]
+    return depth
+
+
+@pytest.mark.parametrize("seed", [4712, 4713, 4714])
+def test_twenty_percent_forward_reverse_difference_is_resolved(tmp_path, seed):
+    """10 points a side, white residuals: the regression's intervals, so forward and reverse
+    C_p (reverse 0.8 x forward) come out with disjoint intervals, each holding its truth."""
+    depth = _table(tmp_path, rov_table(seed))
+    fwd, rev = depth["coefficients"]["C_p_fwd"], depth["coefficients"]["C_p_rev"]
+    assert fwd["lo"] > rev["hi"], (fwd, rev)
+    for c, true in ((fwd, 5e-6), (rev, 4e-6)):
+        assert abs(c["value"] - true) <= (c["hi"] - c["lo"]) / 2 * Z_999_OVER_95, (c, true)
+
+
+def test_interval_widens_with_lack_of_fit(tmp_path):
+    """Rows that state errors (std over 100 samples) ten times smaller than their scatter
+    about the law: the interval widens with the reduced chi-square and holds the truth."""
+    stated = _table(tmp_path / "a", rov_table(4715, noise_frac=0.015, stated_std=0.02),
+                    "--col", "thrust_std=Force std", "--col", "n_samples=Samples")
+    c = stated["coefficients"]["C_p_fwd"]
+    assert abs(c["value"] - 5e-6) <= (c["hi"] - c["lo"]) / 2 * Z_999_OVER_95, c
+    plain = _table(tmp_path / "b", rov_table(4715))["coefficients"]["C_p_fwd"]
+    assert (c["hi"] - c["lo"]) > 0.5 * (plain["hi"] - plain["lo"]), (c, plain)
+
+
+@pytest.mark.parametrize("seed", [4716, 4717])
+def test_a_log_entering_reverse_at_its_far_end_keeps_its_reverse_branch(tmp_path, seed):
+    """1500 -> 1100 at once, then up to 1900: the reverse side is entered at its far end and
+    swept back towards neutral, so no command there was tried from rest; no start/stop band
+    may be read from it, and reverse thrusts get reverse commands."""
+    rng = np.random.default_rng(seed)
+    cmds = np.concatenate([[1500.0], np.arange(1100.0, 1901.0, 25.0)])
+    d = cmds - 1500.0
+    n = np.where(np.abs(d) >= 25.0, 3000.0 * d / 400.0, 0.0)
+    f = np.where(n > 0, 5e-7, 4e-7) * np.abs(n) * n + rng.normal(0.0, 0.01, n.size)
+    t = 2.0 + 5.0 * np.arange(cmds.size)
+    rows = ["Time (s),ESC signal (µs),Thrust (N),Motor Optical Speed (RPM)"]
+    rows += [f"{a:.1f},{c:g},{b:.5f},{abs(s):.1f}" for a, c, b, s in zip(t, cmds, f, n, strict=True)]
+    depth, cal = _calibrate(tmp_path, "\n".join(rows) + "\n")
+    assert not (depth["command_curve"]["start_stop"] or {}).get("below")
+    cmd = cal.command([-1.0, -2.0])
+    assert np.all(cmd < 1475), cmd

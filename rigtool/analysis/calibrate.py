@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from rigtool.analysis.curves import CURVE_UNITS, CommandCurve, command_curve
-from rigtool.analysis.dataset import RunData, Tares, load_run
+from rigtool.analysis.dataset import ACCURACY_KEYS, RunData, Tares, load_run
 from rigtool.analysis.depth_fits import (
     STOPPED_FRAC,
     ModelFits,
@@ -22,6 +22,7 @@ from rigtool.analysis.drift_design import (
     neutral_zero,
     reads_zero,
     row_noise,
+    zero_read_apart,
 )
 from rigtool.analysis.dynamics import Dynamics, StepSeries, identify, no_dynamics_reason
 from rigtool.analysis.efficiency import overall_efficiency
@@ -103,6 +104,33 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
     )
 
 
+def mark_ventilated(cal: CalibrationResult, events: list[dict]) -> list[str]:
+    """Flag as unsteady every point whose steady window overlaps a ventilation event the run
+    itself detected (stored events: step_idx, t_start_s, t_end_s), and say so: such a point's
+    mean mixes clean and ventilated thrust. Returns the warnings (none without such a point)."""
+    spans: dict[int, list[tuple[float, float]]] = {}
+    for e in events:
+        spans.setdefault(int(e["step_idx"]), []).append((float(e["t_start_s"]),
+                                                         float(e["t_end_s"])))
+    marked = []
+    for sec in cal.sections:
+        pts = sec.points
+        start = pts.window_start_s
+        end = start + 2.0 * (pts.t_mid_s - start)  # the window is symmetric about its mean time
+        hit = np.array([any(a < e and b > s for a, b in spans.get(int(i), ()))
+                        for i, s, e in zip(pts.step_idx, start, end, strict=True)], dtype=bool)
+        new = hit & ~pts.unsteady
+        if hit.any():
+            pts.unsteady = pts.unsteady | hit
+            marked.append((sec.label, int(hit.sum()), int(new.sum())))
+    if not marked:
+        return []
+    where = ", ".join(f"{n} at {label}" for label, n, _ in marked)
+    return [f"{sum(n for _, n, _ in marked)} point(s) ({where}) have steady windows that overlap "
+            "ventilation events this run detected: their means mix clean and ventilated thrust "
+            "(marked unsteady in points.csv)"]
+
+
 def _dynamics(run: RunData) -> tuple[Dynamics | None, list[str]]:
     """Identify the dynamics of a step-response run from its points in time order; the
     warnings say why when there are none."""
@@ -171,6 +199,7 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
     direction = speed_sign(points, run.neutral_command, usable)
     points.speed_sign = direction.sign
     shallow = bool(np.isfinite(points.depth_m[0]) and points.depth_m[0] < p.deep_depth_m)
+    accuracy = _sensor_share(run.sensor_accuracy, points.thrust.mean[ok])
     design, design_zero = _drift_design(run, points, ok)
     fixed_zero = None if shallow or design.estimable else design_zero
 
@@ -186,14 +215,20 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
             speed_se=points.speed.se[ok], params=p.curve, tare_t_s=run.tares.t_s,
             tare_drift=_drift_per_s(drift, _tare_sessions(run)),
             sessions=run.session_starts_s, drifts=design.estimable,
-            sweep=None if run.step_response else points.direction[ok])
+            sweep=None if run.step_response else points.direction[ok],
+            zero_at_neutral=neutral_ends)
 
+    neutral_ends = False
     if not points.speed.measured:
-        # Without feedback the dead commands read the zero: find them first.
+        # Without feedback the neutral command, visited at times a quarter of the sweep apart,
+        # reads the zero (a ramp's neutral ends); else the dead commands found first do.
+        at_neutral = ok & (points.command == run.neutral_command)
+        neutral_ends = zero_read_apart(points.t_mid_s[ok], at_neutral[ok])
         design = DriftDesign(True, "")
         first = make_curve(None)
         if first is not None:
-            design, design_zero = _drift_design(run, points, ok, first.is_dead(points.command))
+            dead = at_neutral if neutral_ends else first.is_dead(points.command)
+            design, design_zero = _drift_design(run, points, ok, dead)
             fixed_zero = None if shallow or design.estimable else design_zero
     if shallow:
         # Points near the surface may be ventilating: the zero comes from dead points or tares.
@@ -208,7 +243,8 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
         return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
                           density_kg_m3=run.water_density_kg_m3, params=p.fit, zero=fixed_zero,
                           direction=direction, sessions=run.session_starts_s,
-                          drift=design.estimable)
+                          drift=design.estimable,
+                          thrust_systematic=accuracy.get("thrust_share", 0.0))
 
     models = fit()
     if not shallow:
@@ -249,7 +285,21 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
                         "coefficients come from a deep run")
     return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep, warnings,
                         models.speed_sign, drift_design=_design_text(design),
-                        thrust_law=models.thrust_law)
+                        thrust_law=models.thrust_law, sensor_accuracy=accuracy)
+
+
+def _sensor_share(declared: dict[str, float | None] | None, thrust_n: np.ndarray
+                  ) -> dict[str, float | None]:
+    """The declared accuracy with `thrust_share`: its errors in quadrature (% of full scale)
+    as a share of the largest thrust here (the full scale itself when none is declared)."""
+    if not declared:
+        return {}
+    f = np.abs(thrust_n[np.isfinite(thrust_n)])
+    top = float(f.max()) if f.size else 0.0
+    pct = math.sqrt(sum((declared[k] or 0.0) ** 2 for k in ACCURACY_KEYS))
+    full = declared.get("full_scale_n") or top
+    share = pct / 100.0 * full / top if top > 0 else 0.0
+    return {**declared, "thrust_share": share}
 
 
 def _drift_design(run: RunData, points: PointTable, ok: np.ndarray,
@@ -271,7 +321,7 @@ def _drift_design(run: RunData, points: PointTable, ok: np.ndarray,
     if ok.any() and occupied_starts(t[ok], run.session_starts_s):
         return design, None  # each session keeps its own offset, fitted with the law
     zero = neutral_zero(t[zero_rows], points.thrust.mean[zero_rows], points.thrust.se[zero_rows],
-                        row_noise(points.command[ok], points.thrust.mean[ok]))
+                        row_noise(t[ok], points.command[ok], points.thrust.mean[ok]))
     if zero is None and anchors.t_s.size:
         zero = ZeroLine(0.0, 0.0, float(anchors.t_s[-1]), "tare", ((0.0, 0.0), (0.0, 0.0)))
     return design, zero
@@ -421,12 +471,16 @@ def _run_warnings(run: RunData, table: PointTable, drift: TareDrift | None,
 
 def _span_and_noise(points: PointTable) -> tuple[float, float]:
     """The time the ok points span (s), and the thrust noise: their smallest per-point standard
-    deviation, the sensor's own where the propeller adds least (NaN without one)."""
+    deviation, the sensor's own where the propeller adds least; for a table of one reading
+    per row, the rows' own scatter about a smooth curve (drift_design.row_noise)."""
     ok = (points.status == "ok") & np.isfinite(points.t_mid_s)
     spread = points.thrust.std[ok]
     spread = spread[np.isfinite(spread) & (spread > 0)]
     span = float(np.ptp(points.t_mid_s[ok])) if ok.any() else 0.0
-    return span, float(spread.min()) if spread.size else NAN
+    if spread.size:
+        return span, float(spread.min())
+    rows = row_noise(points.t_mid_s[ok], points.command[ok], points.thrust.mean[ok])
+    return span, rows if rows > 0 else NAN
 
 
 def _zero_drift_interval(zero: ZeroLine) -> tuple[float, float]:

@@ -37,7 +37,7 @@ from rigtool.analysis.zero_search import (
     zone_cores,
 )
 
-CURVE_UNITS = ("pwm_counts", "pulse_us", "percent")
+CURVE_UNITS = ("pwm_counts", "pulse_us", "percent", "volts")
 ZERO_PASSES = 4
 MIN_ZERO_POINTS = 5  # dead commands needed to judge the zero's scatter
 JUMP_SIDE = 3  # points each side of a gap that define the local lines of the break-away test
@@ -192,7 +192,8 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
                   params: CurveParams | None = None, tare_t_s: np.ndarray | None = None,
                   tare_drift: tuple[float, float] | None = None,
                   sessions: tuple[float, ...] = (), drifts: bool = True,
-                  sweep: np.ndarray | None = None) -> CommandCurve:
+                  sweep: np.ndarray | None = None, zero_at_neutral: bool = False
+                  ) -> CommandCurve:
     """Analyse thrust vs command of one depth's points (one entry per point, any order).
 
     Thrust is taken relative to `zero` (offset + drift of the sensor zero at each point's
@@ -207,6 +208,9 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
     from the thrust (drift_design.py): the zero found is then flat. `sweep` ("up"/"down" per
     point): where the motor starts from rest further from neutral than it stops coming back
     (an ESC's hysteretic band), the inverse table keeps only commands that start it.
+    `zero_at_neutral` (without speed feedback): the points at the neutral command read the
+    zero, and the line is fitted through them alone, nothing searched (a ramp's neutral ends:
+    its bins near the dead band, read once each as the thrust rises, would pass for a drift).
     """
     p = params or CurveParams()
     floor = max(p.floor_n, p.k_tare * zero_scatter_n if zero_scatter_n else 0.0)
@@ -216,6 +220,8 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
     if not drifts:
         anchors = dataclasses.replace(anchors, drift=None, drifts=False)
     hint = _not_turning(speed_mean[ok], None if speed_se is None else speed_se[ok], p)
+    if hint is None and zero_at_neutral:
+        hint = command[ok] == neutral_command
     line = zero or _find_zero(pts, anchors, hint, neutral_command, floor, p)
     z = line.at(t_s) if line else np.zeros(command.size)
     var_z = line.var_at(t_s) if line else np.zeros(command.size)
@@ -281,14 +287,19 @@ def start_stop_edges(command: np.ndarray, sweep: np.ndarray, live: np.ndarray,
                      neutral: float) -> dict[str, tuple[float, float]]:
     """Per side of neutral ("above"/"below"), (stop edge, start edge) where they differ: the
     start edge is the command nearest neutral from which every point swept away from neutral
-    turns the motor; the stop edge the same for the points swept back towards neutral."""
+    turns the motor; the stop edge the same for the points swept back towards neutral. Only
+    where a point swept away from neutral was dead at or beyond the stop edge: a command the
+    motor turns at on the way back but not from rest. (A log that enters a side at its far
+    end and sweeps back never tried to start the motor nearer neutral: no edge from it.)"""
     out = {}
     for side, sign in (("above", 1.0), ("below", -1.0)):
         mine = sign * (command - neutral) > 0
         away = mine & (sweep == ("up" if sign > 0 else "down"))
         back = mine & (sweep == ("down" if sign > 0 else "up"))
         start, stop = _edge(command[away], live[away], sign), _edge(command[back], live[back], sign)
-        if start is not None and stop is not None and sign * (start - stop) > 0:
+        if start is None or stop is None or not sign * (start - stop) > 0:
+            continue
+        if (away & ~live & (sign * (command - stop) >= 0)).any():
             out[side] = (stop, start)
     return out
 

@@ -108,6 +108,29 @@ class RunData:
     # Times (s) at which the run was resumed (`rigtool sweep --resume`): each begins a new
     # session, in which the sensor is opened and tared again (its zero offset starts over).
     session_starts_s: tuple[float, ...] = ()
+    # The force sensor's declared accuracy (rig file or `import --sensor-accuracy`): % of full
+    # scale per error, and the full scale in N (None: the run's largest thrust).
+    sensor_accuracy: dict[str, float | None] | None = None
+
+
+ACCURACY_KEYS = ("nonlinearity_pct_fs", "hysteresis_pct_fs", "crosstalk_pct_fs")
+
+
+def sensor_accuracy(rig: dict) -> dict[str, float | None] | None:
+    """The declared sensor accuracy of a stored rig (a rig file's `sensor_accuracy`, or an
+    import's), checked: each % within 0..100 and the full scale positive (UsageError)."""
+    doc = rig.get("sensor_accuracy") or (rig.get("import") or {}).get("sensor_accuracy")
+    if not doc:
+        return None
+    out: dict[str, float | None] = {k: float(doc.get(k) or 0.0) for k in ACCURACY_KEYS}
+    if any(not 0.0 <= v <= 100.0 for v in out.values() if v is not None):
+        raise UsageError(f"stored sensor_accuracy {doc!r}: each % of full scale must lie in "
+                         "0..100")
+    fs = doc.get("full_scale_n")
+    if fs is not None and not 0.0 < float(fs) <= 1e7:
+        raise UsageError(f"stored sensor_accuracy full_scale_n {fs!r} must lie in (0, 1e7] N")
+    out["full_scale_n"] = None if fs is None else float(fs)
+    return out
 
 
 def load_run(store: Store, run_id: str) -> RunData:
@@ -142,6 +165,7 @@ def _load_run(store: Store, run_id: str) -> RunData:
         events=[e for e in events if e["kind"] != "tare"],
         step_response=bool((record.protocol.get("command") or {}).get("steps")),
         session_starts_s=session_starts(events),
+        sensor_accuracy=sensor_accuracy(record.rig),
     )
 
 

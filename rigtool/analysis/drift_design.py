@@ -69,6 +69,17 @@ def drift_design(t_s: np.ndarray, command: np.ndarray, reads_zero: np.ndarray,
                        "cannot be told from the thrust law")
 
 
+def zero_read_apart(t_s: np.ndarray, reads_zero: np.ndarray) -> bool:
+    """Whether the points marked `reads_zero` read the zero on separate visits at least
+    SEPARATION of the points' time span apart (the returns-to-neutral rule, no tares)."""
+    t = np.asarray(t_s, dtype=float)
+    keep = np.isfinite(t)
+    t, reads_zero = t[keep], np.asarray(reads_zero)[keep]
+    span = float(np.ptp(t)) if t.size else 0.0
+    visits = _zero_visits(t, reads_zero, np.zeros(0))
+    return span > 0 and visits.size >= 2 and float(np.ptp(visits)) >= SEPARATION * span
+
+
 def _zero_visits(t_s: np.ndarray, reads_zero: np.ndarray, tares: np.ndarray) -> np.ndarray:
     """Mean time of each visit to the zero: a run of consecutive zero-reading points (in time
     order, live points between them end a visit), and each tare. One long run is one visit: a
@@ -91,11 +102,14 @@ def reads_zero(command: np.ndarray, speed_rpm: np.ndarray, neutral_command: floa
     return np.asarray(command) == neutral_command
 
 
-def row_noise(command: np.ndarray, thrust_n: np.ndarray) -> float:
+def row_noise(t_s: np.ndarray, command: np.ndarray, thrust_n: np.ndarray) -> float:
     """The scatter of one row's thrust about a smooth curve (N): robust SD of the second
-    differences in command order, less their median (a curve's own curvature), over sqrt(6)."""
-    ok = np.isfinite(command) & np.isfinite(thrust_n)
-    f = thrust_n[ok][np.argsort(command[ok], kind="stable")]
+    differences, less their median (a curve's own curvature), over sqrt(6). In time order (a
+    linear drift drops out of second differences; a sweep up and down stays smooth), or in
+    command order for a table without a time axis."""
+    ok = np.isfinite(command) & np.isfinite(thrust_n) & np.isfinite(t_s)
+    key = t_s[ok] if ok.any() and np.ptp(t_s[ok]) > 0 else command[ok]
+    f = thrust_n[ok][np.argsort(key, kind="stable")]
     if f.size < 5:
         return 0.0
     d2 = np.diff(f, 2)

@@ -36,12 +36,14 @@ from rigtool.analysis.stats import (
     ar1_coefficient,
     effective_sample_size,
     lag1_autocorrelation,
+    serially_correlated,
 )
 
 RPM_PER_RPS = 60.0
 SECONDS_PER_HOUR = 3600.0
 DIRECT_MIN_K = 10.0  # direct C_i fit: I - I_0 must exceed this many of its standard errors
 MIN_SCALE_DOF = 20  # model fits with this many degrees of freedom take their scale from the scatter
+LACK_P = 1e-3  # residuals beyond their stated errors at this chi-square p-value: lack of fit
 CUBIC = 3.0  # the textbook exponent of I = C_n |n|^3 + I_0
 Z95 = 1.96
 
@@ -103,9 +105,14 @@ class LinearFit:
 
 
 def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
-        order: np.ndarray | None = None, scale_down: bool = False) -> LinearFit:
+        order: np.ndarray | None = None, scale_down: bool = False,
+        lack_of_fit: bool = False) -> LinearFit:
     """Weighted LS; covariance scaled for excess scatter and for serial correlation in `order`
-    (`scale_down`: also for less scatter than `sigma` says, given MIN_SCALE_DOF)."""
+    (`scale_down`: also for less scatter than `sigma` says, given MIN_SCALE_DOF).
+    `lack_of_fit`: where the residuals exceed their stated errors beyond chance (p < LACK_P)
+    with fewer than MIN_SCALE_DOF degrees of freedom, the weights may let one precise point
+    decide the fit the others miss; the covariance is then at least that of an equally
+    weighted fit with the residuals' own scatter."""
     w = 1.0 / _floor_sigma(sigma, y)
     a = design * w[:, None]
     scale = np.sqrt(np.sum(a**2, axis=0))
@@ -122,7 +129,8 @@ def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
     if order is not None and dof > 1:
         sort = np.argsort(order, kind="stable")
         r = (resid * w)[sort]
-        r1 = ar1_coefficient(lag1_autocorrelation(r), MAX_R1_FIT, len(y))
+        raw = lag1_autocorrelation(r)
+        r1 = ar1_coefficient(raw, MAX_R1_FIT, len(y)) if serially_correlated(raw, len(y)) else 0.0
         if r1 > 0:
             a_t = a_s[sort]
             bread = bread @ (a_t.T @ _ar1_correlate(a_t, r1)) @ bread
@@ -130,11 +138,33 @@ def wls(design: np.ndarray, y: np.ndarray, sigma: np.ndarray,
     cov = bread / np.outer(scale, scale)
     if dof > 0 and (chi2_red > 1.0 or (scale_down and len(y) - design.shape[1] >= MIN_SCALE_DOF)):
         cov = cov * chi2_red
+    if lack_of_fit:
+        cov = _with_lack_of_fit(cov, design, y, len(y) - design.shape[1], chi2_red)
     leverage = np.sum(design * influence.T, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         serial = np.where(np.diag(white) > 0, np.diag(bread) / np.diag(white), 1.0)
     return LinearFit(beta, cov, dof, chi2_red, resid, influence, leverage,
                      np.maximum(np.nan_to_num(serial, nan=1.0), 1.0))
+
+
+def _with_lack_of_fit(cov: np.ndarray, design: np.ndarray, y: np.ndarray, dof: int,
+                      chi2_red: float) -> np.ndarray:
+    """`cov` scaled up to the equally weighted fit's (residual scatter as the error) where a
+    few points miss the law beyond their errors (see `wls`)."""
+    from scipy import special
+
+    if not (0 < dof < MIN_SCALE_DOF and math.isfinite(chi2_red)
+            and special.chdtrc(dof, dof * chi2_red) < LACK_P):
+        return cov
+    scale = np.sqrt(np.sum(design**2, axis=0))
+    scale[scale == 0] = 1.0
+    d = design / scale
+    beta, *_ = np.linalg.lstsq(d, y, rcond=None)
+    resid = y - d @ beta
+    plain = np.linalg.pinv(d.T @ d) * float(resid @ resid) / dof / np.outer(scale, scale)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(np.diag(cov) > 0, np.diag(plain) / np.diag(cov), 1.0)
+    return cov * max(float(np.nanmax(ratio)), 1.0)
 
 
 def hc2(resid: np.ndarray, leverage: np.ndarray | None) -> np.ndarray:
@@ -469,11 +499,11 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
             cols.append((t - t_ref) / SECONDS_PER_HOUR)
             names.append("drift")
     design = np.column_stack(cols)
-    fit = wls(design, yy, se, t, scale_down=True)
+    fit = wls(design, yy, se, t, scale_down=True, lack_of_fit=True)
     if dx_se is not None:
         slope = sum(np.where(masks[k][used], fit.beta[i], 0.0) for i, k in enumerate(keys))
         fit = wls(design, yy, np.sqrt(se**2 + (slope * np.nan_to_num(dx_se[used])) ** 2), t,
-                  scale_down=True)
+                  scale_down=True, lack_of_fit=True)
     if zero is not None:
         _add_zero_error(fit, zero, t)
     return DirectionalFit(fit, names, masks, used, yy, t_ref, zero, starts)

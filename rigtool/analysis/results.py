@@ -151,6 +151,9 @@ class DepthSection:
     drift_design: str = ""
     # Per direction ("fwd", "rev"), the thrust-speed law chosen (thrust_law.py; empty before).
     thrust_law: dict[str, dict] = field(default_factory=dict)
+    # The declared sensor accuracy and `thrust_share`, the systematic share of the thrusts it
+    # adds to the thrust coefficients' intervals (empty: none declared).
+    sensor_accuracy: dict[str, float | None] = field(default_factory=dict)
 
     @property
     def label(self) -> str:

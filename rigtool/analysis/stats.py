@@ -15,6 +15,10 @@ The rule, for every caller (fits.wls, the dynamics fits, the steady windows):
   MAX_R1_FIT for fit residuals (tens to thousands of values, where an r1 nearer 1 is not
   told apart from a trend the model misses), MAX_R1_SAMPLES for the raw samples of a steady
   window (hundreds to thousands at 0.5-1 kHz, where 0.99 is what a slow sensor filter gives).
+- Fit residuals (fits.wls) are first tested for serial correlation: a lag-1
+  autocorrelation within what white residuals give one time in twenty (below
+  -1/n + WHITE_Z / sqrt(n)) counts as none, so the interval is the regression's; only a
+  significant r1 is corrected and used (`serially_correlated`).
 - n_eff = n (1 - r1) / (1 + r1), at least the caller's floor (the parameters plus one for a
   criterion, 1 sample for a standard error).
 """
@@ -25,6 +29,13 @@ import numpy as np
 
 MAX_R1_FIT = 0.98
 MAX_R1_SAMPLES = 0.999
+WHITE_Z = 1.645  # one-sided 95 % of the lag-1 autocorrelation of n white values
+
+
+def serially_correlated(r1: float, n: int) -> bool:
+    """Whether a raw lag-1 autocorrelation of n fit residuals is more than white residuals
+    give one time in twenty (mean -1/n, standard deviation 1/sqrt(n))."""
+    return n > 2 and r1 > -1.0 / n + WHITE_Z / np.sqrt(n)
 
 
 def lag1_autocorrelation(r: np.ndarray, same: np.ndarray | None = None,

@@ -17,6 +17,7 @@ from rigtool.analysis.results import CavitationResult
 from rigtool.artefacts.write import atomic_write, json_clean, json_text
 from rigtool.ids import utc_now
 from rigtool.models import MODEL_FILE, VARIANCE_FILE
+from rigtool.models.qctm import VALIDATED_RUNS
 from rigtool.outpaths import run_folder
 from rigtool.version import __version__
 
@@ -40,6 +41,13 @@ TRAIN_COLUMNS = (
 )
 
 
+def training_runs(res: CavitationResult) -> dict:
+    """How many runs trained the model, and whether its 95 % intervals were checked run by
+    run (two runs or more); one run's block folds cannot validate them."""
+    runs = len(set(res.training.provenance.get("run_ids", []))) or 1
+    return {"training_runs": runs, "intervals_validated": runs >= VALIDATED_RUNS}
+
+
 def summary_document(res: CavitationResult, created: str) -> dict:
     """cavitation.json: parameters, BETM, deep errors, events, training provenance, evaluation."""
     ev = res.evaluation
@@ -51,7 +59,7 @@ def summary_document(res: CavitationResult, created: str) -> dict:
         "deep_errors_blocks": res.deep_errors, "deep_errors_samples": res.deep_errors_samples,
         "events": res.events, "event_table": res.event_table,
         "training": {"n_selected": len(res.training), "n_blocks": res.n_blocks_total,
-                     **res.training.provenance},
+                     **res.training.provenance, **training_runs(res)},
         "gp": {"length_scales": res.gp.hyper.length_scales, "signal_var": res.gp.hyper.signal_var,
                "signal_scale_cv": res.gp.signal_scale,
                "noise_var_n2": res.gp.noise_var_n2,
@@ -107,7 +115,8 @@ def write_cavitation_artefacts(res: CavitationResult, out_dir: str | Path,
     target = run_folder(out_dir, res.run_id)
     target.mkdir(parents=True, exist_ok=True)
     model = model_document(res.betm, res.gp, {
-        "run_ids": res.training.provenance.get("run_ids", []), "base_run_id": res.base_run_id,
+        "run_ids": res.training.provenance.get("run_ids", []), **training_runs(res),
+        "base_run_id": res.base_run_id,
         "created_utc": created, "tool_version": __version__,
         **json_clean({"interval_check": res.interval_check, "floor": res.floor})},
         window=res.params.window_blocks, block_s=res.params.train_block_s,

@@ -211,7 +211,21 @@ class ExportInput:
                 "make it again with rigtool export-cal rather than edit it.",
                 f"source run, run name, thruster, creation time, command unit: "
                 f"{', '.join(names)}.",
-                "units: thrust N, command in the command unit, speed r/min (docs/artefacts.md)."]
+                "units: thrust N, command in the command unit, speed r/min (docs/artefacts.md)."
+                + self.law_note]
+
+    @property
+    def law_note(self) -> str:
+        """How far the one coefficient C_p |n| n is from the law chosen per direction, for
+        the formats that take one coefficient (empty without a thrust law)."""
+        parts = [f"{100 * law['quadratic_max_miss_frac']:.1f} % {word}"
+                 for key, word in (("fwd", "forward"), ("rev", "reverse"))
+                 if (law := self.sec.thrust_law.get(key)) is not None]
+        if not parts:
+            return ""
+        return (" C_p |n| n misses the thrust law chosen on held-out points by up to "
+                f"{', '.join(parts)} of full-scale thrust from 10 to 100 % speed "
+                "(calibration.json thrust_law).")
 
     def dynamics_params(self) -> dict[str, float | str] | None:
         """The identified dynamics' parameters (None: none to carry)."""

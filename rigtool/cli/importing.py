@@ -31,8 +31,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                         "temperature (kept per point) (repeatable)")
     p.add_argument("--unit", action="append", metavar="FIELD=UNIT",
                    help="unit of a mapped column, e.g. thrust=kgf (overrides the header suffix)")
-    p.add_argument("--command-unit", help="pulse_us | percent | pwm_counts | rpm | amps")
-    p.add_argument("--neutral", type=float, help="stop command (default: 1500 us, else 0)")
+    p.add_argument("--command-unit", help="pulse_us | percent | pwm_counts | rpm | amps | volts "
+                   "(default: from the command header's unit, e.g. `Throttle (V)`: volts)")
+    p.add_argument("--neutral", type=float, help="stop command (default: 1500 us, else 0, "
+                   "which must then lie within the logged commands)")
     p.add_argument("--decimal-comma", action="store_true", help="numbers use ',' as decimal sep. "
                    "(delimiter then defaults to ';')")
     p.add_argument("--delimiter", help="field delimiter (default: sniffed from the header)")
@@ -43,6 +45,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    "start of each command")
     p.add_argument("--pole-pairs", type=int, help="motor pole pairs, to convert electrical r/min")
     p.add_argument("--flip-thrust", action="store_true", help="negate the thrust column")
+    p.add_argument("--sensor-accuracy", metavar="KEY=VALUE,...",
+                   help="the force sensor's datasheet accuracy, %% of full scale: nonlinearity, "
+                        "hysteresis, crosstalk (and full_scale in N), e.g. nonlinearity=0.25,"
+                        "crosstalk=1.5,full_scale=100: added to the thrust coefficients' "
+                        "intervals (docs/protocols.md)")
     p.add_argument("--depth", type=float, help="propeller depth (m) of every point")
     p.add_argument("--name", help="run name (default: the file name)")
     p.add_argument("--thruster-id", help="thruster id stored in the run metadata")
@@ -52,6 +59,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 def cmd_import(args: argparse.Namespace) -> int:
     from rigtool.importers import Mapping, import_file, load_mapping, with_overrides
+    from rigtool.importers.mapping import accuracy_option
 
     for option, text in (("--name", args.name), ("--thruster-id", args.thruster_id)):
         problem = label_problem(text) if text is not None else None
@@ -62,7 +70,8 @@ def cmd_import(args: argparse.Namespace) -> int:
         base, cols=args.col, units=args.unit, command_unit=args.command_unit,
         decimal="," if args.decimal_comma else None, delimiter=args.delimiter,
         format=args.format, settle_s=args.settle_s, pole_pairs=args.pole_pairs,
-        neutral=args.neutral, thrust_sign=-1 if args.flip_thrust else None)
+        neutral=args.neutral, thrust_sign=-1 if args.flip_thrust else None,
+        sensor_accuracy=accuracy_option(args.sensor_accuracy))
     with Store(resolve_db_path(args.db)) as store:
         several = len(args.files) > 1
         for path in args.files:

@@ -131,6 +131,8 @@ def _rig(path: Path, source: _Source, mapping: Mapping, fmt: str) -> dict:
             "mapping": mapping.model_dump(),
         },
     }
+    if mapping.sensor_accuracy is not None:
+        doc["import"]["sensor_accuracy"] = mapping.sensor_accuracy.model_dump()
     if source.sheets is not None:
         doc["import"]["sheets"] = source.sheets
         doc["import"]["skipped_sheets"] = source.notes
@@ -165,6 +167,12 @@ def temperature_events(points: ImportedPoints, parsed: Parsed) -> list[tuple[str
     return events
 
 
+RAMP_NOTE = ("read as a command ramp, binned by command and taken as steady: on a ramp the "
+             "propeller's speed lags the command, so its thrust reads low going up and high "
+             "going down; sweep up and down (the mean of the two is steadier) or ramp slower "
+             "to check")
+
+
 def _points(path: Path, parsed: Parsed, fmt: str, m: Mapping,
             depth_m: float | None) -> tuple[ImportedPoints, list[str]]:
     """The points of a table in format `fmt`: a time series (or step log: every sample kept,
@@ -177,7 +185,8 @@ def _points(path: Path, parsed: Parsed, fmt: str, m: Mapping,
     if fmt in ("timeseries", "steps"):
         return timeseries_steps(parsed, m.settle_s, depth_m)
     if fmt == "ramp":
-        return timeseries_steps(parsed, 0.0, depth_m, ramp_keys(parsed, depth_m))
+        points, notes = timeseries_steps(parsed, 0.0, depth_m, ramp_keys(parsed, depth_m))
+        return points, [*notes, RAMP_NOTE]
     return point_steps(parsed, depth_m)
 
 

@@ -7,8 +7,10 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from rigtool.accuracy import SensorAccuracy
 from rigtool.config import load_model
 from rigtool.errors import UsageError
+from rigtool.importers.units import KNOWN_COMMAND_UNITS
 
 FIELDS = ("time", "command", "thrust", "speed", "current", "voltage", "depth", "supply",
           "thrust_std", "n_samples", "torque", "temperature")
@@ -19,7 +21,10 @@ NOT_DELIMITERS = frozenset('"\r\n0123456789.+-eE')
 OPTIONS = {"columns": "--col", "units": "--unit", "command_unit": "--command-unit",
            "neutral": "--neutral", "format": "--format", "delimiter": "--delimiter",
            "decimal": "--decimal-comma", "settle_s": "--settle-s", "thrust_sign": "--flip-thrust",
-           "pole_pairs": "--pole-pairs"}
+           "pole_pairs": "--pole-pairs", "sensor_accuracy": "--sensor-accuracy"}
+# --sensor-accuracy keys -> SensorAccuracy fields
+ACCURACY_OPTION = {"nonlinearity": "nonlinearity_pct_fs", "hysteresis": "hysteresis_pct_fs",
+                   "crosstalk": "crosstalk_pct_fs", "full_scale": "full_scale_n"}
 MAX_COLUMN_DIGITS = 6
 
 
@@ -74,6 +79,8 @@ class Mapping(_Strict):
     settle_s: float = Field(default=0.0, ge=0, allow_inf_nan=False)
     thrust_sign: Literal[1, -1] = 1
     pole_pairs: int | None = Field(default=None, ge=1)
+    # the force sensor's datasheet accuracy, % of full scale (docs/protocols.md)
+    sensor_accuracy: SensorAccuracy | None = None
 
     @field_validator("delimiter")
     @classmethod
@@ -83,6 +90,14 @@ class Mapping(_Strict):
         if v is not None and v in NOT_DELIMITERS:
             raise ValueError(f"{v!r} cannot be the delimiter (quote, line end, or part of numbers)")
         return "\t" if v == "tab" else v
+
+    @field_validator("command_unit")
+    @classmethod
+    def _known_unit(cls, v: str | None) -> str | None:
+        """A misspelt unit would import and then fit no command curve, saying nothing."""
+        if v is not None and v not in KNOWN_COMMAND_UNITS:
+            raise ValueError(f"unknown command unit; known: {' | '.join(KNOWN_COMMAND_UNITS)}")
+        return v
 
     @model_validator(mode="after")
     def _delimiter_not_decimal(self) -> Mapping:
@@ -109,6 +124,19 @@ def _pairs(items: list[str] | None, option: str, allowed: tuple[str, ...]) -> di
             raise UsageError(f"{option} {item!r}: unknown field {key!r}; known: {', '.join(allowed)}")
         out[key] = value.strip()
     return out
+
+
+def accuracy_option(text: str | None) -> dict[str, str] | None:
+    """`--sensor-accuracy nonlinearity=0.25,hysteresis=0.25,crosstalk=1.5,full_scale=100`
+    (% of full scale; full scale in N) as SensorAccuracy fields (None: not given)."""
+    if text is None:
+        return None
+    pairs = _pairs([p for p in text.split(",") if p.strip()], "--sensor-accuracy",
+                   tuple(ACCURACY_OPTION))
+    if not pairs:
+        raise UsageError(f"--sensor-accuracy {text!r}: expected KEY=VALUE pairs, e.g. "
+                         "nonlinearity=0.25,hysteresis=0.25,crosstalk=1.5,full_scale=100")
+    return {ACCURACY_OPTION[k]: v for k, v in pairs.items()}
 
 
 def with_overrides(base: Mapping, *, cols: list[str] | None = None,

@@ -28,6 +28,7 @@ RAMP_MAX_DT_S = 1.0  # a log sampled faster than this whose command moves on mos
 RAMP_MIN_ROWS = 20
 RAMP_ROWS_PER_POINT = 5  # a ramp's command bins hold at least this many rows ...
 RAMP_MAX_POINTS = 200  # ... and there are at most this many of them
+RAMP_HOLD_SETTLE_S = 3.0  # a ramp's held command drops this much (at most half) after its step
 MAX_LISTED_DROPS = 10  # dropped points named one by one; the rest are counted
 NO_DEPTH = -1e300  # stands for "no depth" in grouping keys
 
@@ -183,7 +184,10 @@ def _dropped_warnings(p: Parsed, starts: np.ndarray, lengths: np.ndarray,
 def timeseries_steps(p: Parsed, settle_s: float, depth_m: float | None,
                      keys: np.ndarray | None = None) -> tuple[ImportedPoints, list[str]]:
     """One point per run of equal command (equal `keys`, given: a ramp's command bins, each
-    point's command then the mean of its rows'); the first `settle_s` of each run is dropped."""
+    point's command then the mean of its rows'); the first `settle_s` of each run is dropped.
+    With `keys`, a command held for TIMESERIES_MIN_RUN rows or more (a ramp's neutral ends)
+    drops its first RAMP_HOLD_SETTLE_S instead, at most half of it: after a step the thrust
+    still follows the propeller's spin-up or spin-down, which would read as a zero drift."""
     t = p.values["time"]
     t = t - t[0] if t.size else t
     warnings = []
@@ -192,7 +196,14 @@ def timeseries_steps(p: Parsed, settle_s: float, depth_m: float | None,
     edges = _edges(_keys(p, depth_m) if keys is None else keys)
     starts, stops = edges[:-1], edges[1:]
     run_of_row = np.repeat(np.arange(starts.size), stops - starts)
-    keep = t >= (t[starts] + settle_s)[run_of_row]
+    settle = np.full(starts.size, float(settle_s))
+    if keys is not None:
+        cmd = p.values["command"]
+        held = ((stops - starts >= TIMESERIES_MIN_RUN)
+                & (cmd[starts] == cmd[stops - 1]) & (keys[starts, 0] == cmd[starts]))
+        span = t[stops - 1] - t[starts]
+        settle = np.where(held, np.minimum(RAMP_HOLD_SETTLE_S, 0.5 * span), settle)
+    keep = t >= (t[starts] + settle)[run_of_row]
     kept_per_run = np.bincount(run_of_row[keep], minlength=starts.size)
     empty = kept_per_run == 0
     warnings += _dropped_warnings(p, starts[empty], (stops - starts)[empty], settle_s)

@@ -57,6 +57,8 @@ MAX_VARIANCE_BYTES = 256 << 20  # qctm_gp_kinv.npy: n_train^2 doubles (2000 rows
 FORMAT_VERSION = 7
 SIGNAL_ARRAYS = ("alpha", "a_n", "weights", "variance_file")  # absent when gp.signal is false
 Z95 = 1.959963984540054
+VALIDATED_RUNS = 2  # a model's 95 % intervals are checked run by run from this many runs on
+MAX_TRAINING_RUNS = 10_000
 SQRT5 = 5.0**0.5
 LOG_CHI2_BIAS = 1.2703628454614782  # -E[log chi^2_1]: exp(E[log e^2] + this) = var(e), e Gaussian
 FEATURES = ("speed_rpm", "shortfall_thrust_n", "depth_m")
@@ -328,6 +330,10 @@ class ThrustModel:
     mean_term: GatedMean = GatedMean()  # explicit mean g(z)
     bounds: Bounds = Bounds()
     domain: Domain | None = None  # None in files older than format 4: nothing is flagged
+    # How many runs trained it, and whether that is enough for its 95 % intervals to have been
+    # checked run by run (VALIDATED_RUNS); None in files written before they were recorded.
+    training_runs: int | None = None
+    intervals_validated: bool | None = None
 
     def features(self, speed_rpm: np.ndarray, current_a: np.ndarray, depth_m: np.ndarray,
                  segment: np.ndarray | None = None) -> np.ndarray:
@@ -572,4 +578,24 @@ def model_from_document(doc: dict, k_inv: np.ndarray | None = None) -> ThrustMod
         else int(doc["features"]["lead_blocks"]),
         mean_term=GatedMean(scalars["beta"], scalars["gate_z0"], scalars["gate_s"]),
         block_s=float(doc.get("features", {}).get("block_s", 0.2)),
-        bounds=Bounds.from_dict(doc.get("bounds")), domain=Domain.from_dict(doc.get("domain")))
+        bounds=Bounds.from_dict(doc.get("bounds")), domain=Domain.from_dict(doc.get("domain")),
+        training_runs=_training_runs(doc.get("training_runs")),
+        intervals_validated=_validated(doc.get("intervals_validated")))
+
+
+def _training_runs(value: object) -> int | None:
+    """The document's `training_runs`: a whole number 1..MAX_TRAINING_RUNS, or absent."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not (
+            1 <= value <= MAX_TRAINING_RUNS):
+        raise ValueError(f"training_runs {value!r} is not a whole number of runs within "
+                         f"1..{MAX_TRAINING_RUNS}")
+    return value
+
+
+def _validated(value: object) -> bool | None:
+    """The document's `intervals_validated`: true, false, or absent."""
+    if value is None or isinstance(value, bool):
+        return value
+    raise ValueError(f"intervals_validated {value!r} is not true or false")

@@ -8,6 +8,7 @@ from matplotlib.figure import Figure
 
 from rigtool.analysis.cavitation import IN_SAMPLE_NOTE
 from rigtool.analysis.results import CavitationResult
+from rigtool.artefacts.cavitation import training_runs
 from rigtool.report import figures as fg
 
 
@@ -65,6 +66,8 @@ def cavitation_view(res: CavitationResult, image_format: str = "svg") -> dict:
     return {
         "base_run_id": res.base_run_id, "n_events": len(res.events),
         "n_training": len(res.training), "n_blocks": res.n_blocks_total,
+        "training_runs": training_runs(res)["training_runs"],
+        "intervals_validated": training_runs(res)["intervals_validated"],
         "block_s": f"{res.params.train_block_s:g}",
         "deep_rows": [[e.name, base, _f(e.max_abs_n), _f(e.p95_abs_n), _f(e.rms_n),
                        f"{e.within_1n:.1%}"]

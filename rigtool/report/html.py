@@ -358,7 +358,8 @@ def _speed_figures(sec: DepthSection, cal: CalibrationResult, suffix: str, at: s
                               "error bars and the forward/reverse C_p |n| n model; below, the "
                               "residuals thrust − zero − C_p |n| n (N). Thrust is shown after "
                               f"removing the estimated sensor zero and its drift{zero}, as the "
-                              f"fit saw it.{_design_text(sec)}{_law_text(sec)}",
+                              f"fit saw it.{_design_text(sec)}{_law_text(sec)}"
+                              f"{_accuracy_text(sec)}",
                               fg.encode(fg.thrust_speed(p, fits), fmt)))
     else:
         out.append(FigureItem(*ts, "No thrust-vs-speed fit: too few points with significant "
@@ -376,6 +377,18 @@ def _speed_figures(sec: DepthSection, cal: CalibrationResult, suffix: str, at: s
 def _design_text(sec: DepthSection) -> str:
     """The sentence on whether the sweep's design let a zero drift be estimated."""
     return f" Zero drift {sec.drift_design}." if sec.drift_design else ""
+
+
+def _accuracy_text(sec: DepthSection) -> str:
+    """The sentence on the sensor accuracy declared and what it adds to the intervals."""
+    a = sec.sensor_accuracy
+    if not a:
+        return ""
+    full = f"{a['full_scale_n']:g} N" if a.get("full_scale_n") else "the largest thrust"
+    return (f" Force sensor accuracy declared: nonlinearity {a['nonlinearity_pct_fs']:g} %, "
+            f"hysteresis {a['hysteresis_pct_fs']:g} %, crosstalk {a['crosstalk_pct_fs']:g} % "
+            f"of full scale ({full}): ±{100 * a['thrust_share']:.2g} % of the largest thrust, "
+            "in the systematic part of every thrust coefficient's interval.")
 
 
 def _law_text(sec: DepthSection) -> str:

@@ -122,6 +122,9 @@ int main(int argc, char **argv)
         fprintf(stderr, "qctm_eval: %s\n", err);
         return 1;
     }
+    if (qctm_intervals_validated(m) == 0)
+        fprintf(stderr, "qctm_eval: note: trained on one run: its 95 %% intervals were not "
+                        "validated on another run\n");
     while ((r = read_line(stdin, &line, &cap)) > 0) {
         char *f[5], *s = line;
         const char *label;

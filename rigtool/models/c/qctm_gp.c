@@ -630,6 +630,9 @@ struct qctm_model {
     double short_lo, short_hi, above_n;
     int has_domain, has_range[4];
     double range_lo[4], range_hi[4], max_distance;
+    /* 1: trained on two runs or more, its 95 % intervals checked run by run; 0: one run;
+     * -1: not recorded (files written before intervals_validated) */
+    int intervals_validated;
 };
 
 static const char *const DOMAIN_INPUTS[4] = {"speed_rpm", "current_a", "depth_m",
@@ -1050,6 +1053,10 @@ static int load_document(loader *L, qctm_model *m, const jval *doc)
     if (version > 7)
         return lfail(L, "qctm_gp.json: %s", "format version above 7: this evaluator reads 2-7");
     m->version = (int)version;
+    v = jget(doc, "intervals_validated");
+    if (v != NULL && v->type != J_TRUE && v->type != J_FALSE)
+        return lfail(L, "qctm_gp.json: %s must be true or false", "intervals_validated");
+    m->intervals_validated = v == NULL ? -1 : v->type == J_TRUE;
     return load_betm(L, m, jget(doc, "betm")) || load_features(L, m, doc)
            || load_gp(L, m, doc) || load_noise(L, m, doc) || load_limits(L, m, doc);
 }
@@ -1074,6 +1081,11 @@ void qctm_free(qctm_model *m)
 int qctm_has_kinv(const qctm_model *m)
 {
     return m->kinv != NULL;
+}
+
+int qctm_intervals_validated(const qctm_model *m)
+{
+    return m->intervals_validated;
 }
 
 qctm_model *qctm_load(const char *path, char *err, size_t errlen)

@@ -32,6 +32,11 @@ qctm_model *qctm_load(const char *path, char *err, size_t errlen);
  * the model has no GP signal). */
 int qctm_has_kinv(const qctm_model *m);
 
+/* 1 when the model was trained on two runs or more, so its 95 % intervals were checked run
+ * by run; 0 when trained on one run (checked only on held-out blocks of that run: they hold
+ * on a new run only as far as it resembles that one); -1 when the file does not say. */
+int qctm_intervals_validated(const qctm_model *m);
+
 void qctm_free(qctm_model *m);
 
 /* Evaluate `count` consecutive block means. segment: one label per block (a new segment
