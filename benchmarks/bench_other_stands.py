@@ -32,15 +32,18 @@ CASES = {
     "quadratic+linear": (Stand(law="quadratic+linear", cp=4e-7, linear=3e-4),
                          "quadratic+linear", False),
     "hysteretic ESC, up-down": (Stand(start_us=40.0, stop_us=5.0), "quadratic", True),
+    "1.5 % crosstalk, declared": (Stand(crosstalk_frac=0.015), "quadratic", False),
 }
+IMPORT_ARGS = {"1.5 % crosstalk, declared": ["--sensor-accuracy", "crosstalk=1.5"]}
 
 
-def run_case(stand: Stand, seed: int, updown: bool, tmp: Path) -> tuple[dict, object]:
+def run_case(stand: Stand, seed: int, updown: bool, tmp: Path,
+             args: tuple[str, ...] = ()) -> tuple[dict, object]:
     """Import and calibrate one log through the CLI; (depth section, API calibration)."""
     csv, db, out = tmp / f"{seed}.csv", tmp / "b.sqlite", tmp / "cal"
     csv.write_text(step_table(stand, seed, step_us=5.0 if updown else 25.0, updown=updown)[0],
                    encoding="utf-8")
-    text = subprocess.run(["rigtool", "import", str(csv), "--db", str(db)], check=True,
+    text = subprocess.run(["rigtool", "import", str(csv), "--db", str(db), *args], check=True,
                           capture_output=True, text=True).stdout
     run_id = text.split("run ")[-1].strip()
     subprocess.run(["rigtool", "calibrate", run_id, "--db", str(db), "--out", str(out)],
@@ -77,7 +80,8 @@ def main(first: int, stop: int) -> None:
         right, flag_right, cover, cp_err, curve_err, in_band = [], [], [], [], [], 0
         with tempfile.TemporaryDirectory() as tmp:
             for seed in range(first, stop):
-                depth, cal = run_case(stand, seed, updown, Path(tmp))
+                depth, cal = run_case(stand, seed, updown, Path(tmp),
+                                      tuple(IMPORT_ARGS.get(name, ())))
                 law = depth["thrust_law"]["fwd"]
                 n = np.linspace(0.1, 1.0, 50) * stand.top_rpm
                 truth = stand.thrust(n)

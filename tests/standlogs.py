@@ -26,6 +26,9 @@ class Stand:
     noise_n: float = 0.01
     offset_n: float = 0.0
     drift_n_per_h: float = 0.0  # the load cell's zero drifting after its one tare
+    # torque leaking into the thrust reading: this fraction of full-scale thrust at full
+    # torque (the torque grows as n^2), as a datasheet's crosstalk in % of full scale
+    crosstalk_frac: float = 0.0
 
     def thrust(self, n: np.ndarray) -> np.ndarray:
         """True thrust (N) at speed n (r/min, >= 0)."""
@@ -50,7 +53,9 @@ def step_table(stand: Stand, seed: int, step_us: float = 25.0, updown: bool = Fa
         spinning = d >= (stand.stop_us if spinning else stand.start_us)
         n[i] = stand.top_rpm * d / 400.0 if spinning else 0.0
     t = 2.0 + hold_s * np.arange(cmds.size)
+    full = stand.thrust(np.array([stand.top_rpm]))[0]
     f = (stand.thrust(n) + stand.offset_n + stand.drift_n_per_h * t / 3600.0
+         + stand.crosstalk_frac * full * (n / stand.top_rpm) ** 2
          + rng.normal(0.0, stand.noise_n, n.size))
     current = 0.3 + 2e-10 * n**3 + rng.normal(0.0, 0.01, n.size)
     rpm = np.where(n > 0, n + rng.normal(0.0, 2.0, n.size), 0.0)

@@ -34,6 +34,7 @@ from rigtool.analysis.fits import (
     occupied_starts,
     session_index,
     session_line,
+    with_bound,
 )
 from rigtool.analysis.point_pass import SectionSamples, SpreadPass, fill_spreads, point_pass
 from rigtool.analysis.quality import (
@@ -243,16 +244,15 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
         return fit_models(points, samples, diameter_m=run.propeller_diameter_m,
                           density_kg_m3=run.water_density_kg_m3, params=p.fit, zero=fixed_zero,
                           direction=direction, sessions=run.session_starts_s,
-                          drift=design.estimable,
-                          thrust_systematic=accuracy.get("thrust_share", 0.0))
+                          drift=design.estimable)
 
-    models = fit()
+    models = _with_sensor_bound(fit(), accuracy.get("thrust_share") or 0.0)
     if not shallow:
         curve = make_curve(models.zero)
     if curve is not None:
         points.dead = curve.is_dead(points.command)
         if (points.dead & models.used).any():
-            models = fit()
+            models = _with_sensor_bound(fit(), accuracy.get("thrust_share") or 0.0)
     points.used_in_fits = models.used
     zero = fixed_zero or models.zero or (curve.zero if curve else None)
     if zero is not None:
@@ -286,6 +286,18 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
     return DepthSection(depth, points, models.coefficients, curve, zero, hyst, rep, warnings,
                         models.speed_sign, drift_design=_design_text(design),
                         thrust_law=models.thrust_law, sensor_accuracy=accuracy)
+
+
+SENSOR_MEASURED = ("C_p_", "K_T_", "C_i_", "C_q_", "K_Q_")  # coefficients read off the sensor
+
+
+def _with_sensor_bound(models: ModelFits, share: float) -> ModelFits:
+    """The fits with the declared sensor accuracy (`share` of the thrusts) added as a bound
+    to the interval of every coefficient measured with the sensor (fits.with_bound)."""
+    if share > 0:
+        models.coefficients = {k: with_bound(c, share) if k.startswith(SENSOR_MEASURED) else c
+                               for k, c in models.coefficients.items()}
+    return models
 
 
 def _sensor_share(declared: dict[str, float | None] | None, thrust_n: np.ndarray

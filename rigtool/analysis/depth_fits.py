@@ -227,8 +227,7 @@ def _stopped_thrust(points: PointTable, ok: np.ndarray, top_rpm: float) -> float
 def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float | None,
                density_kg_m3: float | None, params: FitParams | None = None,
                zero: ZeroLine | None = None, direction: SpeedSign | None = None,
-               sessions: tuple[float, ...] = (), drift: bool = True,
-               thrust_systematic: float = 0.0) -> ModelFits:
+               sessions: tuple[float, ...] = (), drift: bool = True) -> ModelFits:
     """All speed/current model coefficients of one depth.
 
     The thrust zero is fitted jointly with C_p unless `zero` is given (points that may be
@@ -236,11 +235,8 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
     (see `speed_sign`; default: the feedback as measured). `sessions` are the start times of
     a resumed run's later sessions: each has its own zero offset (and torque offset).
     `drift`: the design separates a zero drift from the law (drift_design.py), so one is fitted.
-    `thrust_systematic`: the force sensor's declared accuracy as a share of the thrusts here,
-    added in quadrature to `rel_systematic` in the coefficients measured with that sensor.
     """
     p = params or FitParams()
-    pt = dataclasses.replace(p, rel_systematic=math.hypot(p.rel_systematic, thrust_systematic))
     use = candidate_points(points, p)
     result = ModelFits(used=np.zeros(len(points), dtype=bool))
     if not points.speed.measured:
@@ -269,7 +265,7 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
     for key in ("fwd", "rev"):
         if key in thrust_fit.columns:
             cp[key] = with_systematic(thrust_fit.coefficient(
-                key, f"C_p_{key}", "N/(r/min)^2", "f = C_p |n| n"), pt.rel_systematic)
+                key, f"C_p_{key}", "N/(r/min)^2", "f = C_p |n| n"), p.rel_systematic)
             out[cp[key].name] = cp[key]
             if diameter_m and density_kg_m3:
                 out[f"K_T_{key}"] = thrust_coefficient(cp[key], diameter_m, density_kg_m3,
@@ -303,11 +299,11 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
         "windows; no interval (samples are autocorrelated)", sample_residual)
     if points.torque.measured:
         out.update(_torque_models(points, n, se_n, t, masks, result, diameter_m,
-                                  density_kg_m3, pt, sessions, drift))
+                                  density_kg_m3, p, sessions, drift))
     if points.current.measured:
         weighted = _current_scatter_weights(points, n, single & result.used)
         coefs, warnings = _current_models(weighted, samples, n, masks, thrust_fit, cp, p,
-                                          single, pt.rel_systematic)
+                                          single)
         out.update(coefs)
         result.warnings = result.warnings + warnings
     return result
@@ -462,12 +458,9 @@ class CurrentLaw:
 def _current_models(points: PointTable, samples: SampleSpreads, n: np.ndarray,
                     masks: dict[str, np.ndarray], thrust_fit: DirectionalFit,
                     cp: dict[str, Coefficient], p: FitParams,
-                    single: np.ndarray, rel_thrust: float = 0.0
-                    ) -> tuple[dict[str, Coefficient], list[str]]:
+                    single: np.ndarray) -> tuple[dict[str, Coefficient], list[str]]:
     """C_n and I_0, the free-exponent law, C_i derived and direct, sigma_i; and the warning
-    when the current law is not cubic. `rel_thrust`: the systematic share of the thrust-based
-    coefficients (C_i), `p.rel_systematic` that of the current law."""
-    pt = dataclasses.replace(p, rel_systematic=max(rel_thrust, p.rel_systematic))
+    when the current law is not cubic."""
     cur, se_i = points.current.mean, points.current.se
     m = thrust_fit.used & np.isfinite(cur)
     if m.sum() < 3:
@@ -490,11 +483,11 @@ def _current_models(points: PointTable, samples: SampleSpreads, n: np.ndarray,
         warnings.append(_law_warning(out["k_free"], i_0))
     for key in cp:
         out[f"C_i_{key}"] = with_systematic(_derived_ci(cp[key], key, law, thrust_fit),
-                                            pt.rel_systematic)
+                                            p.rel_systematic)
     cur_masks = {k: v & m for k, v in masks.items()}
     direct = _direct_fit(points, cur, cur_masks, law, thrust_fit.zero, single)
     if direct is not None:
-        ci = _direct_coefficients(direct, points, cur, law, thrust_fit, pt)
+        ci = _direct_coefficients(direct, points, cur, law, thrust_fit, p)
         out.update({c.name: c for c in ci.values()})
         out.update(_current_spreads(points, samples, n, cur, ci, law, direct, signed))
     return out, warnings

@@ -712,6 +712,19 @@ def with_systematic(c: Coefficient, rel: float) -> Coefficient:
         stat_hi=c.hi)
 
 
+def with_bound(c: Coefficient, rel: float) -> Coefficient:
+    """`c` with rel * |value| added to both sides of its interval, not in quadrature: a
+    declared bound (a datasheet's maximum error) may be reached, and then only the scatter's
+    own interval can hold the truth."""
+    if rel <= 0 or not math.isfinite(c.value):
+        return c
+    extra = rel * abs(c.value)
+    stat_lo, stat_hi = c.statistical
+    return dataclasses.replace(c, lo=c.lo - extra, hi=c.hi + extra,
+                               systematic=c.systematic + extra, stat_lo=stat_lo,
+                               stat_hi=stat_hi)
+
+
 def residual_spread(resid: np.ndarray, name: str, note: str, *, interval: bool) -> Coefficient:
     """RMS of residuals (N) as a coefficient; chi-square 95 % interval when `interval`."""
     from scipy import special
