@@ -65,11 +65,13 @@ def step_table(stand: Stand, seed: int, step_us: float = 25.0, updown: bool = Fa
 
 
 def ramp_log(stand: Stand, seed: int, rate_hz: float = 5.0, ramp_s: float = 60.0,
-             hold_s: float = 5.0, end_hold_s: float = 0.0, tau_s: float = 0.5) -> str:
+             hold_s: float = 5.0, end_hold_s: float = 0.0, tau_s: float = 0.5,
+             speed: bool = False) -> str:
     """A continuous command ramp 1500 -> 1900 us sampled at `rate_hz`, neutral held
     `hold_s` before it, no speed column (a command ramp of a stand without a tachometer).
     `end_hold_s`: then a step back to neutral held that long, the propeller spinning down
-    with time constant `tau_s` (its thrust decays over the first seconds there)."""
+    with time constant `tau_s` (its thrust decays over the first seconds there). `speed`:
+    with an optical speed column (r/min, 2 r/min noise)."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, hold_s + ramp_s + end_hold_s, 1.0 / rate_hz)
     cmd = 1500.0 + 400.0 * np.clip((t - hold_s) / ramp_s, 0.0, 1.0)
@@ -80,6 +82,12 @@ def ramp_log(stand: Stand, seed: int, rate_hz: float = 5.0, ramp_s: float = 60.0
     n = np.where(end_hold_s and after >= 0, stand.top_rpm * np.exp(-np.maximum(after, 0) / tau_s),
                  n)
     f = stand.thrust(n) + stand.offset_n + rng.normal(0.0, stand.noise_n, n.size)
+    if speed:
+        rpm = np.where(n > 0, n + rng.normal(0.0, 2.0, n.size), 0.0)
+        rows = ["Time (s),ESC signal (µs),Thrust (N),Motor Optical Speed (RPM)"]
+        rows += [f"{a:.3f},{c:.2f},{b:.5f},{r:.1f}" for a, c, b, r in zip(t, cmd, f, rpm,
+                                                                          strict=True)]
+        return "\n".join(rows) + "\n"
     rows = ["Time (s),ESC signal (µs),Thrust (N)"]
     rows += [f"{a:.3f},{c:.2f},{b:.5f}" for a, c, b in zip(t, cmd, f, strict=True)]
     return "\n".join(rows) + "\n"

@@ -182,3 +182,15 @@ def test_a_log_entering_reverse_at_its_far_end_keeps_its_reverse_branch(tmp_path
     assert not (depth["command_curve"]["start_stop"] or {}).get("below")
     cmd = cal.command([-1.0, -2.0])
     assert np.all(cmd < 1475), cmd
+
+
+@pytest.mark.parametrize("seed", [4721, 4722, 4723])
+def test_ramp_with_speed_takes_its_zero_from_the_neutral_ends(tmp_path, seed):
+    """A 5 Hz ramp with a speed column and neutral at both ends (the attacker's regression:
+    the ramp's own points set a drift of several N/h): the zero line runs through the two
+    neutral ends, no drift is warned of, and C_p is within 1 %."""
+    stand = Stand(offset_n=0.05)
+    depth, _ = _calibrate(tmp_path, ramp_log(stand, seed, 5.0, end_hold_s=10.0, speed=True))
+    assert depth["zero"]["source"] == "neutral command"
+    assert not any(w.startswith("sensor zero drifts") for w in depth["warnings"])
+    assert abs(depth["coefficients"]["C_p_fwd"]["value"] / stand.cp - 1) < 0.01

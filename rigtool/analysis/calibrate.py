@@ -17,10 +17,12 @@ from rigtool.analysis.depth_fits import (
     speed_sign,
 )
 from rigtool.analysis.drift_design import (
+    MIN_REPEATED,
     DriftDesign,
     drift_design,
     neutral_zero,
     reads_zero,
+    repeated_apart,
     row_noise,
     zero_read_apart,
 )
@@ -52,7 +54,7 @@ from rigtool.analysis.results import (
 )
 from rigtool.analysis.steady import PointTable
 from rigtool.analysis.voltage import fit_voltage_law, voltage_point
-from rigtool.analysis.zero_search import section_anchors
+from rigtool.analysis.zero_search import ZeroPoints, fit_zero_line, section_anchors
 from rigtool.store import Store
 from rigtool.version import __version__
 
@@ -219,12 +221,17 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
             sweep=None if run.step_response else points.direction[ok],
             zero_at_neutral=neutral_ends)
 
-    neutral_ends = False
+    # The neutral command visited at times a quarter of the sweep apart (a ramp's neutral
+    # ends) reads the zero line on its own where no command is measured again: the points
+    # between, read once each as the thrust rises, would otherwise set a drift as they fit.
+    at_neutral = ok & (points.command == run.neutral_command)
+    neutral_ends = (zero_read_apart(points.t_mid_s[ok], at_neutral[ok])
+                    and repeated_apart(points.t_mid_s[ok], points.command[ok],
+                                       at_neutral[ok]) < MIN_REPEATED)
+    if neutral_ends and points.speed.measured and not shallow:
+        fixed_zero = _neutral_line(run, points, at_neutral) or fixed_zero
     if not points.speed.measured:
-        # Without feedback the neutral command, visited at times a quarter of the sweep apart,
-        # reads the zero (a ramp's neutral ends); else the dead commands found first do.
-        at_neutral = ok & (points.command == run.neutral_command)
-        neutral_ends = zero_read_apart(points.t_mid_s[ok], at_neutral[ok])
+        # Without feedback the dead commands found first read the zero otherwise.
         design = DriftDesign(True, "")
         first = make_curve(None)
         if first is not None:
@@ -298,6 +305,19 @@ def _with_sensor_bound(models: ModelFits, share: float) -> ModelFits:
         models.coefficients = {k: with_bound(c, share) if k.startswith(SENSOR_MEASURED) else c
                                for k, c in models.coefficients.items()}
     return models
+
+
+def _neutral_line(run: RunData, points: PointTable, at_neutral: np.ndarray) -> ZeroLine | None:
+    """The zero line through the points at the neutral command and the tare that zeroes them
+    (offset, and a drift where significant: zero_search.fit_zero_line)."""
+    t = points.t_mid_s
+    se = points.thrust.se
+    noise = row_noise(t[at_neutral], points.command[at_neutral], points.thrust.mean[at_neutral])
+    se = np.where(np.isfinite(se) & (se > 0), se, noise or np.nanstd(points.thrust.mean[at_neutral]))
+    pts = ZeroPoints(points.command[at_neutral], t[at_neutral], points.thrust.mean[at_neutral],
+                     se[at_neutral])
+    line = fit_zero_line(pts, section_anchors(run.tares.t_s, t[at_neutral]))
+    return None if line is None else dataclasses.replace(line, source="neutral command")
 
 
 def _sensor_share(declared: dict[str, float | None] | None, thrust_n: np.ndarray

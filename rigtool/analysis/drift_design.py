@@ -52,21 +52,29 @@ def drift_design(t_s: np.ndarray, command: np.ndarray, reads_zero: np.ndarray,
                 "tares" if tares.size else "returns to neutral")
         return DriftDesign(True, f"{what} read the zero {np.ptp(visits):.0f} s apart, over a "
                            f"sweep of {span:.0f} s")
-    live = ~reads_zero
-    values, inverse = np.unique(command[live], return_inverse=True)
-    repeated = 0
-    if values.size:
-        first = np.full(values.size, np.inf)
-        last = np.full(values.size, -np.inf)
-        np.minimum.at(first, inverse, t[live])
-        np.maximum.at(last, inverse, t[live])
-        repeated = int(np.sum(last - first >= need))
+    repeated = repeated_apart(t, command, reads_zero)
     if repeated >= MIN_REPEATED:
         return DriftDesign(True, f"{repeated} commands were measured again at least "
                            f"{need:.0f} s later")
     return DriftDesign(False, "one pass with no return to neutral, no re-tare and no command "
                        "measured again later, so time moves with the command and a drift "
                        "cannot be told from the thrust law")
+
+
+def repeated_apart(t_s: np.ndarray, command: np.ndarray, reads_zero: np.ndarray) -> int:
+    """How many commands not reading the zero were measured again at least SEPARATION of
+    the points' time span later."""
+    t = np.asarray(t_s, dtype=float)
+    keep = np.isfinite(t)
+    t, command, live = t[keep], np.asarray(command)[keep], ~np.asarray(reads_zero)[keep]
+    values, inverse = np.unique(command[live], return_inverse=True)
+    if not values.size:
+        return 0
+    first = np.full(values.size, np.inf)
+    last = np.full(values.size, -np.inf)
+    np.minimum.at(first, inverse, t[live])
+    np.maximum.at(last, inverse, t[live])
+    return int(np.sum(last - first >= SEPARATION * float(np.ptp(t))))
 
 
 def zero_read_apart(t_s: np.ndarray, reads_zero: np.ndarray) -> bool:
