@@ -260,8 +260,16 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
         points.dead = curve.is_dead(points.command)
         if (points.dead & models.used).any():
             models = _with_sensor_bound(fit(), accuracy.get("thrust_share") or 0.0)
-    points.used_in_fits = models.used
     zero = fixed_zero or models.zero or (curve.zero if curve else None)
+    return _finish_section(run, points, ok, models, curve, zero, design, accuracy, shallow, p)
+
+
+def _finish_section(run: RunData, points: PointTable, ok: np.ndarray, models: ModelFits,
+                    curve: CommandCurve | None, zero: ZeroLine | None, design: DriftDesign,
+                    accuracy: dict, shallow: bool, p: CalibrationParams) -> DepthSection:
+    """The section from its fits, curve and zero: the points relative to that zero, quality
+    (hysteresis, repeatability) and the warnings."""
+    points.used_in_fits = models.used
     if zero is not None:
         points.thrust_zero_n = np.nan_to_num(zero.at(points.t_mid_s))
     if models.torque_zero is not None:

@@ -196,21 +196,17 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
                   ) -> CommandCurve:
     """Analyse thrust vs command of one depth's points (one entry per point, any order).
 
-    Thrust is taken relative to `zero` (offset + drift of the sensor zero at each point's
-    time t_s); without one, the zero and the dead points are found together (zero_search.py),
-    anchored at the tares (`tare_t_s`, where the zero is 0; `tare_drift` (N/s, SE) when the
-    tares show it) or at the neutral command; a resumed run's sessions (`sessions`: the times
-    the later ones begin) each get their own zero offset, with one drift. Where the propeller speed is measured (signed,
-    `speed_se` its standard errors), a command is dead when the propeller does not turn, and
-    branches follow the direction it turns: near a deadband the thrust is too small to tell
-    either. Live commands beside a dead zone that a drift could equally make dead are counted
-    as dead and named in `warnings`. `drifts`: False where the design cannot separate a drift
-    from the thrust (drift_design.py): the zero found is then flat. `sweep` ("up"/"down" per
-    point): where the motor starts from rest further from neutral than it stops coming back
-    (an ESC's hysteretic band), the inverse table keeps only commands that start it.
-    `zero_at_neutral` (without speed feedback): the points at the neutral command read the
-    zero, and the line is fitted through them alone, nothing searched (a ramp's neutral ends:
-    its bins near the dead band, read once each as the thrust rises, would pass for a drift).
+    Thrust is taken relative to `zero` (the sensor zero at each point's time t_s); without
+    one, the zero and the dead points are found together (zero_search.py), anchored at the
+    tares (`tare_t_s`; `tare_drift` (N/s, SE) when they show one) or the neutral command; a
+    resumed run's `sessions` each get their own offset, with one drift. With speed (signed,
+    `speed_se` its errors) a command is dead when the propeller does not turn, and branches
+    follow its direction. Live commands beside a dead zone that a drift could equally make
+    dead are counted as dead and named in `warnings`. `drifts` False (drift_design.py): the
+    zero is flat. `sweep` ("up"/"down" per point): where the motor starts from rest further
+    from neutral than it stops coming back, the inverse table keeps only commands that start
+    it. `zero_at_neutral` (no speed): the line runs through the neutral command's points
+    alone (a ramp's neutral ends: its bins, read once each, would pass for a drift).
     """
     p = params or CurveParams()
     floor = max(p.floor_n, p.k_tare * zero_scatter_n if zero_scatter_n else 0.0)
@@ -256,13 +252,9 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
         if b.saturated:
             state[sl][(cmd[sl] >= b.saturated[0]) & (cmd[sl] <= b.saturated[1])] = "saturated"
         branches.append(b)
-    start_stop = {} if sweep is None else start_stop_edges(
-        command[ok], sweep[ok], _live_points(pts, line, speed_mean[ok], p, floor),
-        neutral_command)
-    for b in branches:
-        side = "above" if b.command_lo >= neutral_command else "below"
-        if side in start_stop:
-            _trim_to_start(b, start_stop[side][1], neutral_command)
+    start_stop = {} if sweep is None else _start_stop(
+        pts, sweep[ok], _live_points(pts, line, speed_mean[ok], p, floor), neutral_command,
+        branches)
     return CommandCurve(
         command_unit=command_unit, neutral_command=neutral_command, floor_n=floor, zero=line,
         command=cmd, n_points=k, thrust_mean_n=m, thrust_se_n=se, thrust_min_n=lo,
@@ -272,6 +264,18 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
         break_aways=sorted(c for b in branches for c in b.break_aways), warnings=notes,
         start_stop=start_stop,
     )
+
+
+def _start_stop(pts: ZeroPoints, sweep: np.ndarray, live: np.ndarray, neutral: float,
+                branches: list[Branch]) -> dict[str, tuple[float, float]]:
+    """The start and stop edges (start_stop_edges), each branch's inverse table trimmed to
+    the commands beyond its side's start edge."""
+    edges = start_stop_edges(pts.command, sweep, live, neutral)
+    for b in branches:
+        side = "above" if b.command_lo >= neutral else "below"
+        if side in edges:
+            _trim_to_start(b, edges[side][1], neutral)
+    return edges
 
 
 def _live_points(pts: ZeroPoints, line: ZeroLine | None, speed: np.ndarray, p: CurveParams,

@@ -233,8 +233,8 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
     The thrust zero is fitted jointly with C_p unless `zero` is given (points that may be
     ventilating must not set the zero). `direction` gives unsigned speed feedback its sign
     (see `speed_sign`; default: the feedback as measured). `sessions` are the start times of
-    a resumed run's later sessions: each has its own zero offset (and torque offset).
-    `drift`: the design separates a zero drift from the law (drift_design.py), so one is fitted.
+    a resumed run's later sessions: each has its own zero offset (and torque offset);
+    `drift`: the design separates a zero drift from the law (drift_design.py).
     """
     p = params or FitParams()
     use = candidate_points(points, p)
@@ -261,23 +261,14 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
         thrust_fit = (fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions, drift)
                       or thrust_fit)
     out = result.coefficients
-    cp = {}
-    for key in ("fwd", "rev"):
-        if key in thrust_fit.columns:
-            cp[key] = with_systematic(thrust_fit.coefficient(
-                key, f"C_p_{key}", "N/(r/min)^2", "f = C_p |n| n"), p.rel_systematic)
-            out[cp[key].name] = cp[key]
-            if diameter_m and density_kg_m3:
-                out[f"K_T_{key}"] = thrust_coefficient(cp[key], diameter_m, density_kg_m3,
-                                                       f"K_T_{key}")
+    cp = _thrust_coefficients(thrust_fit, out, p, diameter_m, density_kg_m3)
     for c in thrust_fit.zero_coefficients():
         out[c.name] = c
     result.used = thrust_fit.used
     result.zero = thrust_fit.zero
     zero = result.zero.at(t)
-    result.thrust_law, law_warnings = _thrust_laws(n, f - zero, se_f, masks, thrust_fit.used,
-                                                   result.zero.var_at(t))
-    result.warnings = result.warnings + law_warnings
+    result.thrust_law, laws_said = _thrust_laws(n, f - zero, se_f, masks, thrust_fit.used,
+                                                result.zero.var_at(t))
     pred = _signed_model(cp, n, lambda c, v: laws.thrust_from_speed(v, c, c))
     inferred = direction is not None and direction.source != "measured"
 
@@ -305,8 +296,26 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
         coefs, warnings = _current_models(weighted, samples, n, masks, thrust_fit, cp, p,
                                           single)
         out.update(coefs)
-        result.warnings = result.warnings + warnings
+        laws_said += warnings
+    result.warnings = result.warnings + laws_said
     return result
+
+
+def _thrust_coefficients(thrust_fit: DirectionalFit, out: dict[str, Coefficient], p: FitParams,
+                         diameter_m: float | None, density_kg_m3: float | None
+                         ) -> dict[str, Coefficient]:
+    """C_p per direction fitted (and K_T where diameter and density are known), added to
+    `out`; the C_p by direction key."""
+    cp = {}
+    for key in ("fwd", "rev"):
+        if key in thrust_fit.columns:
+            cp[key] = with_systematic(thrust_fit.coefficient(
+                key, f"C_p_{key}", "N/(r/min)^2", "f = C_p |n| n"), p.rel_systematic)
+            out[cp[key].name] = cp[key]
+            if diameter_m and density_kg_m3:
+                out[f"K_T_{key}"] = thrust_coefficient(cp[key], diameter_m, density_kg_m3,
+                                                       f"K_T_{key}")
+    return cp
 
 
 def _thrust_laws(n: np.ndarray, f: np.ndarray, se_f: np.ndarray, masks: dict[str, np.ndarray],
