@@ -446,8 +446,6 @@ DYNAMICS = Obj({"selected": STR, "models": MapOf(Opt(DYNAMICS_MODEL)),
                 "levels": ListOf(Obj({"command": NUM, "thrust_n": Opt(NUM)},
                                      required=("command", "thrust_n")))},
                required=("selected", "models", "levels"))
-THRUST_LAW_FAMILIES = {"quadratic": ("C_p",), "quadratic+linear": ("C_p", "C_l"),
-                       "power": ("C", "k")}  # as rigtool.analysis.thrust_law
 THRUST_LAW = Obj({"family": STR, "params": MapOf(NUM)}, required=("family", "params"))
 CALIBRATION_DOCUMENT = Obj({
     "format": STR, "format_version": INT,
@@ -466,9 +464,11 @@ def calibration_document(document: Any) -> dict:
     CALIBRATION_DOCUMENT.check(document)
     if document["format"] != CALIBRATION_FORMAT:
         raise Invalid(f"format: {show(document['format'])} is not {CALIBRATION_FORMAT!r}")
+    from rigtool.models.laws import THRUST_LAWS  # on use: rigtool.models reads back with this
+
     for i, depth in enumerate(document.get("depths") or []):
         for key, law in (depth.get("thrust_law") or {}).items():
-            need = THRUST_LAW_FAMILIES.get(law["family"])
+            need = THRUST_LAWS.get(law["family"])
             if key not in ("fwd", "rev") or need is None or sorted(need) != sorted(law["params"]):
                 raise Invalid(f"depths[{i}].thrust_law.{show(key)}: not a known law with its "
                               f"parameters ({show(law['family'])})")

@@ -15,6 +15,7 @@ import pytest
 
 import rigtool
 from rigtool.cli import main
+from rigtool.errors import UsageError
 from rigtool.store import Store
 
 from .standlogs import Stand, ramp_log, rov_table, step_table
@@ -194,3 +195,19 @@ def test_ramp_with_speed_takes_its_zero_from_the_neutral_ends(tmp_path, seed):
     assert depth["zero"]["source"] == "neutral command"
     assert not any(w.startswith("sensor zero drifts") for w in depth["warnings"])
     assert abs(depth["coefficients"]["C_p_fwd"]["value"] / stand.cp - 1) < 0.01
+
+
+@pytest.mark.parametrize("law", [{"family": "cubic", "params": {"C": 1.0}},
+                                 {"family": "power", "params": {"C": 1e-7}},
+                                 {"family": "quadratic", "params": {"C_p": "x"}}])
+def test_a_crafted_thrust_law_is_refused_on_read_back(tmp_path, law):
+    """calibration.json is read back hostile: an unknown law, a law missing a parameter or a
+    parameter that is not a number is refused naming the file and field, not evaluated."""
+    _calibrate(tmp_path, step_table(Stand(law="power", k=2.15), 4724)[0])
+    folder = next((tmp_path / "cal").iterdir())
+    doc = json.loads((folder / "calibration.json").read_text())
+    doc["depths"][0]["thrust_law"]["fwd"] = law
+    (folder / "calibration.json").write_text(json.dumps(doc))
+    with pytest.raises(UsageError, match="thrust_law") as info:
+        rigtool.load_calibration(folder)
+    assert str(folder / "calibration.json") in str(info.value)

@@ -122,14 +122,13 @@ def mark_ventilated(cal: CalibrationResult, events: list[dict]) -> list[str]:
         end = start + 2.0 * (pts.t_mid_s - start)  # the window is symmetric about its mean time
         hit = np.array([any(a < e and b > s for a, b in spans.get(int(i), ()))
                         for i, s, e in zip(pts.step_idx, start, end, strict=True)], dtype=bool)
-        new = hit & ~pts.unsteady
         if hit.any():
             pts.unsteady = pts.unsteady | hit
-            marked.append((sec.label, int(hit.sum()), int(new.sum())))
+            marked.append((sec.label, int(hit.sum())))
     if not marked:
         return []
-    where = ", ".join(f"{n} at {label}" for label, n, _ in marked)
-    return [f"{sum(n for _, n, _ in marked)} point(s) ({where}) have steady windows that overlap "
+    where = ", ".join(f"{n} at {label}" for label, n in marked)
+    return [f"{sum(n for _, n in marked)} point(s) ({where}) have steady windows that overlap "
             "ventilation events this run detected: their means mix clean and ventilated thrust "
             "(marked unsteady in points.csv)"]
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from rigtool.models import laws
 
-QUADRATIC, LINEAR, POWER = "quadratic", "quadratic+linear", "power"
+QUADRATIC, LINEAR, POWER = laws.THRUST_LAWS
 FORMULAS = {QUADRATIC: "f = C_p n^2", LINEAR: "f = C_p n^2 + C_l n", POWER: "f = C n^k"}
 FOLDS = 10
 EXTRA_Z = 3.29  # the extra parameter must be this many SEs from its quadratic value (99.9 %)

@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 CURRENT_EXPONENT = 3.0  # I = C_n |n|^3 + I_0 unless the free law replaced it
+# The thrust-speed laws a calibration may choose per direction, and each one's parameters.
+THRUST_LAWS = {"quadratic": ("C_p",), "quadratic+linear": ("C_p", "C_l"), "power": ("C", "k")}
 
 
 def thrust_from_speed(speed_rpm: np.ndarray, cp_fwd: float, cp_rev: float) -> np.ndarray:
@@ -32,7 +34,7 @@ def thrust_law(family: str, params: dict[str, float], speed_rpm: np.ndarray) -> 
         return params["C_p"] * x**2 + params["C_l"] * x
     if family == "power":
         return params["C"] * x ** params["k"]
-    raise ValueError(f"unknown thrust law {family!r}")
+    raise ValueError(f"unknown thrust law {family!r}; known: {', '.join(THRUST_LAWS)}")
 
 
 def current_from_speed(speed_rpm: np.ndarray, c_n: float, i_0: float,
