@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rigtool.spool import SAMPLES_PER_CHUNK
+from rigtool.units import THRUST_LAWS
 
 MAX_JSON_DEPTH = 64  # nesting of any stored or read-back JSON document
 MAX_JSON_BYTES = 16 << 20  # one JSON field or calibration.json
@@ -464,8 +465,6 @@ def calibration_document(document: Any) -> dict:
     CALIBRATION_DOCUMENT.check(document)
     if document["format"] != CALIBRATION_FORMAT:
         raise Invalid(f"format: {show(document['format'])} is not {CALIBRATION_FORMAT!r}")
-    from rigtool.models.laws import THRUST_LAWS  # on use: rigtool.models reads back with this
-
     for i, depth in enumerate(document.get("depths") or []):
         for key, law in (depth.get("thrust_law") or {}).items():
             need = THRUST_LAWS.get(law["family"])

@@ -1,10 +1,14 @@
 """Shared vocabulary, defined once: command units, how they are printed, their neutral, the
-force/torque channel names, and the force and torque units devices report in."""
+force/torque channel names, the force and torque units devices report in, and the
+thrust-speed laws a calibration may choose."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
+# The thrust-speed laws a calibration may choose per direction, and each one's parameters
+# (rigtool.models.laws evaluates them).
+THRUST_LAWS = {"quadratic": ("C_p",), "quadratic+linear": ("C_p", "C_l"), "power": ("C", "k")}
 FT_CHANNELS = ("fx", "fy", "fz", "tx", "ty", "tz")  # N and N m, in the sensor frame
 COMMAND_UNITS = ("percent", "pwm_counts", "pulse_us", "rpm", "amps")  # protocols and drivers
 UNIT_LABEL = {"percent": "%", "pwm_counts": "PWM counts", "pulse_us": "µs", "rpm": "r/min",

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from rigtool.units import THRUST_LAWS
+
 CURRENT_EXPONENT = 3.0  # I = C_n |n|^3 + I_0 unless the free law replaced it
-# The thrust-speed laws a calibration may choose per direction, and each one's parameters.
-THRUST_LAWS = {"quadratic": ("C_p",), "quadratic+linear": ("C_p", "C_l"), "power": ("C", "k")}
 
 
 def thrust_from_speed(speed_rpm: np.ndarray, cp_fwd: float, cp_rev: float) -> np.ndarray:
