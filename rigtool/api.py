@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from rigtool import vehicle_workflow
+from rigtool.analysis.vehicle.identify import METHODS, Identification
 from rigtool.dbpath import DB_ENV, DEFAULT_DB
 from rigtool.errors import UsageError
 from rigtool.files import decode_utf8, read_regular_bytes
@@ -30,6 +32,8 @@ from rigtool.models import laws
 from rigtool.models.thrust_map import STATUS_KEYS, ThrustMap, thrust_map
 from rigtool.readback import MAX_JSON_BYTES, Invalid, calibration_document, parse_json, show
 from rigtool.store import RunRecord, Store
+from rigtool.vehicle_file import Vehicle, load_vehicle
+from rigtool.vehicle_workflow import ThrusterInput
 
 CALIBRATION_FILE = "calibration.json"
 CURVE_FILE = "command_curve.csv"
@@ -598,3 +602,39 @@ def _header(path: Path, line: tuple[int, str], needs: tuple[str, ...]) -> list[s
     if repeated:
         raise UsageError(f"{path}:{number}: column {show(repeated[0])} appears twice")
     return names
+
+
+def vehicle_thrusters(vehicle: Vehicle, folders: dict[str, Path]) -> dict[str, ThrusterInput]:
+    """Each thruster's calibration as identification takes it: thrust of a command at the
+    thruster's `depth_m` (deepest when unset) and its lag (`lag_s`, else the calibration's
+    step-response time constant, else none)."""
+    loaded: dict[Path, Calibration] = {}
+    out = {}
+    for t in vehicle.thrusters:
+        folder = folders[t.name]
+        cal = loaded.setdefault(folder, load_calibration(folder))
+        lag = t.lag_s
+        if lag is None:
+            tc = cal.dynamics.time_constant_s if cal.dynamics is not None else math.nan
+            lag = tc if math.isfinite(tc) and tc > 0 else 0.0
+
+        def thrust(command: np.ndarray, cal: Calibration = cal, depth: float | None = t.depth_m
+                   ) -> np.ndarray:
+            return np.asarray(cal.thrust(command, depth), dtype=float)
+
+        out[t.name] = ThrusterInput(thrust, float(lag), str(folder))
+    return out
+
+
+def identify_vehicle(vehicle_file: str | os.PathLike[str], logs: Sequence[str | os.PathLike[str]],
+                     out_dir: str | os.PathLike[str] = "vehicle-model", *, method: str = "nls",
+                     dofs: str | None = None, seed: int = 1) -> Identification:
+    """Identify the vehicle of `vehicle_file` from free-running `logs` (docs/vehicle.md) and
+    write vehicle_model.json, identification.json and identification.html to `out_dir`."""
+    if method not in METHODS:
+        raise UsageError(f"method {method!r}: choose from {', '.join(METHODS)}")
+    vehicle, folders = load_vehicle(vehicle_file)
+    ident, _ = vehicle_workflow.identify_vehicle(
+        vehicle, [Path(p) for p in logs], vehicle_thrusters(vehicle, folders), Path(out_dir),
+        method, vehicle_workflow.parse_dofs(dofs), seed)
+    return ident

@@ -34,8 +34,10 @@ from .conftest import ROOT, SMALL_PROTOCOL
 MINIMAL = {"sweep": [], "watch": [], "runs": [], "show": ["last"], "calibrate": ["last"],
            "export-cal": ["last", "--format", "ros2"], "report": ["last"],
            "check": ["rig.yaml"], "sim": [], "export": [], "merge": ["a.sqlite", "-o", "b.sqlite"],
-           "import": ["log.csv"], "compare": ["a", "b"]}
-WITHOUT_DB = {"check", "sim", "merge"}  # no run database (merge names its own)
+           "import": ["log.csv"], "compare": ["a", "b"],
+           "identify": ["vehicle.yaml", "log.csv"], "sim-vehicle": ["--calibration", "cal"]}
+WITHOUT_DB = {"check", "sim", "merge", "identify", "sim-vehicle"}  # no run database (merge
+# names its own; the vehicle commands read files)
 TWO_DEPTHS = """\
 rigtool_protocol: 1
 name: two-depths

@@ -151,7 +151,8 @@ RANKS = {
                    "rigtool.ids", "rigtool.dbpath", "rigtool.counters",
                    "rigtool.thruster_profiles", "rigtool.version", "rigtool.models",
                    "rigtool.stopping"),
-    "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan", "rigtool.accuracy"),
+    "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan", "rigtool.accuracy",
+               "rigtool.vehicle_file"),
     "devices": ("rigtool.devices", "rigtool.sim", "rigtool.rig"),
     "store": ("rigtool.store",),
     "analysis": ("rigtool.analysis", "rigtool.run_warnings"),
@@ -159,7 +160,7 @@ RANKS = {
     "report": ("rigtool.report",),
     "workflows": ("rigtool.workflows", "rigtool.engine", "rigtool.safety", "rigtool.sweep",
                   "rigtool.progress", "rigtool.check", "rigtool.importers",
-                  "rigtool.limit_sources", "rigtool.sensor_rate"),
+                  "rigtool.limit_sources", "rigtool.sensor_rate", "rigtool.vehicle_workflow"),
     "interfaces": ("rigtool", "rigtool.__main__", "rigtool.launch", "rigtool.cli", "rigtool.api",
                    "rigtool.watch", "rigtool.export", "rigtool.dataset"),
 }

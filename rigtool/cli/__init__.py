@@ -7,14 +7,26 @@ import argparse
 import signal
 from collections.abc import Sequence
 
-from rigtool.cli import calibrate, check, compare, export, importing, merge, runs, sim, sweep, watch
+from rigtool.cli import (
+    calibrate,
+    check,
+    compare,
+    export,
+    importing,
+    merge,
+    runs,
+    sim,
+    sweep,
+    vehicle,
+    watch,
+)
 from rigtool.cli.console import err
 from rigtool.errors import EXIT_FAILED, RigtoolError
 from rigtool.stopping import ending
 from rigtool.version import __version__
 
 # In the order `rigtool --help` lists them.
-COMMANDS = (sweep, watch, runs, calibrate, check, sim, export, merge, importing, compare)
+COMMANDS = (sweep, watch, runs, calibrate, check, sim, export, merge, importing, compare, vehicle)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,98 @@
+"""`rigtool identify`: free-running logs + the vehicle file + thruster calibrations -> the
+vehicle's hydrodynamic model, identification.json and an HTML report in one folder."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rigtool.analysis.vehicle.identify import Identification, identify
+from rigtool.analysis.vehicle.model import DOFS, RigidBody
+from rigtool.analysis.vehicle.segments import LogInput
+from rigtool.artefacts.vehicle_identification import (
+    IDENTIFICATION_FILE,
+    MODEL_FILE,
+    identification_document,
+    model_document,
+    rigid_summary,
+)
+from rigtool.artefacts.write import json_text, write_all
+from rigtool.errors import UsageError
+from rigtool.importers.vehicle_log import read_vehicle_log
+from rigtool.report.vehicle_html import REPORT_FILE, render_identification
+from rigtool.vehicle_file import Vehicle
+
+
+@dataclass(frozen=True)
+class ThrusterInput:
+    """One thruster's calibration as identification needs it: steady thrust (N) of a command
+    (NaN outside the calibrated commands) and the lag from command to thrust."""
+
+    thrust: Callable[[np.ndarray], np.ndarray]
+    lag_s: float
+    source: str
+
+
+def allocation(vehicle: Vehicle) -> np.ndarray:
+    """The 6 x n matrix taking thrusts to the body wrench (forces, moments about the origin)."""
+    cols = [np.concatenate((t.direction, np.cross(t.position_m, t.direction)))
+            for t in vehicle.thrusters]
+    return np.array(cols).T
+
+
+def parse_dofs(text: str | None) -> list[int]:
+    """`surge,heave` -> DOF indices; all six when None."""
+    if not text:
+        return list(range(6))
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    unknown = [n for n in names if n not in DOFS]
+    if unknown or not names:
+        raise UsageError(f"--dofs: unknown {', '.join(unknown) or '(none given)'}; choose from "
+                         f"{', '.join(DOFS)}")
+    return sorted({DOFS.index(n) for n in names})
+
+
+def _log_input(path: Path, vehicle: Vehicle, maps: dict[str, ThrusterInput]) -> tuple[LogInput, dict]:
+    """Read one log and turn its commands into thrusts; refuse commands outside a calibration."""
+    log = read_vehicle_log(path, [t.log_column for t in vehicle.thrusters])
+    thrusts = np.empty_like(log.commands)
+    for k, t in enumerate(vehicle.thrusters):
+        thrusts[:, k] = maps[t.name].thrust(log.commands[:, k])
+        bad = np.flatnonzero(~np.isfinite(thrusts[:, k]))
+        if bad.size:
+            raise UsageError(f"{path}: {bad.size} commands of {t.log_column} (first "
+                             f"{log.commands[bad[0], k]:g} at t = {log.t_s[bad[0]]:g} s) lie "
+                             f"outside the commands calibrated in {maps[t.name].source}")
+    lags = np.array([maps[t.name].lag_s for t in vehicle.thrusters])
+    info = {"file": str(path), "rows": len(log.t_s), "skipped_rows": log.skipped_rows,
+            "duration_s": float(log.t_s[-1]), "notes": log.notes}
+    return LogInput(str(path), log.t_s, log.nu, log.attitude, thrusts, lags), info
+
+
+def identify_vehicle(vehicle: Vehicle, logs: list[Path], maps: dict[str, ThrusterInput],
+                     out_dir: Path, method: str = "nls", dofs: list[int] | None = None,
+                     seed: int = 1) -> tuple[Identification, list[Path]]:
+    """Identify and write vehicle_model.json, identification.json and the report."""
+    inputs, sources = zip(*(_log_input(Path(p), vehicle, maps) for p in logs), strict=True)
+    body = RigidBody(vehicle.mass_kg, vehicle.inertia_kg_m2, vehicle.cob_m, vehicle.weight_n,
+                     vehicle.buoyancy_n)
+    ident = identify(list(inputs), allocation(vehicle), body, dofs or list(range(6)), method,
+                     seed)
+    notes = [n for s in sources for n in s["notes"]]
+    notes += [f"{t.name}: no thrust lag known (give lag_s in the vehicle file, or calibrate "
+              "a step-response run): thrust taken as steady at each command"
+              for t in vehicle.thrusters if maps[t.name].lag_s == 0.0]
+    ident = Identification(**{**ident.__dict__, "notes": ident.notes + notes})
+    rigid = rigid_summary(vehicle.name, vehicle.mass_kg, vehicle.inertia_kg_m2, vehicle.cob_m,
+                          vehicle.weight_n, vehicle.buoyancy_n, vehicle.water_density_kg_m3,
+                          vehicle.gravity_m_s2)
+    texts = {
+        out_dir / MODEL_FILE: json_text(model_document(rigid, ident)),
+        out_dir / IDENTIFICATION_FILE: json_text(identification_document(ident, list(sources))),
+        out_dir / REPORT_FILE: render_identification(ident, vehicle.name),
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return ident, write_all(texts)
