@@ -190,6 +190,33 @@ def test_gz_forces_are_fossens_in_the_link_frame(vehicle):
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
 
 
+def gz_coriolis(ma: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """HydrodynamicsUtils.hh buildCoriolisMatrix (gz-sim 93bbf3e), from the diagonal of Ma."""
+    c = np.zeros((6, 6))
+    for (i, j), (sign, k) in {
+            (0, 4): (-1, 2), (0, 5): (1, 1), (1, 3): (1, 2), (1, 5): (-1, 0), (2, 3): (-1, 1),
+            (2, 4): (1, 0), (3, 1): (-1, 2), (3, 2): (1, 1), (3, 4): (-1, 5), (3, 5): (1, 4),
+            (4, 0): (1, 2), (4, 2): (-1, 0), (4, 3): (1, 5), (4, 5): (-1, 3), (5, 0): (-1, 1),
+            (5, 1): (1, 0), (5, 3): (-1, 4), (5, 4): (1, 3)}.items():
+        c[i, j] = sign * ma[k, k] * s[k]
+    return c
+
+
+def test_gz_coriolis_is_the_opposite_of_fossens_as_the_docs_say(vehicle):
+    """What docs/vehicle-formats.md reports: the system's added-mass Coriolis force
+    (-(-Cmat state)) is +C_A(nu) nu, Fossen's with the sign turned; the block keeps the
+    system's default and its comment says so."""
+    v, model = vehicle
+    root = block("gz-hydrodynamics", model)
+    ma, _, _ = gz_parameters(root)
+    nu = np.random.default_rng(3).normal(0, 0.7, 6)
+    applied = P6 @ (gz_coriolis(ma, P6 @ nu) @ (P6 @ nu))
+    np.testing.assert_allclose(applied, -fossen_added(v, nu, np.zeros(6)), rtol=1e-12,
+                               atol=1e-12)
+    assert root.find("disable_coriolis") is None
+    assert "opposite of Fossen's" in HYDRO_FORMATS["gz-hydrodynamics"].render(model, OPTIONS)
+
+
 def test_uuv_values_follow_hmfossen(vehicle):
     """added_mass is M_A = -diag(X_udot ...) (positive), row by row; the damping lists are
     the SNAME terms with their sign; volume gives the model's buoyancy; fluid density; link."""

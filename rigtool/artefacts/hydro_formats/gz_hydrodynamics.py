@@ -12,7 +12,11 @@ for a real hull; the header says so for the added mass). The frame is the link f
 x forward, y left, z up), a half turn about x from FRD, which leaves every diagonal term
 unchanged. Velocities are taken and the wrench applied at the link origin, so the link origin
 must be the model's origin (the centre of gravity). Buoyancy is not this system's (use
-gz-sim's Buoyancy system); <namespace> makes it listen to /model/NS/ocean_current.
+gz-sim's Buoyancy system); <namespace> makes it listen to /model/NS/ocean_current. The system
+also applies an added-mass Coriolis term built from the xDotU terms (HydrodynamicsUtils.hh
+buildCoriolisMatrix); as written at 93bbf3e it is +C_A(nu) nu, the opposite sign of Fossen's
+-C_A(nu) nu (gz-sim 8's is another, not skew-symmetric, matrix). The block keeps the system's
+default and says so; <disable_coriolis>true</disable_coriolis> removes the term.
 """
 
 from __future__ import annotations
@@ -67,7 +71,10 @@ def render(model: dict[str, Any], options: HydroOptions) -> str:
         "The link origin must be the model's origin, the centre of gravity the derivatives "
         f"refer to (cog_m in link axes: {' '.join(num(c) for c in cog)} m). Add gz-sim's "
         "Buoyancy system for the restoring forces. With DART, <fluid_added_mass> on the link "
-        "(xx = -xDotU ...) can replace the xDotU terms: never both.")
+        "(xx = -xDotU ...) can replace the xDotU terms: never both. The system also adds a "
+        "Coriolis term built from the xDotU terms; read at 93bbf3e it applies +C_A(nu) nu, "
+        "the opposite of Fossen's -C_A(nu) nu (docs/vehicle-formats.md); "
+        "<disable_coriolis>true</disable_coriolis> removes it.")
         + '<plugin filename="gz-sim-hydrodynamics-system" '
         'name="gz::sim::systems::Hydrodynamics">\n'
         + text_element("link_name", options.link, "  ") + ns + params
