@@ -19,6 +19,7 @@ import json
 import math
 import re
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -504,3 +505,15 @@ def test_write_model_is_exact_and_atomic(tmp_path):
     with pytest.raises(ConfigError, match="vehicle_model.json: rigid_body.mass_kg"):
         write_model(_set("rigid_body.mass_kg", math.nan), tmp_path / "x")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["vehicle_model.json"]
+
+
+def test_the_docs_example_runs(tmp_path, monkeypatch):
+    """docs/vehicle-formats.md's example, as written, beside a written vehicle_model.json."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "vehicle-formats.md").read_text()
+    (code,) = re.findall(r"```python\n(.*?)```", text, re.S)
+    write_model(model_doc(BLUEROV2), tmp_path)
+    monkeypatch.chdir(tmp_path)
+    scope: dict = {"__name__": "vehicle_formats_example"}
+    exec(compile(code, "docs/vehicle-formats.md", "exec"), scope)
+    assert sorted(p.name for p in scope["written"]) == sorted(
+        [gz_hydrodynamics.FILE, uuv_fossen.FILE])
