@@ -378,6 +378,11 @@ def test_a_null_parameter_is_named(tmp_path):
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(UsageError, match="unknown vehicle format"):
         check_hydro_formats(["gazebo"], model, OPTIONS)
+    doc["hydrodynamics"]["added_mass"]["N_rdot"] = {
+        "value": None, "ci95": None, "reason": "\x1b[31mred\nline\u202e" + "x" * 1000}
+    reasons = gz_hydrodynamics.needs(validate_model(doc, "null.json"), OPTIONS)
+    assert "N_rdot" in reasons[0] and "\\u001b[31mred line\\u202e" in reasons[0]
+    assert all(c.isprintable() for c in reasons[0]) and len(reasons[0]) < 400
 
 
 def test_blocks_are_written_all_or_none(tmp_path):

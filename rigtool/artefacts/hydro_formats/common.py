@@ -57,10 +57,17 @@ def missing(model: dict[str, Any], groups: Sequence[str]) -> list[str]:
         for name in GROUPS[group]:
             p = model["hydrodynamics"][group][name]
             if p["value"] is None:
-                why = p.get("reason") or "no reason given"
+                why = _printable(p.get("reason") or "no reason given")
                 out.append(f"{name} ({group}) was not identified ({why}); the block needs "
                            "every diagonal term")
     return out
+
+
+def _printable(text: str, limit: int = 200) -> str:
+    """Stored text for a one-line message: line breaks as spaces, other controls and format
+    characters as \\u escapes, cut to `limit` characters."""
+    flat = " ".join(text.split())[:limit]
+    return "".join(c if c.isprintable() else f"\\u{ord(c):04x}" for c in flat)
 
 
 def link_needs(options: HydroOptions) -> list[str]:
