@@ -25,6 +25,7 @@ import numpy as np
 
 from rigtool import vehicle_workflow
 from rigtool.analysis.vehicle.identify import METHODS, Identification
+from rigtool.artefacts.hydro_formats import HydroOptions
 from rigtool.dbpath import DB_ENV, DEFAULT_DB
 from rigtool.errors import UsageError
 from rigtool.files import decode_utf8, read_regular_bytes
@@ -628,13 +629,15 @@ def vehicle_thrusters(vehicle: Vehicle, folders: dict[str, Path]) -> dict[str, T
 
 def identify_vehicle(vehicle_file: str | os.PathLike[str], logs: Sequence[str | os.PathLike[str]],
                      out_dir: str | os.PathLike[str] = "vehicle-model", *, method: str = "nls",
-                     dofs: str | None = None, seed: int = 1) -> Identification:
+                     dofs: str | None = None, seed: int = 1, link: str = "base_link",
+                     namespace: str | None = None) -> Identification:
     """Identify the vehicle of `vehicle_file` from free-running `logs` (docs/vehicle.md) and
-    write vehicle_model.json, identification.json and identification.html to `out_dir`."""
+    write vehicle_model.json, identification.json, identification.html and the gz-sim and
+    uuv_simulator blocks (for the model link `link`) to `out_dir`."""
     if method not in METHODS:
         raise UsageError(f"method {method!r}: choose from {', '.join(METHODS)}")
     vehicle, folders = load_vehicle(vehicle_file)
     ident, _ = vehicle_workflow.identify_vehicle(
         vehicle, [Path(p) for p in logs], vehicle_thrusters(vehicle, folders), Path(out_dir),
-        method, vehicle_workflow.parse_dofs(dofs), seed)
+        method, vehicle_workflow.parse_dofs(dofs), seed, HydroOptions(link, namespace))
     return ident

@@ -12,13 +12,15 @@ import numpy as np
 from rigtool.analysis.vehicle.identify import Identification, identify
 from rigtool.analysis.vehicle.model import DOFS, RigidBody
 from rigtool.analysis.vehicle.segments import LogInput
+from rigtool.artefacts.hydro_formats import HYDRO_FORMATS, HydroOptions
 from rigtool.artefacts.vehicle_identification import (
     IDENTIFICATION_FILE,
-    MODEL_FILE,
     identification_document,
     model_document,
     rigid_summary,
 )
+from rigtool.artefacts.vehicle_model import FILE as MODEL_FILE
+from rigtool.artefacts.vehicle_model import validate_model
 from rigtool.artefacts.write import json_text, write_all
 from rigtool.errors import UsageError
 from rigtool.importers.vehicle_log import read_vehicle_log
@@ -72,10 +74,28 @@ def _log_input(path: Path, vehicle: Vehicle, maps: dict[str, ThrusterInput]) -> 
     return LogInput(str(path), log.t_s, log.nu, log.attitude, thrusts, lags), info
 
 
+SIMULATOR_BLOCKS = ("gz-hydrodynamics", "uuv-fossen")
+
+
+def _blocks(model: dict, options: HydroOptions, out_dir: Path) -> tuple[dict, list[str]]:
+    """The simulator blocks the model can fill, and a note for each it cannot."""
+    texts, notes = {}, []
+    for name in SIMULATOR_BLOCKS:
+        fmt = HYDRO_FORMATS[name]
+        missing = fmt.needs(model, options)
+        if missing:
+            notes.append(f"{name} block not written: {'; '.join(missing)}")
+        else:
+            texts[out_dir / fmt.FILE] = fmt.render(model, options)
+    return texts, notes
+
+
 def identify_vehicle(vehicle: Vehicle, logs: list[Path], maps: dict[str, ThrusterInput],
                      out_dir: Path, method: str = "nls", dofs: list[int] | None = None,
-                     seed: int = 1) -> tuple[Identification, list[Path]]:
-    """Identify and write vehicle_model.json, identification.json and the report."""
+                     seed: int = 1, options: HydroOptions | None = None
+                     ) -> tuple[Identification, list[Path]]:
+    """Identify and write vehicle_model.json, identification.json, the report and the
+    simulator blocks the model fills (gz-sim Hydrodynamics, uuv_simulator HMFossen)."""
     inputs, sources = zip(*(_log_input(Path(p), vehicle, maps) for p in logs), strict=True)
     body = RigidBody(vehicle.mass_kg, vehicle.inertia_kg_m2, vehicle.cob_m, vehicle.weight_n,
                      vehicle.buoyancy_n)
@@ -85,12 +105,15 @@ def identify_vehicle(vehicle: Vehicle, logs: list[Path], maps: dict[str, Thruste
     notes += [f"{t.name}: no thrust lag known (give lag_s in the vehicle file, or calibrate "
               "a step-response run): thrust taken as steady at each command"
               for t in vehicle.thrusters if maps[t.name].lag_s == 0.0]
-    ident = Identification(**{**ident.__dict__, "notes": ident.notes + notes})
     rigid = rigid_summary(vehicle.name, vehicle.mass_kg, vehicle.inertia_kg_m2, vehicle.cob_m,
                           vehicle.weight_n, vehicle.buoyancy_n, vehicle.water_density_kg_m3,
                           vehicle.gravity_m_s2)
+    model = validate_model(model_document(rigid, ident), MODEL_FILE)
+    blocks, block_notes = _blocks(model, options or HydroOptions(link="base_link"), out_dir)
+    ident = Identification(**{**ident.__dict__, "notes": ident.notes + notes + block_notes})
     texts = {
-        out_dir / MODEL_FILE: json_text(model_document(rigid, ident)),
+        **blocks,
+        out_dir / MODEL_FILE: json_text(model, digits=None),
         out_dir / IDENTIFICATION_FILE: json_text(identification_document(ident, list(sources))),
         out_dir / REPORT_FILE: render_identification(ident, vehicle.name),
     }

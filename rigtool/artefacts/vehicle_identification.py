@@ -9,15 +9,10 @@ import numpy as np
 
 from rigtool.analysis.vehicle.identify import Identification
 from rigtool.analysis.vehicle.model import ADDED, LINEAR, QUADRATIC
+from rigtool.artefacts.vehicle_model import FORMAT, SCHEMA_VERSION
 from rigtool.version import __version__
 
-MODEL_FILE = "vehicle_model.json"
 IDENTIFICATION_FILE = "identification.json"
-MODEL_FORMAT = "rigtool-vehicle-model"
-SCHEMA_VERSION = 1
-CONVENTION = ("Fossen 2011 / SNAME: body axes x forward, y starboard, z down (FRD), origin at "
-              "the centre of gravity; derivatives carry their sign (M_A = -diag(X_udot, ...), "
-              "damping force X = X_u u + X_uu u|u|)")
 
 
 def _parameter(p: Any) -> dict:
@@ -27,14 +22,14 @@ def _parameter(p: Any) -> dict:
 
 
 def model_document(rigid: dict, ident: Identification) -> dict:
-    """vehicle_model.json: the vehicle file's rigid body and the identified hydrodynamics."""
+    """vehicle_model.json (docs/vehicle-formats.md): the vehicle file's rigid body and the
+    identified hydrodynamics, Fossen's SNAME convention in body axes FRD."""
     by_name = {p.name: p for p in ident.parameters}
     return {
-        "format": MODEL_FORMAT,
+        "format": FORMAT,
         "schema_version": SCHEMA_VERSION,
         "name": rigid["name"],
         "frame": "FRD",
-        "convention": CONVENTION,
         "rigid_body": {k: rigid[k] for k in ("mass_kg", "inertia_kg_m2", "cog_m", "cob_m",
                                              "weight_n", "buoyancy_n", "water_density_kg_m3",
                                              "gravity_m_s2")},
@@ -42,7 +37,6 @@ def model_document(rigid: dict, ident: Identification) -> dict:
             group: {n: _parameter(by_name[n]) for n in names}
             for group, names in (("added_mass", ADDED), ("linear_damping", LINEAR),
                                  ("quadratic_damping", QUADRATIC))},
-        "rigtool_version": __version__,
     }
 
 

@@ -36,6 +36,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dofs", help="comma-separated DOFs to identify (default all six): "
                                   "surge,sway,heave,roll,pitch,yaw")
     p.add_argument("--seed", type=int, default=1, help="seed of the bootstrap and the global search")
+    p.add_argument("--link", default="base_link",
+                   help="the vehicle's link in the gz-sim and uuv_simulator blocks (default base_link)")
+    p.add_argument("--namespace", help="gz-sim: the namespace of the ocean-current topic")
     p.set_defaults(func=cmd_identify)
     s = sub.add_parser("sim-vehicle", help="write a free-running log of the vehicle twin and its "
                                            "vehicle file, from known truth")
@@ -55,7 +58,8 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 def cmd_identify(args: argparse.Namespace) -> int:
     ident = api.identify_vehicle(args.vehicle, args.logs, args.out, method=args.method,
-                                 dofs=args.dofs, seed=args.seed)
+                                 dofs=args.dofs, seed=args.seed, link=args.link,
+                                 namespace=args.namespace)
     out.print(f"identified {', '.join(ident.dofs)} ({ident.method}); wrote {args.out}/")
     for p in ident.parameters:
         if p.value is None:

@@ -140,20 +140,21 @@ def output_error(prob: Problem, seg: Segments, start: np.ndarray, coupled: bool,
 
 
 def global_search(prob: Problem, seg: Segments, base: np.ndarray, seed: int,
-                  maxiter: int = 80) -> np.ndarray:
+                  fixed: np.ndarray, maxiter: int = 60) -> np.ndarray:
     """theta from differential evolution over the bounds (no starting point), the per-DOF
-    output error as cost; the other parameters stay at `base`."""
+    output error as cost (Coriolis added masses from `fixed`); the other parameters stay at
+    `base`."""
     k = prob.free
 
     def cost(x: np.ndarray) -> np.ndarray:
         sets = np.repeat(base[None], x.shape[1], axis=0)
         sets[:, k] = (x * prob.scale[k][:, None]).T
-        r = residuals(prob, sets, seg, coupled=False, fixed=base)
+        r = residuals(prob, sets, seg, coupled=False, fixed=fixed)
         return np.sum(r.reshape(len(sets), -1) ** 2, axis=1)
 
     sol = differential_evolution(
         cost, list(zip(prob.lower[k] / prob.scale[k], prob.upper[k] / prob.scale[k], strict=True)),
-        seed=seed, maxiter=maxiter, popsize=12, tol=1e-7, polish=False, vectorized=True,
+        seed=seed, maxiter=maxiter, popsize=10, tol=1e-7, polish=False, vectorized=True,
         updating="deferred")
     return _full(prob, sol.x, base)
 

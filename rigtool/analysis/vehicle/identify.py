@@ -39,9 +39,11 @@ METHODS = ("ls", "nls", "global", "all")
 STRUCTURES = {"linear+quadratic": (True, True), "quadratic": (False, True), "linear": (True, False)}
 HOLD_OUT_EVERY = 5  # every fifth segment is held out of every fit
 FOLDS = 4
+SIMPLER_GAIN = 0.005  # a structure with a term less must predict this much better than both
 FOLD_NFEV = 15  # a structure's held-out error needs its optimum roughly, not exactly
 MIN_SEGMENTS = 10
 DRAWS = 1000
+GLOBAL_SEGMENTS = 24
 UNRESOLVED = 1.0  # an interval half-width beyond this times |value| (and spanning 0): no value
 
 
@@ -128,13 +130,21 @@ def _choose_structures(body: RigidBody, prep: Prepared, dofs: np.ndarray,
                                max_nfev=FOLD_NFEV)
             total += _per_dof_sse(prob, fit.theta, prep.segments.take(check))
         errors[name] = total
-    chosen = {i: min(STRUCTURES, key=lambda s, i=i: errors[s][i]) for i in np.flatnonzero(dofs)}
+    chosen = {}
+    for i in np.flatnonzero(dofs):
+        best = min(STRUCTURES, key=lambda s, i=i: errors[s][i])
+        full = errors["linear+quadratic"][i]
+        chosen[i] = best if errors[best][i] < (1.0 - SIMPLER_GAIN) * full else "linear+quadratic"
     table = {DOFS[i]: {s: float(errors[s][i]) for s in STRUCTURES} for i in np.flatnonzero(dofs)}
     return chosen, table
 
 
-def _global(prob: Problem, seg: Segments, base: np.ndarray, seed: int) -> np.ndarray:
-    """Differential evolution per DOF (the per-DOF costs are separate)."""
+def _global(prob: Problem, seg: Segments, base: np.ndarray, seed: int) -> tuple[np.ndarray, float]:
+    """Differential evolution per DOF (the per-DOF costs are separate) on at most
+    GLOBAL_SEGMENTS of the segments (its population is simulated at once), and how far its
+    optimum lies from least squares' (from `base`) on the same segments and cost."""
+    seg = seg.take(np.arange(len(seg))[:: max(1, -(-len(seg) // GLOBAL_SEGMENTS))])
+    local = output_error(prob, seg, base, coupled=False).theta
     theta = base.copy()
     for i in np.flatnonzero(prob.free_dofs):
         only = np.zeros(6, dtype=bool)
@@ -142,8 +152,8 @@ def _global(prob: Problem, seg: Segments, base: np.ndarray, seed: int) -> np.nda
         free = prob.free & np.isin(np.arange(18) % 6, [i])
         one = Problem(prob.body, only, free, prob.scale, prob.lower, prob.upper,
                       prob.velocity_scale)
-        theta = global_search(one, seg, theta, seed + i)
-    return theta
+        theta = global_search(one, seg, theta, seed + i, fixed=base)
+    return theta, _agreement(theta, local, prob.free)
 
 
 def _ls_intervals(prob: Problem, prep: Prepared, theta: np.ndarray, seed: int) -> np.ndarray:
@@ -217,8 +227,7 @@ def identify(logs: list[LogInput], allocation: np.ndarray, body: RigidBody, dofs
     per_dof = output_error(prob, fit_seg, estimates["ls"], coupled=False)
     agreement = None
     if method in ("global", "all"):
-        estimates["global"] = _global(prob, fit_seg, estimates["ls"], seed)
-        agreement = _agreement(estimates["global"], per_dof.theta, prob.free)
+        estimates["global"], agreement = _global(prob, fit_seg, estimates["ls"], seed)
     start = estimates["global"] if method == "global" else per_dof.theta
     fit = output_error(prob, fit_seg, start, coupled=True)
     estimates["nls"] = fit.theta
