@@ -6,11 +6,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from rigtool.analysis.vehicle.model import Segments
 
-SMOOTH_S = 0.6  # the smoothing window: longer than the noise, shorter than the vehicle's lags
+MAX_SMOOTH_S = 1.0  # the longest smoothing window tried
 SEGMENT_S = 5.0
 
 
@@ -28,7 +28,10 @@ class LogInput:
 
 @dataclass(frozen=True)
 class Prepared:
-    """Every log on its own uniform grid, concatenated, with the segments cut from them."""
+    """Every log on its own uniform grid, with the segments cut from them. The whole-log
+    arrays are taken at the middle of each time step, where the thrust held over the step
+    acts: velocities and attitude the mean of the step's ends, the acceleration their
+    difference over the step (a central slope, no half-step slip against the thrust)."""
 
     nu: np.ndarray
     smooth: np.ndarray
@@ -45,7 +48,10 @@ def _uniform(log: LogInput, dt: float) -> tuple[np.ndarray, ...]:
     grid = grid[grid <= log.t_s[-1]]
     lin = [np.column_stack([np.interp(grid, log.t_s, col) for col in x.T])
            for x in (log.nu, log.attitude)]
-    held = np.clip(np.searchsorted(log.t_s, grid, side="right") - 1, 0, len(log.t_s) - 1)
+    # the row in force at each grid time; a grid time a rounding error short of a row's
+    # time belongs to that row
+    held = np.clip(np.searchsorted(log.t_s, grid + 1e-6 * dt, side="right") - 1, 0,
+                   len(log.t_s) - 1)
     return grid, lin[0], lin[1], _lagged(log.thrust_n[held], log.lag_s, dt)
 
 
@@ -64,27 +70,35 @@ def _lagged(thrust: np.ndarray, lag_s: np.ndarray, dt: float) -> np.ndarray:
     return out * np.abs(out)
 
 
-def _window(dt: float, n: int) -> int:
-    """An odd Savitzky-Golay window of about SMOOTH_S, at least 5 samples, at most n."""
-    w = max(5, int(round(SMOOTH_S / dt)) | 1)
-    return min(w, n if n % 2 else n - 1)
+def _smoothed(nu: np.ndarray, dt: float) -> np.ndarray:
+    """Each velocity through a cubic Savitzky-Golay filter whose window (5 samples to
+    MAX_SMOOTH_S) minimises its generalised cross-validation score: noisy channels are
+    smoothed over many samples, clean or fast ones hardly at all."""
+    longest = max(min(int(MAX_SMOOTH_S / dt), len(nu) - 1), 5)
+    best, best_score = nu.copy(), np.full(nu.shape[1], np.inf)
+    for w in range(5, longest + 1, 2):
+        smooth = savgol_filter(nu, w, 3, axis=0)
+        score = np.mean((nu - smooth) ** 2, axis=0) / (1.0 - savgol_coeffs(w, 3)[w // 2]) ** 2
+        better = score < best_score
+        best[:, better], best_score[better] = smooth[:, better], score[better]
+    return best
 
 
 def prepare(logs: list[LogInput], allocation: np.ndarray, dt_s: float,
             segment_s: float = SEGMENT_S) -> Prepared:
     """Resample every log to `dt_s`, smooth, differentiate and cut into segments."""
-    parts: dict[str, list] = {k: [] for k in ("nu", "smooth", "dot", "tau", "att")}
+    parts: dict[str, list] = {k: [] for k in ("nu", "smooth", "dot", "tau", "att", "residual")}
     seg: dict[str, list] = {k: [] for k in ("nu", "smooth", "tau", "att", "log", "start")}
     length = max(int(round(segment_s / dt_s)), 10)
     for index, log in enumerate(logs):
         grid, nu, att, thrust = _uniform(log, dt_s)
-        w = _window(dt_s, len(grid))
-        smooth = savgol_filter(nu, w, 3, axis=0)
-        dot = savgol_filter(nu, w, 3, deriv=1, delta=dt_s, axis=0)
+        smooth = _smoothed(nu, dt_s)
         tau = thrust @ allocation.T
-        for key, value in zip(("nu", "smooth", "dot", "tau", "att"),
-                              (nu, smooth, dot, tau, att), strict=True):
+        mids = (0.5 * (nu[1:] + nu[:-1]), 0.5 * (smooth[1:] + smooth[:-1]),
+                np.diff(smooth, axis=0) / dt_s, tau[:-1], 0.5 * (att[1:] + att[:-1]))
+        for key, value in zip(("nu", "smooth", "dot", "tau", "att"), mids, strict=True):
             parts[key].append(value)
+        parts["residual"].append(nu - smooth)
         for s in range(0, len(grid) - length + 1, length):
             cut = slice(s, s + length)
             for key, value in zip(("nu", "smooth", "tau", "att"), (nu, smooth, tau, att),
@@ -95,7 +109,7 @@ def prepare(logs: list[LogInput], allocation: np.ndarray, dt_s: float,
     whole = {k: np.concatenate(v) for k, v in parts.items()}
     segments = Segments(dt_s, *(np.array(seg[k]) for k in ("nu", "smooth", "tau", "att")),
                         np.array(seg["log"]), np.array(seg["start"]))
-    noise = (whole["nu"] - whole["smooth"]).std(axis=0)
+    noise = whole["residual"].std(axis=0)
     return Prepared(whole["nu"], whole["smooth"], whole["dot"], whole["tau"], whole["att"],
                     noise, segments)
 
