@@ -59,9 +59,9 @@ def _flight(tmp: Path, flown: Path) -> Path:
 
 def _log(seed: int, noise: float, seconds: float = 120.0, **kw: object) -> tuple[LogInput, VehicleTwin]:
     twin = VehicleTwin(BLUEROV2, PROFILE, seed)
-    t, commands = excitation(twin, seconds, 20.0, seed, **kw)
-    log = free_run(twin, t, commands, noise)
-    thrust = np.array([twin.thrusts_n(twin.target_speeds_rpm(c)) for c in commands])
+    t, wrench = excitation(seconds, 20.0, seed, **kw)
+    log = free_run(twin, t, wrench, noise)
+    thrust = np.array([twin.thrusts_n(twin.target_speeds_rpm(c)) for c in log.commands])
     return LogInput("twin", t, log.nu, log.eta[:, 3:5], thrust, np.full(8, PROFILE.tau_s)), twin
 
 

@@ -91,8 +91,8 @@ def cmd_sim_vehicle(args: argparse.Namespace) -> int:
     _check_sim_args(args)
     truth, profile = TRUTHS[args.truth], PROFILES[args.profile]
     twin = VehicleTwin(truth, profile, args.seed)
-    t, commands = excitation(twin, args.duration, args.rate, args.seed)
-    log = free_run(twin, t, commands, args.noise)
+    t, wrench = excitation(args.duration, args.rate, args.seed)
+    log = free_run(twin, t, wrench, args.noise)
     folder = Path(args.out)
     folder.mkdir(parents=True, exist_ok=True)
     _write_log(folder / "log.csv", log, [m.name for m in truth.thrusters])

@@ -22,6 +22,8 @@ from rigtool.sim.vehicle_params import VehicleParams
 from rigtool.thruster_profiles import ThrusterProfile
 
 GRAVITY_M_S2 = 9.81
+ATTITUDE_KP = 15.0  # N m/rad: the pilot's roll and pitch hold
+ATTITUDE_KD = 2.0  # N m s/rad
 _SUBSTEP_S = 0.02  # RK4 step: a seventh of the T200 twin's speed lag, a tenth of a second of roll
 
 
@@ -64,6 +66,13 @@ class VehicleTwin:
         self._a = tuple(-x for x in params.added_mass)
         self._lin, self._quad = params.linear_damping, params.quadratic_damping
         self._cp = (profile.cp_forward, profile.cp_reverse)
+        grid = np.linspace(profile.command_min, profile.command_max, 1601)
+        table = self.thrusts_n(self.target_speeds_rpm(grid))
+        branches = []
+        for part in (table > 0, table < 0):
+            order = np.argsort(table[part])
+            branches.append((table[part][order], grid[part][order]))
+        self.map_table = tuple(branches)  # (thrusts, commands) forward, then reverse
 
     def target_speeds_rpm(self, commands: np.ndarray) -> np.ndarray:
         """Each thruster's steady speed under its command."""
@@ -113,24 +122,32 @@ class VehicleTwin:
         d_n = (speeds_target - n) / self.profile.tau_s
         return np.concatenate((d_eta, self.accelerations(nu, eta, tau), d_n))
 
-    def run(self, t_s: np.ndarray, commands: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Noise-free (eta, nu) at times `t_s` (from 0, increasing) under `commands` (N x
-        thrusters), each command held from its time to the next."""
-        state = np.zeros(12 + commands.shape[1])
+    def run(self, t_s: np.ndarray, wrench: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Noise-free (eta, nu, commands) at times `t_s` (from 0, increasing) under the
+        demanded body `wrench` (N x 6), each held from its time to the next. The pilot holds
+        roll and pitch (a PD term on the logged attitude, as an ROV's autopilot does), and
+        turns each demand into thruster commands through the allocation and the twin's map."""
+        state = np.zeros(12 + self.B.shape[1])
         etas, nus = np.empty((len(t_s), 6)), np.empty((len(t_s), 6))
+        commands = np.empty((len(t_s), self.B.shape[1]))
+        pinv = np.linalg.pinv(self.B)
         now = float(t_s[0])
         for i, t in enumerate(t_s):
-            target = self.target_speeds_rpm(commands[max(i - 1, 0)])
-            while t - now > 1e-12:
-                h = min(_SUBSTEP_S, t - now)
-                k1 = self._derivative(state, target)
-                k2 = self._derivative(state + h / 2 * k1, target)
-                k3 = self._derivative(state + h / 2 * k2, target)
-                k4 = self._derivative(state + h * k3, target)
-                state = state + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-                now += h
+            if i:
+                target = self.target_speeds_rpm(commands[i - 1])
+                while t - now > 1e-12:
+                    h = min(_SUBSTEP_S, t - now)
+                    k1 = self._derivative(state, target)
+                    k2 = self._derivative(state + h / 2 * k1, target)
+                    k3 = self._derivative(state + h / 2 * k2, target)
+                    k4 = self._derivative(state + h * k3, target)
+                    state = state + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+                    now += h
             etas[i], nus[i] = state[:6], state[6:12]
-        return etas, nus
+            demand = wrench[i].copy()
+            demand[3:5] -= ATTITUDE_KP * state[3:5] + ATTITUDE_KD * state[9:11]
+            commands[i] = _commands_for(self, pinv @ demand)
+        return etas, nus, commands
 
     def noisy(self, values: np.ndarray, noise_frac: float) -> np.ndarray:
         """`values` with white noise of `noise_frac` times each column's standard deviation."""
@@ -150,15 +167,14 @@ class FreeRunLog:
     eta_true: np.ndarray
 
 
-def excitation(twin: VehicleTwin, duration_s: float, rate_hz: float, seed: int,
+def excitation(duration_s: float, rate_hz: float, seed: int,
                dofs: tuple[int, ...] = (0, 1, 2, 3, 4, 5),
                one_way: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
-    """(t_s, commands): held random wrench demands on `dofs`, each both ways (only forward
-    on `one_way`), 1.5-6 s per level, turned into thruster commands through the allocation
-    and each twin's map."""
+    """(t_s, wrench): held random wrench demands on `dofs`, each both ways (only forward on
+    `one_way`), 1.5-6 s per level."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration_s, 1.0 / rate_hz)
-    peak = np.array([35.0, 35.0, 35.0, 0.4, 0.4, 2.5])
+    peak = np.array([35.0, 35.0, 35.0, 1.5, 1.5, 2.5])
     wrench = np.zeros((len(t), 6))
     start = 0.0
     while start < duration_s:
@@ -169,28 +185,20 @@ def excitation(twin: VehicleTwin, duration_s: float, rate_hz: float, seed: int,
             level[d] = peak[d] * rng.uniform(0.2, 1.0) * sign
         wrench[(t >= start) & (t < start + hold)] = level
         start += hold
-    thrusts = wrench @ np.linalg.pinv(twin.B).T
-    return t, _commands_for(twin, thrusts)
+    return t, wrench
 
 
 def _commands_for(twin: VehicleTwin, thrusts: np.ndarray) -> np.ndarray:
-    """The command giving each steady thrust, from a dense table of the twin's map."""
-    p = twin.profile
-    grid = np.linspace(p.command_min, p.command_max, 1601)
-    table = twin.thrusts_n(twin.target_speeds_rpm(grid))
-    fwd = table > 0
-    rev = table < 0
-    out = np.full(thrusts.shape, p.neutral)
-    up = np.argsort(table[fwd])
-    out = np.where(thrusts > 0, np.interp(thrusts, table[fwd][up], grid[fwd][up]), out)
-    down = np.argsort(table[rev])
-    out = np.where(thrusts < 0, np.interp(thrusts, table[rev][down], grid[rev][down]), out)
-    return out
+    """The command giving each steady thrust, from the twin's table of its map."""
+    (fwd_f, fwd_c), (rev_f, rev_c) = twin.map_table
+    out = np.full(thrusts.shape, twin.profile.neutral)
+    out = np.where(thrusts > 0, np.interp(thrusts, fwd_f, fwd_c), out)
+    return np.where(thrusts < 0, np.interp(thrusts, rev_f, rev_c), out)
 
 
-def free_run(twin: VehicleTwin, t_s: np.ndarray, commands: np.ndarray,
+def free_run(twin: VehicleTwin, t_s: np.ndarray, wrench: np.ndarray,
              noise_frac: float) -> FreeRunLog:
-    """Fly `commands` and log the motion with `noise_frac` noise on every channel."""
-    eta, nu = twin.run(t_s, commands)
+    """Fly the demanded `wrench` and log the motion with `noise_frac` noise on every channel."""
+    eta, nu, commands = twin.run(t_s, wrench)
     return FreeRunLog(t_s, commands, twin.noisy(nu, noise_frac), twin.noisy(eta, noise_frac),
                       nu, eta)
