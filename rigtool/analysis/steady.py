@@ -105,6 +105,10 @@ class PointTable:
     thrust_zero_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
     torque_zero_nm: np.ndarray = field(default_factory=lambda: np.zeros(0))
     speed_sign: np.ndarray = field(default_factory=lambda: np.zeros(0))  # set by the fits
+    # d(n|n|)/dt over the window ((r/min)^2/s) where the command moves within it (a ramp's
+    # bin), NaN where it is held: thrust and speed read through filters of their own then
+    # differ by a lag times this (fits.fit_directional)
+    speed_sq_rate: np.ndarray = field(default_factory=lambda: np.zeros(0))
     # Below these the data's own resolution (a table's printed step) decides the efficiency
     # more than MAX_ROUNDING: it is not reported there (empty: no floor).
     power_floor_w: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -156,6 +160,7 @@ class SteadyWindows:
     unsteady: np.ndarray
     channels: dict[str, ChannelStats]
     in_window: np.ndarray
+    speed_sq_rate: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def point_table(self, steps: Steps, n_samples: np.ndarray,
                     resolutions: dict[str, float]) -> PointTable:
@@ -174,6 +179,8 @@ class SteadyWindows:
             dead=np.zeros(n, bool), used_in_fits=np.zeros(n, bool), thrust_zero_n=np.zeros(n),
             torque_zero_nm=np.zeros(n),
             speed_sign=np.zeros(n),
+            speed_sq_rate=smooth_rates(self.speed_sq_rate, self.t_mid_s,
+                                       self.channels["speed_rpm"].mean),
             **resolution_floors(self.channels, resolutions),
         )
 
@@ -190,7 +197,7 @@ def concat_windows(parts: list[SteadyWindows]) -> SteadyWindows:
                                               for k in ("mean", "std", "se", "min", "max")))
     return SteadyWindows(parts[0].criterion, cat("first"), cat("window_start_s"),
                          cat("t_mid_s"), cat("n_window"), cat("unsteady"), channels,
-                         np.zeros(0, bool))
+                         np.zeros(0, bool), cat("speed_sq_rate"))
 
 
 RESOLUTION_CHANNELS = ("thrust_n", "current_a", "voltage_v")  # those `resolution_floors` uses
@@ -290,7 +297,53 @@ def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None)
         x = samples.channel(name)[in_window]
         batch_se = _batch_se(block_means.get(name), block_mask)
         stats[name] = _window_stats(x, win_pid, win_offsets, n_points, unit, batch_se)
-    return SteadyWindows(crit, first, window_start_s, t_mid, n_window, unsteady, stats, in_window)
+    rate = _ramp_rates(samples, in_window, n_points)
+    return SteadyWindows(crit, first, window_start_s, t_mid, n_window, unsteady, stats, in_window,
+                         rate)
+
+
+def smooth_rates(rate: np.ndarray, t_s: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """The d(n|n|)/dt of moving points (`rate`: each one's slope over its own few samples, NaN
+    where held) from the point means instead: the gradient of n|n| against time along each run
+    of consecutive moving points that go one way (a one-way stretch of a ramp), which the
+    speed noise moves far less than a slope over one bin. A run of one point keeps `rate`."""
+    out = np.array(rate, dtype=float) if rate.size == t_s.size else np.full(t_s.size, np.nan)
+    x = speed * np.abs(speed)
+    ok = np.isfinite(out) & np.isfinite(x) & np.isfinite(t_s)
+    same = ok[1:] & ok[:-1] & (np.sign(out[1:]) == np.sign(out[:-1])) & (np.diff(t_s) > 0)
+    starts = np.flatnonzero(np.concatenate(([True], ~same)))
+    stops = np.append(starts[1:], t_s.size)
+    for a, b in zip(starts.tolist(), stops.tolist(), strict=True):
+        if b - a >= 2 and ok[a]:
+            out[a:b] = np.gradient(x[a:b], t_s[a:b])
+    return out
+
+
+def _ramp_rates(samples: Samples, in_window: np.ndarray, n_points: int) -> np.ndarray:
+    """Per point, the least-squares slope of n|n| against time over its window where the
+    command moves within the window (NaN where it is held, unknown, or fewer than 2 samples)."""
+    out = np.full(n_points, np.nan)
+    cmd, speed = samples.command, samples.speed_rpm
+    if cmd is None or speed is None or not in_window.any():
+        return out
+    pid, t = samples.point[in_window], samples.t_s[in_window]
+    c, x = cmd[in_window], speed[in_window] * np.abs(speed[in_window])
+    ok = np.isfinite(c) & np.isfinite(x) & np.isfinite(t)
+    pid, t, c, x = pid[ok], t[ok], c[ok], x[ok]
+    if not pid.size:
+        return out
+    count = np.bincount(pid, minlength=n_points)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lo = np.full(n_points, np.inf)
+        hi = np.full(n_points, -np.inf)
+        np.minimum.at(lo, pid, c)
+        np.maximum.at(hi, pid, c)
+        dt = t - (np.bincount(pid, t, n_points) / count)[pid]
+        dx = x - (np.bincount(pid, x, n_points) / count)[pid]
+        slope = np.bincount(pid, dt * dx, n_points) / np.bincount(pid, dt * dt, n_points)
+    moving = (count >= 2) & (hi > lo) & np.isfinite(slope)
+    out[moving] = slope[moving]
+    return out
 
 
 def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
