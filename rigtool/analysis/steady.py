@@ -27,6 +27,7 @@ MAX_ROUNDING = 0.05  # efficiency only where half a printed step moves power and
 MIN_DISTINCT = 5  # a step is recognised in a channel with at least this many distinct values
 MAX_STEP_DIVISOR = 10  # the step may be up to this many times finer than the smallest gap
 RESOLUTION_SAMPLES = 200_000  # values looked at to find a channel's step
+POOL_POINTS = 9  # a ramp bin's noise is pooled over this many consecutive bins
 
 
 @dataclass(frozen=True)
@@ -290,14 +291,16 @@ def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None)
     with np.errstate(invalid="ignore", divide="ignore"):
         t_mid = np.bincount(win_pid, weights=t[in_window], minlength=n_points) / n_window
     stats = {}
+    rate = _ramp_rates(samples, in_window, n_points)
+    moving = np.isfinite(rate)
     for name, unit in CHANNEL_UNITS.items():
         if not samples.has(name):  # not recorded: no per-sample NaN arrays to build
             stats[name] = ChannelStats(unit, *(np.full(n_points, np.nan) for _ in range(5)))
             continue
         x = samples.channel(name)[in_window]
-        batch_se = _batch_se(block_means.get(name), block_mask)
-        stats[name] = _window_stats(x, win_pid, win_offsets, n_points, unit, batch_se)
-    rate = _ramp_rates(samples, in_window, n_points)
+        batch_se = np.where(moving, np.nan, _batch_se(block_means.get(name), block_mask))
+        trend = _trend(x, t[in_window], win_pid, moving, n_points)
+        stats[name] = _window_stats(x, win_pid, win_offsets, n_points, unit, batch_se, trend)
     return SteadyWindows(crit, first, window_start_s, t_mid, n_window, unsteady, stats, in_window,
                          rate)
 
@@ -317,6 +320,42 @@ def smooth_rates(rate: np.ndarray, t_s: np.ndarray, speed: np.ndarray) -> np.nda
         if b - a >= 2 and ok[a]:
             out[a:b] = np.gradient(x[a:b], t_s[a:b])
     return out
+
+
+def _trend(x: np.ndarray, t: np.ndarray, pid: np.ndarray, moving: np.ndarray,
+           n_points: int) -> np.ndarray:
+    """Per sample, its point's least-squares line in time less the point's mean, for the
+    `moving` points (a ramp's bins: the command moves within the window), 0 elsewhere: the
+    trend the command makes is not noise."""
+    ok = np.isfinite(x) & moving[pid]
+    if not ok.any():
+        return np.zeros(x.size)
+    w = ok.astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        count = np.bincount(pid, w, n_points)
+        dt = np.where(ok, t - (np.bincount(pid, w * t, n_points) / count)[pid], 0.0)
+        dx = np.where(ok, x - (np.bincount(pid, np.where(ok, x, 0.0), n_points) / count)[pid],
+                      0.0)
+        slope = np.bincount(pid, dt * dx, n_points) / np.bincount(pid, dt * dt, n_points)
+    return np.where(ok, np.nan_to_num(slope)[pid] * dt, 0.0)
+
+
+def _pooled(c0: np.ndarray, c1: np.ndarray, dof: np.ndarray,
+            sloped: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sums of squares, lag-1 products and degrees of freedom of each `sloped` point (a
+    ramp bin, a few samples about its line) pooled with its neighbours' over POOL_POINTS
+    consecutive sloped points, so a bin of three rows is not given a noise of one degree of
+    freedom; the noise changes slowly along a ramp. Other points keep their own."""
+    out = [np.array(v, dtype=float) for v in (c0, c1, dof)]
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], sloped.astype(np.int8), [0]))))
+    half = POOL_POINTS // 2
+    for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+        lo = np.clip(np.arange(a, b) - half, a, max(b - POOL_POINTS, a))
+        hi = np.minimum(lo + POOL_POINTS, b)
+        for v, src in zip(out, (c0, c1, dof), strict=True):
+            total = np.concatenate(([0.0], np.cumsum(np.nan_to_num(src[a:b]))))
+            v[a:b] = total[hi - a] - total[lo - a]
+    return out[0], out[1], out[2]
 
 
 def _ramp_rates(samples: Samples, in_window: np.ndarray, n_points: int) -> np.ndarray:
@@ -397,20 +436,25 @@ def _batch_se(means: np.ndarray | None, mask: np.ndarray) -> np.ndarray:
 
 
 def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points: int,
-                  unit: str, batch_se: np.ndarray) -> ChannelStats:
+                  unit: str, batch_se: np.ndarray, trend: np.ndarray) -> ChannelStats:
+    """Mean, std, standard error, min and max per point; std and error about `trend` (a ramp
+    bin's line in time, see `_trend`; one degree of freedom fewer where it is not 0)."""
     ok = np.isfinite(x)
     xv = np.where(ok, x, 0.0)
     cnt = np.bincount(pid, weights=ok, minlength=n_points)
+    sloped = np.bincount(pid, weights=trend != 0, minlength=n_points) > 0
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.bincount(pid, weights=xv, minlength=n_points) / cnt
-        dev = np.where(ok, xv - mean[pid], 0.0)
+        dev = np.where(ok, xv - mean[pid] - trend, 0.0)
         c0 = np.bincount(pid, weights=dev * dev, minlength=n_points)
         # Lag-1 products within each point: one across a point boundary counts 0 (sums of
         # the same terms as over the pairs within points).
         lag = dev[1:] * dev[:-1]
         lag[pid[1:] != pid[:-1]] = 0.0
         c1 = np.bincount(pid[:-1], weights=lag, minlength=n_points)
-        var = c0 / (cnt - 1)
+        dof = cnt - 1 - sloped
+        c0, c1, dof = _pooled(c0, c1, np.maximum(dof, 0), sloped)
+        var = np.where(dof > 0, c0 / dof, np.nan)
         std = np.sqrt(var)
         r1 = ar1_coefficient(c1 / c0, MAX_R1_SAMPLES)
         n_eff = effective_sample_size(cnt, r1, 1.0)
