@@ -5,9 +5,15 @@ Per case and seed range: how often the right thrust-law family is chosen, how of
 quadratic-adequacy flag is right (set exactly when C_p n^2 misses the truth by more than 2 %
 of full scale between 10 and 100 % speed), the C_p interval coverage and worst error where
 the law is quadratic, the worst thrust_from_speed error (% of full scale), and, for the
-hysteretic ESC, whether cal.command ever answers between the stop and start edges.
+hysteretic ESC, whether cal.command ever answers between the stop and start edges. For
+command ramps with a speed column (5 and 100 Hz, neutral at both ends, the thrust channel
+lagging the speed by a load cell's first-order filter or not): the C_p interval's coverage
+(the full interval, and the statistical one without the 0.1 % scale allowance), the worst
+C_p error, and the thrust_lag_s interval's coverage of the lag.
 
-    python benchmarks/bench_other_stands.py 47000 47030   # held-out seeds
+    python benchmarks/bench_other_stands.py 47000 47040           # held-out seeds
+    python benchmarks/bench_other_stands.py 47000 47040 "ramp"    # only cases named so
+    python benchmarks/bench_other_stands.py 47000 47040 steps     # only the step tables
 """
 
 from __future__ import annotations
@@ -75,8 +81,51 @@ def ramp_case(seed: int, tmp: Path, end_hold_s: float) -> tuple[float, bool]:
     return float(np.max(np.abs(got - want)) / full), warned
 
 
-def main(first: int, stop: int) -> None:
+RAMP_SPEED_CASES = {f"ramp {rate:g} Hz with speed, {f'lag {lag:g} s' if lag else 'no lag'}":
+                    (rate, lag) for rate in (5.0, 100.0) for lag in (0.0, 0.2)}
+
+
+def ramp_speed_case(seed: int, tmp: Path, rate_hz: float, lag_s: float) -> dict:
+    """One ramp with a speed column through the CLI; its depth section."""
+    csv, db, out = tmp / f"s{seed}.csv", tmp / "s.sqlite", tmp / "cal"
+    csv.write_text(ramp_log(Stand(offset_n=0.05), seed, rate_hz, end_hold_s=10.0, speed=True,
+                            lag_s=lag_s), encoding="utf-8")
+    text = subprocess.run(["rigtool", "import", str(csv), "--db", str(db)], check=True,
+                          capture_output=True, text=True).stdout
+    run_id = text.split("run ")[-1].strip()
+    subprocess.run(["rigtool", "calibrate", run_id, "--db", str(db), "--out", str(out)],
+                   check=True, capture_output=True)
+    (depth,) = json.loads((out / run_id / "calibration.json").read_text())["depths"]
+    return depth
+
+
+def ramp_speed_line(name: str, first: int, stop: int, rate_hz: float, lag_s: float) -> str:
+    """The C_p and lag figures of one ramp-with-speed case over the seeds."""
+    cp = Stand().cp
+    cover, stat, lag_cover, err = 0, 0, 0, []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in range(first, stop):
+            coef = ramp_speed_case(seed, Path(tmp), rate_hz, lag_s)["coefficients"]
+            c, lag = coef["C_p_fwd"], coef.get("thrust_lag_s")
+            cover += c["lo"] <= cp <= c["hi"]
+            lo, hi = c.get("stat_lo") or c["lo"], c.get("stat_hi") or c["hi"]
+            stat += lo <= cp <= hi
+            lag_cover += bool(lag) and lag["lo"] <= lag_s <= lag["hi"]
+            err.append(abs(c["value"] / cp - 1))
+    k = stop - first
+    return (f"{name}: C_p coverage {cover}/{k} (statistical {stat}/{k}), worst C_p error "
+            f"{100 * max(err):.2f} % (median {100 * float(np.median(err)):.3f} %), "
+            f"thrust_lag_s coverage {lag_cover}/{k}")
+
+
+def main(first: int, stop: int, only: str = "") -> None:
+    steps = only == "steps"
+    for name, (rate_hz, lag_s) in RAMP_SPEED_CASES.items():
+        if only in name and not steps:
+            print(ramp_speed_line(name, first, stop, rate_hz, lag_s), flush=True)
     for name, (stand, family, updown) in CASES.items():
+        if only not in name and not steps:
+            continue
         right, flag_right, cover, cp_err, curve_err, in_band = [], [], [], [], [], 0
         with tempfile.TemporaryDirectory() as tmp:
             for seed in range(first, stop):
@@ -109,7 +158,7 @@ def main(first: int, stop: int) -> None:
         if updown:
             line += f", commands between the edges in {in_band}/{k} seeds"
         print(line, flush=True)
-    for end_hold_s in (0.0, 10.0):
+    for end_hold_s in (0.0, 10.0) if only in "ramp 5 Hz, no speed" and not steps else ():
         with tempfile.TemporaryDirectory() as tmp:
             res = [ramp_case(seed, Path(tmp), end_hold_s) for seed in range(first, stop)]
         errs = [e for e, _ in res]
@@ -120,4 +169,4 @@ def main(first: int, stop: int) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]), int(sys.argv[2]))
+    main(int(sys.argv[1]), int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "")

@@ -66,22 +66,25 @@ def step_table(stand: Stand, seed: int, step_us: float = 25.0, updown: bool = Fa
 
 def ramp_log(stand: Stand, seed: int, rate_hz: float = 5.0, ramp_s: float = 60.0,
              hold_s: float = 5.0, end_hold_s: float = 0.0, tau_s: float = 0.5,
-             speed: bool = False) -> str:
+             speed: bool = False, lag_s: float = 0.0) -> str:
     """A continuous command ramp 1500 -> 1900 us sampled at `rate_hz`, neutral held
     `hold_s` before it, no speed column (a command ramp of a stand without a tachometer).
     `end_hold_s`: then a step back to neutral held that long, the propeller spinning down
     with time constant `tau_s` (its thrust decays over the first seconds there). `speed`:
-    with an optical speed column (r/min, 2 r/min noise)."""
+    with an optical speed column (r/min, 2 r/min noise). `lag_s`: the thrust channel reads
+    the true thrust through a first-order filter of that time constant (a load cell's), so
+    it lags the speed."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, hold_s + ramp_s + end_hold_s, 1.0 / rate_hz)
+    n = _ramp_speed(stand, t, hold_s, ramp_s, end_hold_s, tau_s)
     cmd = 1500.0 + 400.0 * np.clip((t - hold_s) / ramp_s, 0.0, 1.0)
     cmd[t >= hold_s + ramp_s] = 1500.0 if end_hold_s else cmd[t >= hold_s + ramp_s]
-    d = cmd - 1500.0
-    n = np.where(d >= stand.start_us, stand.top_rpm * d / 400.0, 0.0)
-    after = t - (hold_s + ramp_s)
-    n = np.where(end_hold_s and after >= 0, stand.top_rpm * np.exp(-np.maximum(after, 0) / tau_s),
-                 n)
-    f = stand.thrust(n) + stand.offset_n + rng.normal(0.0, stand.noise_n, n.size)
+    f = stand.thrust(n)
+    if lag_s > 0:
+        fine = np.arange(0.0, t[-1] + LAG_DT_S, LAG_DT_S)
+        true = stand.thrust(_ramp_speed(stand, fine, hold_s, ramp_s, end_hold_s, tau_s))
+        f = np.interp(t, fine, _first_order(true, LAG_DT_S / lag_s))
+    f = f + stand.offset_n + rng.normal(0.0, stand.noise_n, n.size)
     if speed:
         rpm = np.where(n > 0, n + rng.normal(0.0, 2.0, n.size), 0.0)
         rows = ["Time (s),ESC signal (µs),Thrust (N),Motor Optical Speed (RPM)"]
@@ -91,6 +94,28 @@ def ramp_log(stand: Stand, seed: int, rate_hz: float = 5.0, ramp_s: float = 60.0
     rows = ["Time (s),ESC signal (µs),Thrust (N)"]
     rows += [f"{a:.3f},{c:.2f},{b:.5f}" for a, c, b in zip(t, cmd, f, strict=True)]
     return "\n".join(rows) + "\n"
+
+
+LAG_DT_S = 1e-3  # time step of the filter a lagging thrust channel is simulated with
+
+
+def _ramp_speed(stand: Stand, t: np.ndarray, hold_s: float, ramp_s: float, end_hold_s: float,
+                tau_s: float) -> np.ndarray:
+    """True speed (r/min) of `ramp_log`'s thruster at the times `t`."""
+    cmd = 1500.0 + 400.0 * np.clip((t - hold_s) / ramp_s, 0.0, 1.0)
+    d = cmd - 1500.0
+    n = np.where(d >= stand.start_us, stand.top_rpm * d / 400.0, 0.0)
+    after = t - (hold_s + ramp_s)
+    return np.where(end_hold_s and after >= 0,
+                    stand.top_rpm * np.exp(-np.maximum(after, 0) / tau_s), n)
+
+
+def _first_order(x: np.ndarray, k: float) -> np.ndarray:
+    """x through the first-order filter y += k (x - y), started at x[0]."""
+    from scipy.signal import lfilter
+
+    y, _ = lfilter([k], [1.0, k - 1.0], x, zi=[x[0] * (1.0 - k)])
+    return y
 
 
 def rov_table(seed: int, cp_fwd: float = 5e-6, rev_ratio: float = 0.8, per_side: int = 10,

@@ -55,6 +55,7 @@ class Samples:
     offsets: np.ndarray
     voltage_v: np.ndarray | None = None  # bus voltage (None: not recorded)
     torque_nm: np.ndarray | None = None  # torque about the thrust axis (None: not measured)
+    command: np.ndarray | None = None  # command sent with each sample (None: not read)
 
     def channel(self, name: str) -> np.ndarray:
         """A per-sample channel; `power_w` is V * I sample by sample (so its mean is the mean

@@ -252,18 +252,20 @@ def fit_models(points: PointTable, samples: SampleSpreads, *, diameter_m: float 
             n = np.abs(n) * direction.sign
     n_min = max(p.min_speed_rpm, p.min_speed_frac * float(np.max(np.abs(n[use]))))
     masks = {"fwd": use & (n > n_min), "rev": use & (n < -n_min)}
-    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions, drift)
+    rate = points.speed_sq_rate if points.speed_sq_rate.size == n.size else None
+    thrust_fit = fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions, drift, rate)
     if thrust_fit is None:
         return result
     single = single_readings(points, p)
     if (single & thrust_fit.used).any():
         se_f = _scatter_weights(thrust_fit, se_f, single)
-        thrust_fit = (fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions, drift)
+        thrust_fit = (fit_thrust_speed(n, f, se_f, se_n, t, masks, zero, sessions, drift, rate)
                       or thrust_fit)
     out = result.coefficients
     cp = _thrust_coefficients(thrust_fit, out, p, diameter_m, density_kg_m3)
-    for c in thrust_fit.zero_coefficients():
-        out[c.name] = c
+    for c in [*thrust_fit.zero_coefficients(), thrust_fit.lag_coefficient()]:
+        if c is not None:
+            out[c.name] = c
     result.used = thrust_fit.used
     result.zero = thrust_fit.zero
     zero = result.zero.at(t)

@@ -45,6 +45,7 @@ DIRECT_MIN_K = 10.0  # direct C_i fit: I - I_0 must exceed this many of its stan
 MIN_SCALE_DOF = 20  # model fits with this many degrees of freedom take their scale from the scatter
 LACK_P = 1e-3  # residuals beyond their stated errors at this chi-square p-value: lack of fit
 CUBIC = 3.0  # the textbook exponent of I = C_n |n|^3 + I_0
+MIN_LAG_POINTS = 10  # fitted points read while x moved for a lag term to enter
 Z95 = 1.96
 
 
@@ -441,6 +442,24 @@ class DirectionalFit:
         return session_line(beta[:-1], float(beta[-1] / scale[-1]), self.t_ref_s, "model fit",
                             cov, self.session_starts)
 
+    def lag_coefficient(self) -> Coefficient | None:
+        """The lag L (s) of y behind x, from the "lag" column (-c L) and the first direction's
+        c, with a first-order 95 % interval (None without a lag column)."""
+        if "lag" not in self.columns:
+            return None
+        j, i = self.columns.index("lag"), 0
+        c, beta = float(self.fit.beta[i]), float(self.fit.beta[j])
+        if not c > 0:
+            return None
+        lag = -beta / c
+        grad = np.array([lag / c, -1.0 / c])  # d lag / d (c, beta)
+        var = float(grad @ self.fit.cov[np.ix_([i, j], [i, j])] @ grad)
+        hw = t95(self.fit.dof) * math.sqrt(max(var, 0.0)) if self.fit.dof > 0 else math.nan
+        r2, rms = _quality(self.y, self.fit.resid)
+        return Coefficient("thrust_lag_s", lag, lag - hw, lag + hw, "s", len(self.y), r2, rms,
+                           "N", "thrust read this long after the speed (negative: before), "
+                           "fitted with C_p on the points read while the speed moved")
+
     def zero_coefficients(self) -> list[Coefficient]:
         """f_0 (N, at t_ref) and zero_drift (N/h) as coefficients."""
         r2, rms = _quality(self.y, self.fit.resid)
@@ -467,8 +486,8 @@ class DirectionalFit:
 def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.ndarray | None,
                     t_s: np.ndarray, masks: dict[str, np.ndarray],
                     min_points: int = 3, zero: ZeroLine | None = None,
-                    sessions: tuple[float, ...] = (), drift: bool = True
-                    ) -> DirectionalFit | None:
+                    sessions: tuple[float, ...] = (), drift: bool = True,
+                    lag_rate: np.ndarray | None = None) -> DirectionalFit | None:
     """Fit y = sum_k c_k x [mask_k] + a + b (t - t_ref) by WLS (effective variance for dx_se).
 
     Directions with fewer than `min_points` points are left out; the drift term only enters
@@ -477,7 +496,11 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
     serially correlated in time (see module docstring). With `zero` given, y - zero(t) is
     fitted without the offset and drift terms. `sessions` are the start times of a resumed
     run's later sessions: each session that holds points gets its own offset a_k (columns
-    "offset", "offset_1", ...), the drift b stays one for all.
+    "offset", "offset_1", ...), the drift b stays one for all. `lag_rate`: dx/dt per point
+    where x moves while the point is read (a ramp's bins; NaN where held): y read a lag L
+    after (or before) x is y(t) = c x(t - L) ~ c x - c L dx/dt, so a column "lag" (-c L)
+    enters where MIN_LAG_POINTS fitted points move; the lag is common to the ramp's bins
+    and does not average out over them.
     """
     keys = [k for k, m in masks.items() if m.sum() >= min_points]
     if not keys:
@@ -498,6 +521,11 @@ def fit_directional(x: np.ndarray, y: np.ndarray, se_y: np.ndarray, dx_se: np.nd
         if drift and np.ptp(t) > 0 and used.sum() >= len(cols) + 4:
             cols.append((t - t_ref) / SECONDS_PER_HOUR)
             names.append("drift")
+    rate = None if lag_rate is None else lag_rate[used]
+    if (rate is not None and np.sum(np.isfinite(rate) & (rate != 0)) >= MIN_LAG_POINTS
+            and used.sum() >= len(cols) + 4):
+        cols.append(np.nan_to_num(rate))
+        names.append("lag")
     design = np.column_stack(cols)
     fit = wls(design, yy, se, t, scale_down=True, lack_of_fit=True)
     if dx_se is not None:
@@ -523,14 +551,15 @@ def fit_thrust_speed(n_rpm: np.ndarray, f_n: np.ndarray, se_f: np.ndarray,
                      se_n: np.ndarray | None, t_s: np.ndarray,
                      masks: dict[str, np.ndarray],
                      zero: ZeroLine | None = None,
-                     sessions: tuple[float, ...] = (), drift: bool = True
-                     ) -> DirectionalFit | None:
+                     sessions: tuple[float, ...] = (), drift: bool = True,
+                     lag_rate: np.ndarray | None = None) -> DirectionalFit | None:
     """f = C_p |n| n with C_p per direction (`masks`: "fwd"/"rev" point masks) + zero terms,
     an offset per session of `sessions` (or against a given `zero`); a drift only with
-    `drift`."""
+    `drift`; a lag between thrust and speed where `lag_rate` (d(n|n|)/dt) says the points
+    moved (fit_directional)."""
     dx = None if se_n is None else 2 * np.abs(n_rpm) * se_n
     return fit_directional(np.abs(n_rpm) * n_rpm, f_n, se_f, dx, t_s, masks, zero=zero,
-                           sessions=sessions, drift=drift)
+                           sessions=sessions, drift=drift, lag_rate=lag_rate)
 
 
 def thrust_coefficient(cp: Coefficient, diameter_m: float, density_kg_m3: float,

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rigtool.analysis.dataset import PointBlock, RunData
+from rigtool.analysis.dataset import SAMPLE_FIELDS, PointBlock, RunData
 from rigtool.analysis.fits import Coefficient, residual_spread
 from rigtool.analysis.steady import (
     RESOLUTION_CHANNELS,
@@ -37,7 +37,7 @@ def point_pass(run: RunData, criterion: SettlingCriterion) -> tuple[SteadyWindow
     """Steady windows and the point table of `run`, read one block of points at a time."""
     strides = _Strided(run.source.sample_count())
     parts, counts = [], []
-    for block in run.source.blocks():
+    for block in run.source.blocks((*SAMPLE_FIELDS, "torque_nm", "command")):
         windows = steady_windows(block.samples, criterion)
         windows.in_window = windows.in_window[:0]  # per sample: not kept past its block
         parts.append(windows)

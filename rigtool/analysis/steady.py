@@ -27,6 +27,7 @@ MAX_ROUNDING = 0.05  # efficiency only where half a printed step moves power and
 MIN_DISTINCT = 5  # a step is recognised in a channel with at least this many distinct values
 MAX_STEP_DIVISOR = 10  # the step may be up to this many times finer than the smallest gap
 RESOLUTION_SAMPLES = 200_000  # values looked at to find a channel's step
+POOL_POINTS = 9  # a ramp bin's noise is pooled over this many consecutive bins
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,10 @@ class PointTable:
     thrust_zero_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
     torque_zero_nm: np.ndarray = field(default_factory=lambda: np.zeros(0))
     speed_sign: np.ndarray = field(default_factory=lambda: np.zeros(0))  # set by the fits
+    # d(n|n|)/dt over the window ((r/min)^2/s) where the command moves within it (a ramp's
+    # bin), NaN where it is held: thrust and speed read through filters of their own then
+    # differ by a lag times this (fits.fit_directional)
+    speed_sq_rate: np.ndarray = field(default_factory=lambda: np.zeros(0))
     # Below these the data's own resolution (a table's printed step) decides the efficiency
     # more than MAX_ROUNDING: it is not reported there (empty: no floor).
     power_floor_w: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -156,6 +161,7 @@ class SteadyWindows:
     unsteady: np.ndarray
     channels: dict[str, ChannelStats]
     in_window: np.ndarray
+    speed_sq_rate: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def point_table(self, steps: Steps, n_samples: np.ndarray,
                     resolutions: dict[str, float]) -> PointTable:
@@ -174,6 +180,8 @@ class SteadyWindows:
             dead=np.zeros(n, bool), used_in_fits=np.zeros(n, bool), thrust_zero_n=np.zeros(n),
             torque_zero_nm=np.zeros(n),
             speed_sign=np.zeros(n),
+            speed_sq_rate=smooth_rates(self.speed_sq_rate, self.t_mid_s,
+                                       self.channels["speed_rpm"].mean),
             **resolution_floors(self.channels, resolutions),
         )
 
@@ -190,7 +198,7 @@ def concat_windows(parts: list[SteadyWindows]) -> SteadyWindows:
                                               for k in ("mean", "std", "se", "min", "max")))
     return SteadyWindows(parts[0].criterion, cat("first"), cat("window_start_s"),
                          cat("t_mid_s"), cat("n_window"), cat("unsteady"), channels,
-                         np.zeros(0, bool))
+                         np.zeros(0, bool), cat("speed_sq_rate"))
 
 
 RESOLUTION_CHANNELS = ("thrust_n", "current_a", "voltage_v")  # those `resolution_floors` uses
@@ -283,14 +291,98 @@ def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None)
     with np.errstate(invalid="ignore", divide="ignore"):
         t_mid = np.bincount(win_pid, weights=t[in_window], minlength=n_points) / n_window
     stats = {}
+    rate = _ramp_rates(samples, in_window, n_points)
+    moving = np.isfinite(rate)
     for name, unit in CHANNEL_UNITS.items():
         if not samples.has(name):  # not recorded: no per-sample NaN arrays to build
             stats[name] = ChannelStats(unit, *(np.full(n_points, np.nan) for _ in range(5)))
             continue
         x = samples.channel(name)[in_window]
-        batch_se = _batch_se(block_means.get(name), block_mask)
-        stats[name] = _window_stats(x, win_pid, win_offsets, n_points, unit, batch_se)
-    return SteadyWindows(crit, first, window_start_s, t_mid, n_window, unsteady, stats, in_window)
+        batch_se = np.where(moving, np.nan, _batch_se(block_means.get(name), block_mask))
+        trend = _trend(x, t[in_window], win_pid, moving, n_points)
+        stats[name] = _window_stats(x, win_pid, win_offsets, n_points, unit, batch_se, trend)
+    return SteadyWindows(crit, first, window_start_s, t_mid, n_window, unsteady, stats, in_window,
+                         rate)
+
+
+def smooth_rates(rate: np.ndarray, t_s: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """The d(n|n|)/dt of moving points (`rate`: each one's slope over its own few samples, NaN
+    where held) from the point means instead: the gradient of n|n| against time along each run
+    of consecutive moving points that go one way (a one-way stretch of a ramp), which the
+    speed noise moves far less than a slope over one bin. A run of one point keeps `rate`."""
+    out = np.array(rate, dtype=float) if rate.size == t_s.size else np.full(t_s.size, np.nan)
+    x = speed * np.abs(speed)
+    ok = np.isfinite(out) & np.isfinite(x) & np.isfinite(t_s)
+    same = ok[1:] & ok[:-1] & (np.sign(out[1:]) == np.sign(out[:-1])) & (np.diff(t_s) > 0)
+    starts = np.flatnonzero(np.concatenate(([True], ~same)))
+    stops = np.append(starts[1:], t_s.size)
+    for a, b in zip(starts.tolist(), stops.tolist(), strict=True):
+        if b - a >= 2 and ok[a]:
+            out[a:b] = np.gradient(x[a:b], t_s[a:b])
+    return out
+
+
+def _trend(x: np.ndarray, t: np.ndarray, pid: np.ndarray, moving: np.ndarray,
+           n_points: int) -> np.ndarray:
+    """Per sample, its point's least-squares line in time less the point's mean, for the
+    `moving` points (a ramp's bins: the command moves within the window), 0 elsewhere: the
+    trend the command makes is not noise."""
+    ok = np.isfinite(x) & moving[pid]
+    if not ok.any():
+        return np.zeros(x.size)
+    w = ok.astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        count = np.bincount(pid, w, n_points)
+        dt = np.where(ok, t - (np.bincount(pid, w * t, n_points) / count)[pid], 0.0)
+        dx = np.where(ok, x - (np.bincount(pid, np.where(ok, x, 0.0), n_points) / count)[pid],
+                      0.0)
+        slope = np.bincount(pid, dt * dx, n_points) / np.bincount(pid, dt * dt, n_points)
+    return np.where(ok, np.nan_to_num(slope)[pid] * dt, 0.0)
+
+
+def _pooled(c0: np.ndarray, c1: np.ndarray, dof: np.ndarray,
+            sloped: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sums of squares, lag-1 products and degrees of freedom of each `sloped` point (a
+    ramp bin, a few samples about its line) pooled with its neighbours' over POOL_POINTS
+    consecutive sloped points, so a bin of three rows is not given a noise of one degree of
+    freedom; the noise changes slowly along a ramp. Other points keep their own."""
+    out = [np.array(v, dtype=float) for v in (c0, c1, dof)]
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], sloped.astype(np.int8), [0]))))
+    half = POOL_POINTS // 2
+    for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+        lo = np.clip(np.arange(a, b) - half, a, max(b - POOL_POINTS, a))
+        hi = np.minimum(lo + POOL_POINTS, b)
+        for v, src in zip(out, (c0, c1, dof), strict=True):
+            total = np.concatenate(([0.0], np.cumsum(np.nan_to_num(src[a:b]))))
+            v[a:b] = total[hi - a] - total[lo - a]
+    return out[0], out[1], out[2]
+
+
+def _ramp_rates(samples: Samples, in_window: np.ndarray, n_points: int) -> np.ndarray:
+    """Per point, the least-squares slope of n|n| against time over its window where the
+    command moves within the window (NaN where it is held, unknown, or fewer than 2 samples)."""
+    out = np.full(n_points, np.nan)
+    cmd, speed = samples.command, samples.speed_rpm
+    if cmd is None or speed is None or not in_window.any():
+        return out
+    pid, t = samples.point[in_window], samples.t_s[in_window]
+    c, x = cmd[in_window], speed[in_window] * np.abs(speed[in_window])
+    ok = np.isfinite(c) & np.isfinite(x) & np.isfinite(t)
+    pid, t, c, x = pid[ok], t[ok], c[ok], x[ok]
+    if not pid.size:
+        return out
+    count = np.bincount(pid, minlength=n_points)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lo = np.full(n_points, np.inf)
+        hi = np.full(n_points, -np.inf)
+        np.minimum.at(lo, pid, c)
+        np.maximum.at(hi, pid, c)
+        dt = t - (np.bincount(pid, t, n_points) / count)[pid]
+        dx = x - (np.bincount(pid, x, n_points) / count)[pid]
+        slope = np.bincount(pid, dt * dx, n_points) / np.bincount(pid, dt * dt, n_points)
+    moving = (count >= 2) & (hi > lo) & np.isfinite(slope)
+    out[moving] = slope[moving]
+    return out
 
 
 def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
@@ -344,20 +436,25 @@ def _batch_se(means: np.ndarray | None, mask: np.ndarray) -> np.ndarray:
 
 
 def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points: int,
-                  unit: str, batch_se: np.ndarray) -> ChannelStats:
+                  unit: str, batch_se: np.ndarray, trend: np.ndarray) -> ChannelStats:
+    """Mean, std, standard error, min and max per point; std and error about `trend` (a ramp
+    bin's line in time, see `_trend`; one degree of freedom fewer where it is not 0)."""
     ok = np.isfinite(x)
     xv = np.where(ok, x, 0.0)
     cnt = np.bincount(pid, weights=ok, minlength=n_points)
+    sloped = np.bincount(pid, weights=trend != 0, minlength=n_points) > 0
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.bincount(pid, weights=xv, minlength=n_points) / cnt
-        dev = np.where(ok, xv - mean[pid], 0.0)
+        dev = np.where(ok, xv - mean[pid] - trend, 0.0)
         c0 = np.bincount(pid, weights=dev * dev, minlength=n_points)
         # Lag-1 products within each point: one across a point boundary counts 0 (sums of
         # the same terms as over the pairs within points).
         lag = dev[1:] * dev[:-1]
         lag[pid[1:] != pid[:-1]] = 0.0
         c1 = np.bincount(pid[:-1], weights=lag, minlength=n_points)
-        var = c0 / (cnt - 1)
+        dof = cnt - 1 - sloped
+        c0, c1, dof = _pooled(c0, c1, np.maximum(dof, 0), sloped)
+        var = np.where(dof > 0, c0 / dof, np.nan)
         std = np.sqrt(var)
         r1 = ar1_coefficient(c1 / c0, MAX_R1_SAMPLES)
         n_eff = effective_sample_size(cnt, r1, 1.0)

@@ -99,8 +99,10 @@ def ramp_keys(p: Parsed, depth_m: float | None) -> np.ndarray:
     """Grouping keys of a command ramp: the command's bin, of a width that puts at least
     RAMP_ROWS_PER_POINT rows in a bin and makes at most RAMP_MAX_POINTS bins over the range
     (consecutive rows in one bin are one point; a ramp back down makes points of its own).
-    A command held for TIMESERIES_MIN_RUN rows or more (neutral at the ends) keeps its own
-    value: it is a point of its own, not part of a bin."""
+    The top of the range belongs to the last bin: a bin of its own would hold the one row
+    there, a point whose error nothing in it shows. A command held for TIMESERIES_MIN_RUN
+    rows or more (neutral at the ends) keeps its own value: it is a point of its own, not
+    part of a bin."""
     keys = _keys(p, depth_m)
     cmd = keys[:, 0].copy()
     finite = cmd[np.isfinite(cmd)]
@@ -108,7 +110,8 @@ def ramp_keys(p: Parsed, depth_m: float | None) -> np.ndarray:
     bins = max(min(RAMP_MAX_POINTS, finite.size // RAMP_ROWS_PER_POINT), 1)
     if span > 0:
         width = span / bins
-        keys[:, 0] = finite.min() + (np.floor((cmd - finite.min()) / width) + 0.5) * width
+        index = np.minimum(np.floor((cmd - finite.min()) / width), bins - 1)
+        keys[:, 0] = finite.min() + (index + 0.5) * width
     edges = _edges(_keys(p, depth_m))
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         if b - a >= TIMESERIES_MIN_RUN:
