@@ -91,7 +91,7 @@ def test_identify_recovers_the_twin_through_the_cli(flown, tmp_path, capsys):
     model = json.loads((out / "vehicle_model.json").read_text())
     assert model["format"] == "rigtool-vehicle-model" and model["frame"] == "FRD"
     hydro = {k: v for group in model["hydrodynamics"].values() for k, v in group.items()}
-    est = np.array([hydro[n]["value"] for n in NAMES])
+    est = np.array([np.nan if hydro[n]["value"] is None else hydro[n]["value"] for n in NAMES])
     rel = np.abs(est - TRUTH) / np.abs(TRUTH)
     # a 300 s development log; benchmarks/bench_vehicle.py gives the held-out figures
     assert np.all(rel[:6] < 0.10), dict(zip(NAMES[:6], rel[:6].round(3), strict=True))

@@ -22,8 +22,8 @@ from rigtool.sim.vehicle_params import VehicleParams
 from rigtool.thruster_profiles import ThrusterProfile
 
 GRAVITY_M_S2 = 9.81
-ATTITUDE_KP = 15.0  # N m/rad: the pilot's roll and pitch hold
-ATTITUDE_KD = 2.0  # N m s/rad
+ATTITUDE_KP = 10.0  # N m/rad: the pilot's roll and pitch hold (loose: roll and pitch still swing)
+ATTITUDE_KD = 0.3  # N m s/rad
 _SUBSTEP_S = 0.02  # RK4 step: a seventh of the T200 twin's speed lag, a tenth of a second of roll
 
 
@@ -174,7 +174,7 @@ def excitation(duration_s: float, rate_hz: float, seed: int,
     `one_way`), 1.5-6 s per level."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration_s, 1.0 / rate_hz)
-    peak = np.array([35.0, 35.0, 35.0, 1.5, 1.5, 2.5])
+    peak = np.array([35.0, 35.0, 35.0, 3.0, 3.0, 2.5])
     wrench = np.zeros((len(t), 6))
     start = 0.0
     while start < duration_s:
