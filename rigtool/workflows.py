@@ -81,6 +81,9 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     with stage(f"calibrating run {run_id}"):
         run = load_run(store, run_id)
         cal = analyse(run)
+        if _add_captive(store, run_id, cal):  # a held vehicle: no propeller to ventilate
+            cav_stage = dataclasses.replace(cav_stage, base_run_id=None, warn=False, notes=())
+            stage_notes = []
     if check is not None:
         check(cal)
     created = utc_now()
@@ -104,6 +107,25 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     store.add_calibration(run_id, str(folder), calibration_document(cal, created),
                           __version__, state=_encode(results), created_utc=created)
     return results
+
+
+def _add_captive(store: Store, run_id: str, cal: CalibrationResult) -> bool:
+    """A captive run's damping laws, with its warnings; a thruster held at one command the
+    whole run has no thruster law, and says so once instead of in every fit's words.
+    Returns whether the run is a captive one."""
+    from rigtool.analysis.captive import fit_captive
+    from rigtool.analysis.dataset import load_captive
+
+    data = load_captive(store, run_id)
+    if data is None:
+        return False
+    cal.captive = fit_captive(data)
+    commands = {float(c) for s in cal.sections for c in s.points.command}
+    if len(commands) == 1:
+        cal.warnings = [f"thruster: held at {commands.pop():g} {cal.command_unit} throughout "
+                        "this captive run, so no thruster law is fitted"]
+    cal.warnings += cal.captive.warnings
+    return True
 
 
 def _encode(results: Results) -> bytes:

@@ -77,7 +77,7 @@ class CaptiveFlow:
         """Turn the held vehicle to `angle_deg` (the stage turns while the flow is at rest)."""
         self.angle_deg = float(angle_deg)
 
-    def settled_at(self, t: float, tolerance_mps: float = 1e-3) -> float:
+    def settled_at(self, t: float, tolerance_mps: float = 1e-5) -> float:
         """The time from which the speed is within `tolerance_mps` of its target."""
         gap = abs(self._speed_from - self.target_mps)
         if gap <= tolerance_mps:
