@@ -6,8 +6,10 @@ for thrust: steady.point_channel_stats). The flow relative to the body is u = U 
 and, by the angle swept, v = U sin(yaw) or w = U sin(attack). Per translational axis the law
 X = X_u u + X_uu u|u| is fitted by weighted least squares (fits.wls: excess scatter, serial
 correlation in acquisition order and lack of fit widen the interval), pooled over every
-angle, with one zero offset per angle as a nuisance term (the sensor's zero, and the held
-vehicle's weight and buoyancy, which turn with an angle of attack). The law's two terms are
+angle, with nuisance terms for the zero: one offset per angle (the sensor's zero, and the
+held vehicle's weight and buoyancy, which turn with an angle of attack) and one linear drift
+in time (the sensor's zero drifts after the tare; speeds visited in a monotone order would
+otherwise turn that drift into a linear damping term). The law's two terms are
 told apart only where the flow component took both signs (its offset is even in the flow, the
 law odd) and at least two speed magnitudes (at one, u and u|u| are proportional); otherwise
 the coefficient is refused with the reason, never given a number. Where an angle was swept,
@@ -29,6 +31,7 @@ from rigtool.analysis.steady import point_channel_stats
 
 FORCES = ("X", "Y", "Z", "K", "M", "N")
 VELOCITIES = ("u", "v", "w")
+SECONDS_PER_HOUR = 3600.0
 ZERO_FLOW_FRAC = 1e-3  # a component below this fraction of the fastest flow counts as none
 LINEAR_UNIT, QUADRATIC_UNIT = "N s/m", "N s^2/m^2"
 ROTATION_REFUSED = ("K_p, K_pp, M_q, M_qq, N_r and N_rr are not identified: rotational "
@@ -47,6 +50,7 @@ class CaptivePoints:
     velocity_mps: np.ndarray  # (n, 3): u, v, w
     mean: np.ndarray  # (n, 6)
     se: np.ndarray  # (n, 6)
+    t_s: np.ndarray = field(default_factory=lambda: np.empty(0))  # mean time of each point
 
 
 @dataclass
@@ -60,6 +64,7 @@ class CaptiveLaw:
     refused: str = ""
     offset_angles_deg: np.ndarray = field(default_factory=lambda: np.empty(0))
     offsets: np.ndarray = field(default_factory=lambda: np.empty(0))  # zero per angle (N)
+    drift: Coefficient | None = None  # the zero's drift over the run (N/h), a nuisance term
 
 
 @dataclass
@@ -101,7 +106,7 @@ def captive_points(data: CaptiveData) -> CaptivePoints:
     return CaptivePoints(data.step_idx, data.speed_mps, data.angle_deg,
                          body_components(data.speed_mps, data.angle_deg, data.angle),
                          np.column_stack([s.mean for s in stats]),
-                         np.column_stack([s.se for s in stats]))
+                         np.column_stack([s.se for s in stats]), data.t_s)
 
 
 def separable(nu: np.ndarray, names: str, scale: float, reversing: str) -> str:
@@ -119,11 +124,13 @@ def separable(nu: np.ndarray, names: str, scale: float, reversing: str) -> str:
 
 
 def _law_fit(nu: np.ndarray, y: np.ndarray, se: np.ndarray, groups: np.ndarray,
-             order: np.ndarray) -> tuple:
-    """Weighted fit of y = offset[group] + a nu + b nu|nu|: (fit, offsets, refusal)."""
+             order: np.ndarray, t_s: np.ndarray) -> tuple:
+    """Weighted fit of y = offset[group] + drift t + a nu + b nu|nu| (the law's terms are the
+    last two columns): (fit, offsets, refusal)."""
     levels = np.unique(groups)
+    hours = (t_s - np.mean(t_s)) / SECONDS_PER_HOUR
     design = np.column_stack([(groups == g).astype(float) for g in levels]
-                             + [nu, nu * np.abs(nu)])
+                             + [hours, nu, nu * np.abs(nu)])
     if len(y) - design.shape[1] < 1:
         return None, levels, "too few points for the law and its zero offsets"
     ok = np.isfinite(se) & (se > 0)
@@ -141,16 +148,19 @@ def fit_law(points: CaptivePoints, k: int, angle_kind: str) -> CaptiveLaw:
     if why:
         return CaptiveLaw(force, vel, None, None, why)
     fit, levels, why = _law_fit(nu, y, points.se[:, k], points.angle_deg,
-                                points.step_idx.astype(float))
+                                points.step_idx.astype(float), points.t_s)
     if fit is None:
         return CaptiveLaw(force, vel, None, None, f"{names}: {why}")
-    p = len(levels)
-    note = f"{force} = {force}_{vel} {vel} + {force}_{vel}{vel} {vel}|{vel}|, a zero per angle"
+    p = len(levels) + 1
+    note = (f"{force} = {force}_{vel} {vel} + {force}_{vel}{vel} {vel}|{vel}|, a zero per "
+            "angle and a zero drift")
     return CaptiveLaw(
         force, vel,
         fitted(f"{force}_{vel}", fit, p, LINEAR_UNIT, y, "N", note),
         fitted(f"{force}_{vel}{vel}", fit, p + 1, QUADRATIC_UNIT, y, "N", note),
-        "", levels.astype(float), np.asarray(fit.beta[:p], dtype=float))
+        "", levels.astype(float), np.asarray(fit.beta[:p - 1], dtype=float),
+        fitted(f"{force}_zero_drift", fit, p - 1, "N/h", y, "N", "the zero's drift, fitted with "
+               "the law"))
 
 
 def flow_frame(points: CaptivePoints, angle_kind: str) -> tuple[np.ndarray, np.ndarray]:
@@ -184,11 +194,12 @@ def fit_lift_drag(points: CaptivePoints, angle_kind: str) -> list[LiftDrag]:
             if why:
                 break
             fit, _, why = _law_fit(speed, y[rows], se[rows], np.zeros(rows.sum()),
-                                   points.step_idx[rows].astype(float))
+                                   points.step_idx[rows].astype(float), points.t_s[rows])
             if fit is not None:
-                note = f"{name} = {name}_U U + {name}_UU U|U| at {a:g} deg, a zero offset"
-                coefs[2 * j] = fitted(f"{name}_U", fit, 1, LINEAR_UNIT, y[rows], "N", note)
-                coefs[2 * j + 1] = fitted(f"{name}_UU", fit, 2, QUADRATIC_UNIT, y[rows], "N",
+                note = (f"{name} = {name}_U U + {name}_UU U|U| at {a:g} deg, a zero offset and "
+                        "drift")
+                coefs[2 * j] = fitted(f"{name}_U", fit, 2, LINEAR_UNIT, y[rows], "N", note)
+                coefs[2 * j + 1] = fitted(f"{name}_UU", fit, 3, QUADRATIC_UNIT, y[rows], "N",
                                           note)
         out.append(LiftDrag(float(a), *coefs, why))
     return out
@@ -201,8 +212,21 @@ def fit_captive(data: CaptiveData) -> CaptiveResult:
     lift_drag = fit_lift_drag(points, data.angle)
     warnings = [f"captive: {law.refused}" for law in laws if law.refused]
     warnings += [f"captive: {ld.refused}" for ld in lift_drag if ld.refused]
+    warnings += _drift_warning(laws[0], points)
     warnings.append(f"captive: {ROTATION_REFUSED}")
     return CaptiveResult(data.angle, points, laws, lift_drag, warnings)
+
+
+def _drift_warning(law: CaptiveLaw, points: CaptivePoints) -> list[str]:
+    """A warning when the zero of X drifted over the run (its interval clear of zero): the
+    drift is fitted with the laws, but a tare between angles would remove it."""
+    d = law.drift
+    if d is None or d.lo <= 0 <= d.hi:
+        return []
+    span_h = float(np.ptp(points.t_s)) / SECONDS_PER_HOUR
+    return [f"captive: the sensor's zero drifted at {d.value:.3g} N/h ({d.lo:.3g} .. "
+            f"{d.hi:.3g}) on X over the run ({abs(d.value) * span_h:.3g} N); it is fitted "
+            "with the laws, and a tare between angles would remove it"]
 
 
 def truth_lift_drag(linear: tuple[float, ...], quadratic: tuple[float, ...], angle_deg: float,
