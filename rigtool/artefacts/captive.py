@@ -29,6 +29,7 @@ def captive_doc(result: CaptiveResult, coef: CoefDoc) -> dict:
     """The `captive` section: per axis its law or the reason it is refused, lift and drag per
     angle, the warnings."""
     def opt(c: Coefficient | None) -> dict | None:
+        """A coefficient's document, or None where refused."""
         return None if c is None else coef(c)
 
     return {

@@ -47,10 +47,12 @@ class CarriageTwin:
         self.pty_path, self.url = self._server.pty_path, self._server.url
 
     def start(self) -> CarriageTwin:
+        """Start serving; returns the twin."""
         self._server.start()
         return self
 
     def stop(self) -> None:
+        """Stop serving and close the pty and the socket."""
         self._server.stop()
 
     def __enter__(self) -> CarriageTwin:
