@@ -41,7 +41,11 @@ def captive_doc(result: CaptiveResult, coef: CoefDoc) -> dict:
         "speeds_mps": sorted({float(v) for v in result.points.speed_mps}),
         "angles_deg": sorted({float(v) for v in result.points.angle_deg}),
         "laws": {law.force: {"velocity": law.velocity, "linear": opt(law.linear),
-                             "quadratic": opt(law.quadratic), "refused": law.refused or None}
+                             "quadratic": opt(law.quadratic), "zero_drift": opt(law.drift),
+                             "zero_per_angle_n": dict(zip(
+                                 (f"{a:g}" for a in law.offset_angles_deg),
+                                 (float(v) for v in law.offsets), strict=True)),
+                             "refused": law.refused or None}
                  for law in result.laws},
         "lift_drag": [{"angle_deg": ld.angle_deg, "drag_linear": opt(ld.drag_linear),
                        "drag_quadratic": opt(ld.drag_quadratic),
