@@ -194,6 +194,28 @@ def _inconsistency(cal: Any) -> str | None:
         problem = _table_problem(sec.points) or (sec.curve and _curve_problem(sec.curve))
         if problem:
             return f"section {i}: {problem}"
+    return None if cal.captive is None else _captive_problem(cal.captive)
+
+
+def _captive_problem(res: Any) -> str | None:
+    """A captive result's point table: one row per point, three flow and six load columns,
+    numeric; an angle kind the fits know; law zeros one per angle."""
+    p = res.points
+    if res.angle not in ("yaw", "attack"):
+        return f"captive.angle is {res.angle!r}"
+    problem = _columns_problem("captive.points", {
+        "step_idx": p.step_idx, "speed_mps": p.speed_mps, "angle_deg": p.angle_deg})
+    if problem:
+        return problem
+    n = p.step_idx.size
+    for name, cols in (("velocity_mps", 3), ("mean", 6), ("se", 6)):
+        value = getattr(p, name)
+        if not isinstance(value, np.ndarray) or value.shape != (n, cols) or \
+                value.dtype.kind not in "biuf":
+            return f"captive.points.{name} is not a {n} x {cols} numeric table"
+    for law in res.laws:
+        if law.offsets.shape != law.offset_angles_deg.shape:
+            return f"captive law {law.force!r}: zeros and angles disagree"
     return None
 
 

@@ -294,3 +294,19 @@ def test_one_magnitude_is_refused_and_fits_read_back_from_the_store(tmp_path, mo
     result = fit_captive(data)
     assert np.allclose(sorted(set(result.points.speed_mps)), [-0.5, 0.5], atol=1e-4)
     assert result.laws[0].linear is None
+
+
+def test_crafted_captive_results_are_refused_on_read_back(tmp_path, monkeypatch):
+    import dataclasses
+
+    from rigtool.workflows import _inconsistency, stored_results
+
+    _calibrated(tmp_path, captive_text(angles="[0]"), monkeypatch)
+    with Store(tmp_path / "rigtool.sqlite") as store:
+        cal = stored_results(store, store.resolve_run_id("last")).calibration
+    assert _inconsistency(cal) is None
+    points = dataclasses.replace(cal.captive.points, mean=cal.captive.points.mean[:, :5])
+    bad = dataclasses.replace(cal, captive=dataclasses.replace(cal.captive, points=points))
+    assert "captive.points.mean is not a" in _inconsistency(bad)
+    bad = dataclasses.replace(cal, captive=dataclasses.replace(cal.captive, angle="roll"))
+    assert _inconsistency(bad) == "captive.angle is 'roll'"

@@ -392,6 +392,10 @@ def load_captive(store: Store, run_id: str) -> CaptiveData | None:
     captive = (run.get("protocol") or {}).get("captive")
     if not captive:
         return None
+    kind = captive.get("angle", "yaw") if isinstance(captive, dict) else None
+    if kind not in ("yaw", "attack"):
+        raise DataError(f"{store.path}: run {run_id}: protocol.captive.angle is {kind!r}, not "
+                        "'yaw' or 'attack'")
     plan = {s.get("idx"): s for s in run.get("plan") or [] if isinstance(s, dict)}
     reached: dict[int, float] = {}
     for e in store.events(run_id, "captive"):
@@ -416,6 +420,6 @@ def load_captive(store: Store, run_id: str) -> CaptiveData | None:
             counts.append(int(rows.sum()))
     if not idx:
         raise UsageError(f"run {run_id} has no recorded points: nothing to calibrate")
-    return CaptiveData(run_id, str(captive.get("angle", "yaw")), np.array(idx),
+    return CaptiveData(run_id, kind, np.array(idx),
                        np.array(speed), np.array(angle), np.array(t_mid),
                        np.concatenate(parts), np.concatenate(([0], np.cumsum(counts))))
