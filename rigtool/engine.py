@@ -46,6 +46,7 @@ NEUTRAL_SPEED_RPM = 100.0
 NEUTRAL_FALL_FRAC = 0.5
 NEUTRAL_POLL_S = 0.02
 NEUTRAL_FAILED = "THE NEUTRAL COMMAND FAILED"
+CARRIAGE_NOT_STOPPED = "THE CARRIAGE MAY STILL BE MOVING: its stop command failed"
 FOLD_SAMPLES = 1_000_000  # settle, rest and tare readings beyond this are summed as they come
 FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
 
@@ -235,11 +236,13 @@ class Engine:
             finally:
                 signals.closing = True
                 neutral_ok = self._safe_neutral()
-                self._safe_carriage()
+                carriage_ok = self._safe_carriage()
                 spinning = self._spin_after_neutral() if neutral_ok else None
                 note = NEUTRAL_FAILED if spinning is None else (
                     f"THE ACTUATOR MAY NOT BE AT NEUTRAL: {spinning}")
-                neutral_ok = neutral_ok and spinning is None
+                if neutral_ok and spinning is None and not carriage_ok:
+                    note = CARRIAGE_NOT_STOPPED
+                neutral_ok = neutral_ok and spinning is None and carriage_ok
                 self._safe_supply()
                 self.reporter.finish()
                 self._close_run(status, reason, neutral_ok, note)

@@ -310,3 +310,29 @@ def test_crafted_captive_results_are_refused_on_read_back(tmp_path, monkeypatch)
     assert "captive.points.mean is not a" in _inconsistency(bad)
     bad = dataclasses.replace(cal, captive=dataclasses.replace(cal.captive, angle="roll"))
     assert _inconsistency(bad) == "captive.angle is 'roll'"
+
+
+def test_a_carriage_that_cannot_stop_is_exit_status_3(write_yaml, db_path):
+    setup = resolve(write_yaml(captive_text(angles="[0]")), sim=True)
+    rigset = open_checked(setup)
+    inner = rigset.carriage
+
+    class Stuck:
+        reached_by = inner.reached_by
+        set_flow = inner.set_flow
+
+        def stop(self):
+            raise DeviceError("carriage controller not answering")
+
+        def close(self):
+            inner.close()
+
+    rigset.carriage = Stuck()
+    store = Store(db_path)
+    run_id = store.create_run(name="t", protocol={}, protocol_path=None, rig={}, plan=[],
+                              metadata={}, seed=1, command_unit="pulse_us", tool_version="test")
+    outcome = Engine(setup.protocol, setup.plan, rigset, store, run_id).run()
+    assert outcome.exit_status == 3 and "CARRIAGE MAY STILL BE MOVING" in outcome.neutral_note
+    kinds = [e["kind"] for e in store.events(run_id)]
+    assert "carriage_unsafe" in kinds and "neutral_failed" in kinds
+    rigset.close()
