@@ -123,6 +123,19 @@ def separable(nu: np.ndarray, names: str, scale: float, reversing: str) -> str:
     return ""
 
 
+def smooth_errors(se: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The points' standard errors as a straight line in |y| fitted to them (a flow's
+    unsteadiness grows with the load, over a floor): weights from each point's own noisy
+    estimate would let chance decide which points count, and make the intervals too narrow."""
+    ok = np.isfinite(se) & (se > 0) & np.isfinite(y)
+    if ok.sum() < 3:
+        return np.where(ok, se, np.nanmedian(se[ok]) if ok.any() else 1.0)
+    slope, floor = np.polyfit(np.abs(y[ok]), se[ok], 1)
+    line = floor + slope * np.abs(y)
+    least = 0.25 * float(np.median(se[ok]))  # a line through or below zero: keep a floor
+    return np.maximum(np.where(np.isfinite(line), line, least), least)
+
+
 def _law_fit(nu: np.ndarray, y: np.ndarray, se: np.ndarray, groups: np.ndarray,
              order: np.ndarray, t_s: np.ndarray) -> tuple:
     """Weighted fit of y = offset[group] + drift t + a nu + b nu|nu| (the law's terms are the
@@ -133,8 +146,7 @@ def _law_fit(nu: np.ndarray, y: np.ndarray, se: np.ndarray, groups: np.ndarray,
                              + [hours, nu, nu * np.abs(nu)])
     if len(y) - design.shape[1] < 1:
         return None, levels, "too few points for the law and its zero offsets"
-    ok = np.isfinite(se) & (se > 0)
-    sigma = np.where(ok, se, np.nanmedian(se[ok]) if ok.any() else 1.0)
+    sigma = smooth_errors(se, y)
     return wls(design, y, sigma, order=order, scale_down=True, lack_of_fit=True), levels, ""
 
 
