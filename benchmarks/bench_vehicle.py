@@ -42,15 +42,17 @@ def calibration(tmp: Path) -> Path:
 
 
 def run_one(cal: Path, truth: str, noise: float, seed: int, args: argparse.Namespace,
-            tmp: Path) -> dict:
-    """Fly, identify and read back one case."""
+            tmp: Path) -> dict | str:
+    """Fly, identify and read back one case; a refusal's message instead of a result."""
     flight, out = tmp / f"f{seed}", tmp / f"m{seed}"
     subprocess.run(["rigtool", "sim-vehicle", "--calibration", str(cal), "--out", str(flight),
                     "--truth", truth, "--seed", str(seed), "--noise", str(noise),
                     "--duration", str(args.duration)], check=True, capture_output=True)
-    subprocess.run(["rigtool", "identify", str(flight / "vehicle.yaml"),
-                    str(flight / "log.csv"), "--out", str(out), "--method", args.method,
-                    "--seed", str(seed)], check=True, capture_output=True)
+    done = subprocess.run(["rigtool", "identify", str(flight / "vehicle.yaml"),
+                           str(flight / "log.csv"), "--out", str(out), "--method", args.method,
+                           "--seed", str(seed)], capture_output=True, text=True)
+    if done.returncode:
+        return f"seed {seed}: exit {done.returncode}: {done.stderr.strip()[:300]}"
     return json.loads((out / "identification.json").read_text())
 
 
@@ -96,8 +98,13 @@ def main() -> None:
         for truth_name, noise in cases:
             p = TRUTHS[truth_name]
             truth = np.array(p.added_mass + p.linear_damping + p.quadratic_damping)
-            docs = [run_one(cal, truth_name, noise, s, args, tmp)
-                    for s in range(args.first, args.last)]
+            results = [run_one(cal, truth_name, noise, s, args, tmp)
+                       for s in range(args.first, args.last)]
+            docs = [r for r in results if isinstance(r, dict)]
+            for refused in (r for r in results if isinstance(r, str)):
+                print(f"  refused: {refused}")
+            if not docs:
+                continue
             names = names or list(docs[0]["parameters"])
             print(f"{truth_name}, noise {100 * noise:g} %, {len(docs)} seeds, "
                   f"{args.duration:g} s logs, method {args.method}")

@@ -33,6 +33,8 @@ MAX_TORQUE_NM = 1e6
 MAX_TEMPERATURE_C = 1_000.0
 MAX_SUPPLY_V = 1_000.0  # supply voltages a protocol may sweep
 MAX_VOLTAGES = 1_000  # voltages in one sweep
+MAX_FLOW_MPS = 20.0  # |flow or tow speed| of a captive run
+MAX_CAPTIVE_SETTINGS = 1_000  # speeds, and angles, in one captive axis
 
 # Reusable field types: finite, with both ends bounded.
 Seconds = Annotated[float, Field(ge=0, le=MAX_DURATION_S, allow_inf_nan=False)]

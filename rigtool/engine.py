@@ -1,8 +1,9 @@
 """Runs a Plan against a RigSet: depth, ramp, settle, acquire, store, rest, with safe exits.
 
 The engine is the single writer of a run. Every exit path (end, exception, Ctrl-C,
-SIGTERM, SIGHUP, limit trip) sends the actuator to neutral and closes the run with a
-status; completed points are already committed, a point in progress is discarded.
+SIGTERM, SIGHUP, limit trip) sends the actuator to neutral, stops a captive run's carriage
+(speed 0) and closes the run with a status; completed points are already committed, a point
+in progress is discarded.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ NEUTRAL_SPEED_RPM = 100.0
 NEUTRAL_FALL_FRAC = 0.5
 NEUTRAL_POLL_S = 0.02
 NEUTRAL_FAILED = "THE NEUTRAL COMMAND FAILED"
+CARRIAGE_NOT_STOPPED = "THE CARRIAGE MAY STILL BE MOVING: its stop command failed"
 FOLD_SAMPLES = 1_000_000  # settle, rest and tare readings beyond this are summed as they come
 FEEDBACK_FIELDS = ("speed_rpm", "current_a", "voltage_v")
 
@@ -175,6 +177,7 @@ class Engine:
         self._t0 = 0.0
         self._depth: float | None = None
         self._voltage: float | None = None
+        self._flow: tuple[float, float] | None = None  # (speed, angle) the carriage was set to
         self._supply_used = False  # the run has commanded the supply: leave it safe at the end
         self._signals: _Signals | None = None
         self._fb_last = dict.fromkeys(FEEDBACK_FIELDS, np.nan)
@@ -203,6 +206,7 @@ class Engine:
                         break
                     self._prepare_depth(step)
                     self._prepare_voltage(step)
+                    self._prepare_captive(step)
                     self._run_step_or_pause(step)
                     done += 1
                     if signals.stop_requested and i < len(remaining) - 1:
@@ -218,11 +222,13 @@ class Engine:
                 status, reason = "aborted", str(exc)
                 signals.closing = True
                 self._safe_neutral()
+                self._safe_carriage()
                 self._event("limit_trip", {"message": str(exc), **exc.detail})
             except DeviceError as exc:
                 status, reason = "aborted", f"device fault: {exc}"
                 signals.closing = True
                 self._safe_neutral()
+                self._safe_carriage()
                 self._event("device_fault", {"message": str(exc)})
             except BaseException as exc:
                 status, reason = "failed", f"{type(exc).__name__}: {exc}"
@@ -230,10 +236,13 @@ class Engine:
             finally:
                 signals.closing = True
                 neutral_ok = self._safe_neutral()
+                carriage_ok = self._safe_carriage()
                 spinning = self._spin_after_neutral() if neutral_ok else None
                 note = NEUTRAL_FAILED if spinning is None else (
                     f"THE ACTUATOR MAY NOT BE AT NEUTRAL: {spinning}")
-                neutral_ok = neutral_ok and spinning is None
+                if neutral_ok and spinning is None and not carriage_ok:
+                    note = CARRIAGE_NOT_STOPPED
+                neutral_ok = neutral_ok and spinning is None and carriage_ok
                 self._safe_supply()
                 self.reporter.finish()
                 self._close_run(status, reason, neutral_ok, note)
@@ -298,6 +307,53 @@ class Engine:
         self._voltage = step.voltage_v  # judged from here on: settled, before anything is labelled
         self._check_supply(step.voltage_v)
 
+    def _prepare_captive(self, step: PlanStep) -> None:
+        """Set the point's flow speed and angle with the actuator at neutral, then wait
+        `captive.settle_s` watching the limits."""
+        if step.speed_mps is None or (step.speed_mps, step.angle_deg) == self._flow:
+            return
+        carriage = self.rig.carriage
+        if carriage is None:
+            raise DeviceError(f"point {step.idx} needs a flow of {step.speed_mps:g} m/s, but the "
+                              "rig has no carriage to set it")
+        self._ramp_to(self.rig.actuator.info.neutral)
+        if self._signals is not None and self._signals.stop_requested:
+            raise StopNow("stopped by the operator (Ctrl-C) before the flow was set",
+                          by_operator=True)
+        angle = step.angle_deg if step.angle_deg is not None else 0.0
+        self._flow = None  # moving: no setting holds until the carriage reports it
+        speed, reached_angle = carriage.set_flow(step.speed_mps, angle)
+        self._flow = (step.speed_mps, angle)
+        self._event("captive", {"target_mps": step.speed_mps, "reached_mps": speed,
+                                "target_deg": angle, "reached_deg": reached_angle,
+                                "by": carriage.reached_by}, step.idx)
+        settle = self.protocol.captive.settle_s if self.protocol.captive else 0.0
+        if settle > 0:
+            self._read_for(settle, self.timing.sensor_rate_hz, step)
+
+    def _stop_carriage(self) -> None:
+        """Speed 0 (raises what the carriage raises); the next point sets its flow again."""
+        if self.rig.carriage is not None and self._flow is not None:
+            self._flow = None
+            self.rig.carriage.stop()
+
+    def _safe_carriage(self) -> bool:
+        """Speed 0 on every exit path, whatever state the carriage is in; never raises.
+        Returns whether it worked (a carriage never set counts as stopped)."""
+        carriage = self.rig.carriage
+        if carriage is None:
+            return True
+        try:
+            self._flow = None
+            carriage.stop()
+            return True
+        except BaseException as exc:  # noqa: BLE001 - the run is ending; report, do not mask
+            self.reporter.note(f"ERROR: could not stop the carriage: {exc!r}. "
+                               "STOP THE FLOW OR THE CARRIAGE BY HAND.")
+            with contextlib.suppress(StoreError):
+                self._event("carriage_unsafe", {"message": str(exc)})
+            return False
+
     def _run_step_or_pause(self, step: PlanStep) -> None:
         """Run a point; with `on_trip: pause`, a trip goes neutral and the operator may go on.
 
@@ -313,6 +369,9 @@ class Engine:
                     raise
                 stored = self._stored_idx == step.idx
                 neutral = "Thruster at neutral" if self._safe_neutral() else "NEUTRAL FAILED"
+                if self.rig.carriage is not None:
+                    neutral += ", carriage stopped" if self._safe_carriage() else (
+                        ", CARRIAGE NOT STOPPED")
                 self._event("limit_trip", {"message": str(trip), **trip.detail, "action": "paused"},
                             step.idx)
                 self.limits.reset()
@@ -326,6 +385,7 @@ class Engine:
                 self._event("resumed", {"after": "limit_trip", "retry_idx": step.idx}, step.idx)
                 if stored:
                     return
+                self._prepare_captive(step)
 
     def _run_step(self, step: PlanStep) -> None:
         timing = self.protocol.timing
@@ -612,8 +672,9 @@ class Engine:
         return spool
 
     def _tare(self, why: str, step_idx: int | None = None) -> None:
-        """Re-zero the sensor at neutral from `tare_s` seconds of readings."""
+        """Re-zero the sensor at neutral (and in still water) from `tare_s` seconds of readings."""
         self._ramp_to(self.rig.actuator.info.neutral)
+        self._stop_carriage()
         rate = self.timing.sensor_rate_hz
         n = max(1, round(self.protocol.timing.tare_s * rate))
         parts, remaining = [], n

@@ -10,6 +10,7 @@ from rigtool.protocol import Protocol
 
 DEPTH_MOVE_S = 10.0  # time budgeted per depth change in duration estimates
 VOLTAGE_CHANGE_S = 2.0  # time budgeted per supply ramp in duration estimates
+CAPTIVE_CHANGE_S = 5.0  # time budgeted per carriage speed or angle change in duration estimates
 
 
 @dataclass(frozen=True)
@@ -23,12 +24,15 @@ class PlanStep:
     repeat: int
     direction: str  # "up", "down" or "random"
     voltage_v: float | None = None  # supply voltage; None when the protocol sets none
+    speed_mps: float | None = None  # flow or tow speed of a captive run; None: no captive axis
+    angle_deg: float | None = None  # its yaw or attack angle
 
     def as_dict(self) -> dict:
-        """The stored form; `voltage_v` only where set, so plans stored before it still match."""
+        """The stored form; optional axes only where set, so plans stored before them match."""
         out = asdict(self)
-        if self.voltage_v is None:
-            del out["voltage_v"]
+        for name in ("voltage_v", "speed_mps", "angle_deg"):
+            if out[name] is None:
+                del out[name]
         return out
 
 
@@ -52,46 +56,60 @@ def _voltages(protocol: Protocol) -> list[float | None]:
     return protocol.voltage.voltages_v() if protocol.voltage is not None else [None]
 
 
-def _combos(protocol: Protocol) -> Iterator[tuple[float, float | None, int, float, str]]:
-    """(depth, voltage, repeat, command, direction) in execution order. Depth outer (default):
-    depth, then voltage, repeat, command. Depth inner: voltage, repeat, command, then depth."""
+def _flows(protocol: Protocol) -> list[tuple[float | None, float | None]]:
+    """(speed, angle) settings of a captive run in the order visited; one (None, None) else."""
+    return protocol.captive.settings() if protocol.captive is not None else [(None, None)]
+
+
+Combo = tuple[float, float | None, tuple[float | None, float | None], int, float, str]
+
+
+def _combos(protocol: Protocol) -> Iterator[Combo]:
+    """(depth, voltage, flow, repeat, command, direction) in execution order. Depth outer
+    (default): depth, then voltage, flow setting, repeat, command. Depth inner: voltage, flow
+    setting, repeat, command, then depth."""
     depths = protocol.depth.depths_m()
     repeats = range(protocol.command.repeats)
     if protocol.depth.loop == "outer":
         for depth in depths:
             for volts in _voltages(protocol):
-                for rep in repeats:
-                    for c, d in _command_sequence(protocol, rep):
-                        yield depth, volts, rep, c, d
+                for flow in _flows(protocol):
+                    for rep in repeats:
+                        for c, d in _command_sequence(protocol, rep):
+                            yield depth, volts, flow, rep, c, d
     else:
         for volts in _voltages(protocol):
-            for rep in repeats:
-                for c, d in _command_sequence(protocol, rep):
-                    for depth in depths:
-                        yield depth, volts, rep, c, d
+            for flow in _flows(protocol):
+                for rep in repeats:
+                    for c, d in _command_sequence(protocol, rep):
+                        for depth in depths:
+                            yield depth, volts, flow, rep, c, d
 
 
 def expand(protocol: Protocol) -> list[PlanStep]:
     """All steps in execution order (at most MAX_POINTS: the protocol validator counts them)."""
-    return [PlanStep(i, c, depth, rep, d, volts)
-            for i, (depth, volts, rep, c, d) in enumerate(_combos(protocol))]
+    return [PlanStep(i, c, depth, rep, d, volts, *flow)
+            for i, (depth, volts, flow, rep, c, d) in enumerate(_combos(protocol))]
 
 
 def step_at(protocol: Protocol, idx: int) -> PlanStep:
     """Step `idx` of the plan, found arithmetically (for --dry-run: the plan is never built)."""
     n_depths, per_rep = len(protocol.depth.values), protocol.command.per_repeat()
-    per_volt = protocol.command.repeats * per_rep
+    per_flow = protocol.command.repeats * per_rep
+    per_volt = protocol.n_captive() * per_flow
     if protocol.depth.loop == "outer":
         i_depth, rest = divmod(idx, protocol.n_voltages() * per_volt)
         i_volt, rest = divmod(rest, per_volt)
+        i_flow, rest = divmod(rest, per_flow)
         i_rep, i_cmd = divmod(rest, per_rep)
     else:
         i_volt, rest = divmod(idx, per_volt * n_depths)
+        i_flow, rest = divmod(rest, per_flow * n_depths)
         i_rep, rest = divmod(rest, per_rep * n_depths)
         i_cmd, i_depth = divmod(rest, n_depths)
     command, direction = _command_sequence(protocol, i_rep)[i_cmd]
     return PlanStep(idx, command, protocol.depth.depths_m()[i_depth], i_rep, direction,
-                    _voltages(protocol)[i_volt])
+                    _voltages(protocol)[i_volt], *_flows(protocol)[i_flow])
 
 
 def _voltage_changes(protocol: Protocol) -> int:
@@ -110,7 +128,8 @@ def _depth_changes(protocol: Protocol) -> int:
     inside = sum(1 for a, b in zip(depths, depths[1:], strict=False) if a != b)
     if protocol.depth.loop == "outer":
         return 1 + inside
-    cycles = protocol.n_voltages() * protocol.command.repeats * protocol.command.per_repeat()
+    cycles = (protocol.n_voltages() * protocol.n_captive() * protocol.command.repeats
+              * protocol.command.per_repeat())
     return 1 + cycles * inside + (cycles - 1) * (depths[-1] != depths[0])
 
 
@@ -130,6 +149,10 @@ def estimate_duration_s(protocol: Protocol, neutral: float | None = None) -> flo
     total += depth_changes * DEPTH_MOVE_S
     if protocol.voltage is not None:
         total += _voltage_changes(protocol) * (protocol.voltage.settle_s + VOLTAGE_CHANGE_S)
+    if protocol.captive is not None:
+        changes = protocol.n_captive() * (protocol.n_voltages() if protocol.depth.loop == "inner"
+                                          else len(protocol.depth.values) * protocol.n_voltages())
+        total += changes * (protocol.captive.settle_s + CAPTIVE_CHANGE_S)
     if timing.tare == "per_point":
         total += timing.tare_s * n
     elif timing.tare == "per_depth":

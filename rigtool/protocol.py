@@ -24,12 +24,14 @@ from pydantic import (
 )
 
 from rigtool.bounds import (
+    MAX_CAPTIVE_SETTINGS,
     MAX_COMMAND,
     MAX_COMMAND_VALUES,
     MAX_CURRENT_A,
     MAX_DEBOUNCE_SAMPLES,
     MAX_DEPTH_M,
     MAX_DURATION_S,
+    MAX_FLOW_MPS,
     MAX_POINTS,
     MAX_POWER_W,
     MAX_RATE_HZ,
@@ -187,6 +189,41 @@ class VoltageAxis(_Strict):
         return values
 
 
+FlowSpeed = Annotated[float, Field(ge=-MAX_FLOW_MPS, le=MAX_FLOW_MPS, allow_inf_nan=False,
+                                   strict=True)]
+AngleDeg = Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False, strict=True)]
+
+
+class CaptiveAxis(_Strict):
+    """A held vehicle in a flow or tow (docs/vehicle.md): the signed speeds set by the rig's
+    carriage, at each of the angles (yaw or attack) its rotary stage sets; the actuator stays
+    at each command of the command axis (usually its neutral: thrusters off)."""
+
+    speeds_mps: list[FlowSpeed] = Field(min_length=1, max_length=MAX_CAPTIVE_SETTINGS)
+    angles_deg: list[AngleDeg] = Field(default_factory=lambda: [0.0], min_length=1,
+                                       max_length=MAX_CAPTIVE_SETTINGS)
+    angle: Literal["yaw", "attack"] = "yaw"  # yaw: the flow turns in x-y; attack: in x-z
+    mode: Literal["preset", "manual"] = "preset"  # preset: the rig's `carriage:` sets them
+    settle_s: Seconds = 2.0  # wait after a speed or angle change, before the point settles
+
+    @model_validator(mode="after")
+    def _distinct(self) -> CaptiveAxis:
+        for name in ("speeds_mps", "angles_deg"):
+            values = getattr(self, name)
+            if len(set(values)) != len(values):
+                raise FieldError((name,), "a value is listed twice; use `command.repeats` "
+                                          "to repeat the whole sequence")
+        return self
+
+    def n_settings(self) -> int:
+        """Speed and angle settings in one pass."""
+        return len(self.speeds_mps) * len(self.angles_deg)
+
+    def settings(self) -> list[tuple[float, float]]:
+        """(speed m/s, angle deg) in the order visited: angle outer, speeds as listed."""
+        return [(u, a) for a in self.angles_deg for u in self.speeds_mps]
+
+
 class SteadySettle(_Strict):
     """Settle until the thrust mean of two consecutive windows differs by < tolerance."""
 
@@ -307,6 +344,14 @@ class Limits(_Strict):
         return self
 
 
+def _drop_defaults(data: dict, model: type[BaseModel], names: tuple[str, ...]) -> dict:
+    """`data` without the fields `names` that hold their default."""
+    for name in names:
+        if name in data and data[name] == model.model_fields[name].default:
+            del data[name]
+    return data
+
+
 class Metadata(_Strict):
     """Stored with the run; diameter and density enable K_T in calibrations."""
 
@@ -325,6 +370,16 @@ class SimulatorSpec(_Strict):
     profile: str
     seed: Seed = 1
     overrides: dict[str, Scale | str | list[Scale | str]] = Field(default_factory=dict)
+    # the held vehicle of a captive run (rigtool/sim/vehicle_params.py) and the flow's
+    # unsteadiness: the force fluctuates by this fraction of itself (docs/vehicle.md)
+    vehicle: Literal["bluerov2", "bluerov2-heavy"] = "bluerov2"
+    flow_noise_frac: Annotated[float, Field(ge=0, le=0.5, allow_inf_nan=False, strict=True)] = 0.03
+
+    @model_serializer(mode="wrap")
+    def _without_unset_vehicle(self, handler: SerializerFunctionWrapHandler) -> dict:
+        """The captive twin's settings are left out of the stored spec while at their defaults,
+        so a thruster run's stored protocol reads as it did before they existed."""
+        return _drop_defaults(handler(self), SimulatorSpec, ("vehicle", "flow_noise_frac"))
 
     @field_validator("overrides")
     @classmethod
@@ -358,8 +413,14 @@ class Protocol(_Strict):
     command: CommandAxis
     depth: DepthAxis
     voltage: VoltageAxis | None = None
+    captive: CaptiveAxis | None = None
     timing: Timing
     limits: Limits = Field(default_factory=Limits)
+
+    @model_serializer(mode="wrap")
+    def _without_unset_captive(self, handler: SerializerFunctionWrapHandler) -> dict:
+        """No `captive` in the stored protocol of a run without one (as before it existed)."""
+        return _drop_defaults(handler(self), Protocol, ("captive",))
 
     @model_validator(mode="after")
     def _bounded(self) -> Protocol:
@@ -368,10 +429,13 @@ class Protocol(_Strict):
         if n > MAX_POINTS:
             raise FieldError(("command", "repeats"), (
                 f"the plan has {n:,} points ({len(self.depth.values)} depth(s) x "
-                f"{self.n_voltages()} voltage(s) x "
+                f"{self.n_voltages()} voltage(s) x {self.n_captive()} flow setting(s) x "
                 f"{self.command.repeats} repeat(s) x {self.command.per_repeat():,} command(s)); "
                 f"the limit is {MAX_POINTS:,}"))
         self._steps_timing()
+        if self.captive is not None and self.command.steps is not None:
+            raise FieldError(("captive",), "a captive run holds each flow setting for a steady "
+                             "point; step responses (`command.steps`) are another protocol")
         self._voltages_in_bus_band()
         least = self.min_duration_s()
         if least > MAX_RUN_S:
@@ -417,10 +481,14 @@ class Protocol(_Strict):
         """Supply voltages in the plan (1 when the protocol sets none)."""
         return len(self.voltage.values) if self.voltage is not None else 1
 
+    def n_captive(self) -> int:
+        """Flow settings (speeds x angles) in the plan (1 when the protocol sets none)."""
+        return self.captive.n_settings() if self.captive is not None else 1
+
     def n_points(self) -> int:
-        """Points in the plan: depths x voltages x repeats x commands per repeat."""
-        return (len(self.depth.values) * self.n_voltages() * self.command.repeats
-                * self.command.per_repeat())
+        """Points in the plan: depths x voltages x flow settings x repeats x commands per repeat."""
+        return (len(self.depth.values) * self.n_voltages() * self.n_captive()
+                * self.command.repeats * self.command.per_repeat())
 
     def _ramps_s(self) -> float:
         """Least total slew time whatever the neutral: each point ramps out and back, and the
@@ -432,7 +500,7 @@ class Protocol(_Strict):
         median = values[len(values) // 2]
         per_pass = sum(abs(v - median) for v in values) * (2 if self.command.order == "up-down" else 1)
         return (2 * per_pass * self.command.repeats * len(self.depth.values) * self.n_voltages()
-                / slew)
+                * self.n_captive() / slew)
 
     def min_duration_s(self) -> float:
         """A lower bound of the run's length: every point's timing and ramps, the first tare."""

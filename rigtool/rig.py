@@ -18,19 +18,29 @@ from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model, locate
 from rigtool.devices.ascii_gauge import AsciiGaugeConfig
 from rigtool.devices.axes import rotation_deg, wrench_transform
-from rigtool.devices.base import Actuator, ActuatorInfo, Clock, DepthStage, ForceSensor, Supply
+from rigtool.devices.base import (
+    Actuator,
+    ActuatorInfo,
+    Carriage,
+    Clock,
+    DepthStage,
+    ForceSensor,
+    Supply,
+)
 from rigtool.devices.dbc_can import DbcCanConfig, DbcMismatch
 from rigtool.devices.depth import ManualDepth, PresetDepth
+from rigtool.devices.manual_carriage import ManualCarriage
 from rigtool.devices.manual_supply import ManualSupply
 from rigtool.devices.netft import NetFTConfig
 from rigtool.devices.registry import actuator_info, open_device
 from rigtool.devices.scpi_supply import ScpiSupplyConfig
+from rigtool.devices.serial_carriage import SerialCarriageConfig
 from rigtool.devices.serial_stage import SerialStageConfig
 from rigtool.devices.stm32_bridge import Stm32BridgeConfig
 from rigtool.devices.vesc_can import VescCanConfig
 from rigtool.devices.visa_link import sim_file
 from rigtool.errors import ConfigError, UsageError
-from rigtool.protocol import SimulatorSpec
+from rigtool.protocol import CaptiveAxis, SimulatorSpec
 from rigtool.thruster_profiles import profile_with_overrides
 from rigtool.units import FT_CHANNELS
 
@@ -42,6 +52,7 @@ ActuatorConfig = Annotated[
 SensorConfig = Annotated[Union[NetFTConfig, AsciiGaugeConfig], Field(discriminator="driver")]  # noqa: UP007
 StageConfig = Annotated[Union[SerialStageConfig], Field(discriminator="driver")]  # noqa: UP007
 SupplyConfig = Annotated[Union[ScpiSupplyConfig], Field(discriminator="driver")]  # noqa: UP007
+CarriageConfig = Annotated[Union[SerialCarriageConfig], Field(discriminator="driver")]  # noqa: UP007
 
 
 class ThrustAxis(BaseModel):
@@ -78,6 +89,7 @@ class Rig(BaseModel):
     sensor: SensorConfig | None = None
     depth_stage: StageConfig | None = None
     supply: SupplyConfig | None = None
+    carriage: CarriageConfig | None = None  # sets the flow or tow speed of captive runs
     thrust: ThrustAxis | None = None
     mount: Mount | None = None
     sensor_accuracy: SensorAccuracy | None = None
@@ -86,9 +98,9 @@ class Rig(BaseModel):
     def _has_devices(self) -> Rig:
         hardware = self.actuator is not None or self.sensor is not None
         if self.simulator is not None and (hardware or self.depth_stage is not None
-                                           or self.supply is not None):
-            raise ValueError("a rig is either the `simulator:` or hardware "
-                             "(`actuator:`, `sensor:`, `depth_stage:`, `supply:`), not both")
+                                           or self.supply is not None or self.carriage is not None):
+            raise ValueError("a rig is either the `simulator:` or hardware (`actuator:`, "
+                             "`sensor:`, `depth_stage:`, `supply:`, `carriage:`), not both")
         if self.simulator is None and (self.actuator is None or self.sensor is None):
             raise ValueError("a hardware rig needs both an `actuator:` and a `sensor:` section "
                              "(or use a `simulator:` section)")
@@ -147,6 +159,7 @@ class RigSet:
     supply: Supply | None = None  # sets the supply voltage, when the protocol sweeps it
     sensor_rate_hz: float | None = None  # the sensor's own rate; None: it samples as asked
     sensor_rate_note: str | None = None  # why that rate is not the one the sensor states
+    carriage: Carriage | None = None  # sets the flow of a captive run
 
     def annotations(self) -> list[dict]:
         """Ground-truth events a simulator knows (e.g. ventilation), to store with the run."""
@@ -163,7 +176,8 @@ class RigSet:
         """Transport counters (frames, garbage, lost packets...) of the devices that keep them."""
         out = {}
         for role, dev in (("actuator", self.actuator), ("sensor", self.sensor),
-                          ("depth_stage", self.depth_stage), ("supply", self.supply)):
+                          ("depth_stage", self.depth_stage), ("supply", self.supply),
+                          ("carriage", self.carriage)):
             gauges = getattr(dev, "stats_gauges", ())
             kept = {k: v for k, v in (getattr(dev, "stats", None) or {}).items()
                     if type(v) is int and k not in gauges}
@@ -172,9 +186,10 @@ class RigSet:
         return out
 
     def close(self) -> None:
-        """Close every device, the actuator first; a failure is raised after all are closed."""
+        """Close every device, the actuator and carriage first; a failure is raised after all
+        are closed."""
         errors = []
-        for dev in (self.actuator, self.sensor, self.depth_stage, self.supply):
+        for dev in (self.actuator, self.carriage, self.sensor, self.depth_stage, self.supply):
             if dev is None:
                 continue
             try:
@@ -193,17 +208,20 @@ def counter_delta(before: dict[str, dict[str, int]],
 
 
 def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset",
-             voltage_mode: str | None = None, current_limit_a: float | None = None) -> RigSet:
+             voltage_mode: str | None = None, current_limit_a: float | None = None,
+             captive: CaptiveAxis | None = None) -> RigSet:
     """Open the devices a rig names; a device that cannot be opened raises DeviceError.
 
     A supply is opened only when the protocol sweeps voltage (`voltage_mode`), its current
-    limit set from the protocol's `max_current_a` when given.
+    limit set from the protocol's `max_current_a` when given; a carriage only for a captive run.
     """
     if rig.simulator is not None:
         rigset = _open_sim(rig, rig.simulator, start_depth_m)
         if voltage_mode is not None:
             from rigtool.sim.devices import SimSupply
             rigset.supply = SimSupply(rigset.world) if voltage_mode == "preset" else ManualSupply()
+        if captive is not None:
+            rigset.carriage = _sim_carriage(rigset, rig.simulator, captive)
         return rigset
     opened: list = []
     try:
@@ -221,9 +239,12 @@ def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset",
         else:
             stage = PresetDepth()
         supply = _open_supply(rig, voltage_mode, current_limit_a)
+        opened.append(supply)
+        carriage = _open_carriage(rig, captive)
     except BaseException:
         for dev in reversed(opened):
-            dev.close()
+            if dev is not None:
+                dev.close()
         raise
     axis = rig.thrust or ThrustAxis()
     return RigSet(
@@ -231,7 +252,7 @@ def open_rig(rig: Rig, start_depth_m: float, depth_mode: str = "preset",
         thrust_channel=FT_CHANNELS.index(axis.channel), thrust_sign=axis.sign,
         description={"kind": "hardware", "actuator": rig.actuator.driver,
                      "sensor": rig.sensor.driver, "thrust": axis.model_dump()},
-        transform=rig.mount.matrix() if rig.mount else None, supply=supply,
+        transform=rig.mount.matrix() if rig.mount else None, supply=supply, carriage=carriage,
     )
 
 
@@ -258,6 +279,32 @@ def _open_supply(rig: Rig, voltage_mode: str | None,
     if current_limit_a is not None:
         config = config.model_copy(update={"current_limit_a": current_limit_a})
     return open_device("supply", config)
+
+
+def _open_carriage(rig: Rig, captive: CaptiveAxis | None) -> Carriage | None:
+    """The carriage a captive run needs: the rig's, or the operator."""
+    if captive is None:
+        return None
+    if captive.mode == "manual":
+        return ManualCarriage()
+    if rig.carriage is None:
+        raise UsageError(f"rig {rig.name!r}: the protocol runs a captive test (`captive: "
+                         "{mode: preset}`), but the rig has no `carriage:` section")
+    return open_device("carriage", rig.carriage)
+
+
+def _sim_carriage(rigset: RigSet, spec: SimulatorSpec, captive: CaptiveAxis) -> Carriage:
+    """The twin's carriage holding the simulator's vehicle in its flow (or the operator)."""
+    if captive.mode == "manual":
+        return ManualCarriage()
+    from rigtool.sim.devices import SimCarriage
+    from rigtool.sim.flow import VEHICLES, CaptiveFlow
+
+    flow = CaptiveFlow(VEHICLES[spec.vehicle], angle=captive.angle,
+                       noise_frac=spec.flow_noise_frac, seed=spec.seed,
+                       t0=rigset.clock.now())
+    rigset.description.update({"vehicle": spec.vehicle, "flow_noise_frac": spec.flow_noise_frac})
+    return SimCarriage(rigset.world, flow)
 
 
 def _open_sim(rig: Rig, spec: SimulatorSpec, start_depth_m: float) -> RigSet:

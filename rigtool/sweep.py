@@ -161,15 +161,42 @@ def check_supply(setup: SweepSetup) -> None:
                            f"({rig.supply.max_voltage_v:g} V) in rig {rig.name!r}"])
 
 
+def check_carriage(setup: SweepSetup) -> None:
+    """A preset captive run needs the rig's carriage (or the simulator), within its limits."""
+    rig, captive = setup.rig, setup.protocol.captive
+    if captive is None or captive.mode == "manual" or rig.simulator is not None:
+        return
+    if rig.carriage is None:
+        raise ConfigError([f"{locate(setup.protocol_path, ('captive', 'mode'))}: captive.mode: "
+                           f"'preset' needs a `carriage:` section in rig {rig.name!r}, which has "
+                           "none (or use `mode: manual`: the operator sets each flow)"])
+    cfg = rig.carriage
+    fast = max(abs(v) for v in captive.speeds_mps)
+    problems = []
+    if fast > cfg.max_speed_mps:
+        problems.append(f"{locate(setup.protocol_path, ('captive', 'speeds_mps'))}: "
+                        f"captive.speeds_mps: {fast:g} m/s is beyond the carriage's "
+                        f"max_speed_mps ({cfg.max_speed_mps:g} m/s) in rig {rig.name!r}")
+    outside = [a for a in captive.angles_deg if not cfg.min_angle_deg <= a <= cfg.max_angle_deg]
+    if outside:
+        problems.append(f"{locate(setup.protocol_path, ('captive', 'angles_deg'))}: "
+                        f"captive.angles_deg: {outside[0]:g} deg is outside the carriage's "
+                        f"{cfg.min_angle_deg:g}..{cfg.max_angle_deg:g} deg in rig {rig.name!r}")
+    if problems:
+        raise ConfigError(problems)
+
+
 def open_checked(setup: SweepSetup, start_idx: int = 0) -> RigSet:
     """Open the rig's devices and check the protocol against them (closing them on failure)."""
     check_depth_source(setup)
     check_supply(setup)
+    check_carriage(setup)
     voltage = setup.protocol.voltage
     rigset = open_rig(setup.rig, start_depth_m=step_at(setup.protocol, start_idx).depth_m,
                       depth_mode=setup.protocol.depth.mode,
                       voltage_mode=voltage.mode if voltage else None,
-                      current_limit_a=setup.protocol.limits.max_current_a)
+                      current_limit_a=setup.protocol.limits.max_current_a,
+                      captive=setup.protocol.captive)
     try:
         check_compatible(setup, rigset.actuator.info)
         check_sensor_rate(setup.protocol, setup.protocol_path, rigset)
@@ -184,6 +211,7 @@ def check_dry_run(setup: SweepSetup) -> ActuatorInfo:
     commands and changes no device. Returns the actuator's command space (its neutral)."""
     check_depth_source(setup)
     check_supply(setup)
+    check_carriage(setup)
     info = rig_actuator_info(setup.rig)
     check_compatible(setup, info)
     return info
@@ -197,7 +225,7 @@ def _rig_kind(rig: Rig) -> tuple:
     return (rig.simulator.profile if rig.simulator else None,
             getattr(rig.actuator, "driver", None), getattr(rig.sensor, "driver", None),
             getattr(rig.depth_stage, "driver", None), getattr(rig.supply, "driver", None),
-            rig.thrust, rig.mount)
+            getattr(rig.carriage, "driver", None), rig.thrust, rig.mount)
 
 
 def mark_interrupted(store: Store, run_ref: str) -> None:

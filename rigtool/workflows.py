@@ -81,6 +81,9 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     with stage(f"calibrating run {run_id}"):
         run = load_run(store, run_id)
         cal = analyse(run)
+        if _add_captive(store, run_id, cal):  # a held vehicle: no propeller to ventilate
+            cav_stage = dataclasses.replace(cav_stage, base_run_id=None, warn=False, notes=())
+            stage_notes = []
     if check is not None:
         check(cal)
     created = utc_now()
@@ -104,6 +107,25 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     store.add_calibration(run_id, str(folder), calibration_document(cal, created),
                           __version__, state=_encode(results), created_utc=created)
     return results
+
+
+def _add_captive(store: Store, run_id: str, cal: CalibrationResult) -> bool:
+    """A captive run's damping laws, with its warnings; a thruster held at one command the
+    whole run has no thruster law, and says so once instead of in every fit's words.
+    Returns whether the run is a captive one."""
+    from rigtool.analysis.captive import fit_captive
+    from rigtool.analysis.dataset import load_captive
+
+    data = load_captive(store, run_id)
+    if data is None:
+        return False
+    cal.captive = fit_captive(data)
+    commands = {float(c) for s in cal.sections for c in s.points.command}
+    if len(commands) == 1:
+        cal.warnings = [f"thruster: held at {commands.pop():g} {cal.command_unit} throughout "
+                        "this captive run, so no thruster law is fitted"]
+    cal.warnings += cal.captive.warnings
+    return True
 
 
 def _encode(results: Results) -> bytes:
@@ -172,6 +194,28 @@ def _inconsistency(cal: Any) -> str | None:
         problem = _table_problem(sec.points) or (sec.curve and _curve_problem(sec.curve))
         if problem:
             return f"section {i}: {problem}"
+    return None if cal.captive is None else _captive_problem(cal.captive)
+
+
+def _captive_problem(res: Any) -> str | None:
+    """A captive result's point table: one row per point, three flow and six load columns,
+    numeric; an angle kind the fits know; law zeros one per angle."""
+    p = res.points
+    if res.angle not in ("yaw", "attack"):
+        return f"captive.angle is {res.angle!r}"
+    problem = _columns_problem("captive.points", {
+        "step_idx": p.step_idx, "speed_mps": p.speed_mps, "angle_deg": p.angle_deg})
+    if problem:
+        return problem
+    n = p.step_idx.size
+    for name, cols in (("velocity_mps", 3), ("mean", 6), ("se", 6)):
+        value = getattr(p, name)
+        if not isinstance(value, np.ndarray) or value.shape != (n, cols) or \
+                value.dtype.kind not in "biuf":
+            return f"captive.points.{name} is not a {n} x {cols} numeric table"
+    for law in res.laws:
+        if law.offsets.shape != law.offset_angles_deg.shape:
+            return f"captive law {law.force!r}: zeros and angles disagree"
     return None
 
 

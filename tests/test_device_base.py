@@ -25,12 +25,14 @@ from rigtool.devices.manual_supply import ManualSupply
 from rigtool.devices.netft import NetFTSensor
 from rigtool.devices.registry import DRIVERS, driver_class
 from rigtool.devices.scpi_supply import ScpiSupply, ScpiSupplyConfig
+from rigtool.devices.serial_carriage import SerialCarriage, SerialCarriageConfig
 from rigtool.devices.serial_stage import SerialStage, SerialStageConfig
 from rigtool.devices.stm32_bridge import Stm32Bridge, Stm32BridgeConfig
 from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
 from rigtool.errors import DeviceError
 from rigtool.protocol import SimulatorSpec
 from rigtool.rig import Rig, open_rig, sim_rig
+from rigtool.sim.carriage_twin import CarriageTwin
 from rigtool.sim.dbc_twin import DbcServoTwin
 from rigtool.sim.gauge_twin import GaugeTwin
 from rigtool.sim.live import LiveTwin
@@ -116,9 +118,17 @@ def _supply(stack: contextlib.ExitStack):  # noqa: ANN202
     return lambda: ScpiSupply(config), lambda d: d.measure(), None
 
 
+def _carriage(stack: contextlib.ExitStack):  # noqa: ANN202
+    twin = stack.enter_context(CarriageTwin(accel_mps2=5.0, seed=2))
+    config = SerialCarriageConfig(driver="serial-carriage", url=twin.pty_path, timeout_s=0.5,
+                                  accel_mps2=5.0)
+    return lambda: SerialCarriage(config), lambda d: d.state(), None
+
+
 OPENERS: dict[str, Opener] = {"stm32-bridge": _stm32, "vesc-can": _vesc, "dbc-can": _dbc,
                               "ati-netft": _netft, "ascii-gauge": _gauge,
-                              "serial-stage": _stage, "scpi-supply": _supply}
+                              "serial-stage": _stage, "scpi-supply": _supply,
+                              "serial-carriage": _carriage}
 
 
 def test_every_registered_driver_is_opened_here():

@@ -40,7 +40,7 @@ GOLDEN = Path(__file__).parent / "golden"
 EXPORT_OPTIONS = ExportOptions(joint="prop_joint", link="thruster_link", namespace="auv",
                                index=2, mesh="prop.obj", material="Steel")  # as OPTIONS
 COMPARED = ("calibration.json", "points.csv", "command_curve.csv", "inverse_lut.csv",
-            "performance.csv", "voltage.csv", *FORMATS.values())
+            "performance.csv", "voltage.csv", "captive.csv", *FORMATS.values())
 
 
 def test_the_list_is_the_shipped_protocols():

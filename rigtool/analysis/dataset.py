@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rigtool.errors import UsageError
+from rigtool.errors import DataError, UsageError
 from rigtool.store import Store
 from rigtool.units import FT_CHANNELS
 
@@ -360,3 +360,67 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
     weights = np.zeros(6)
     weights[cols] = coef[:-1]
     return weights
+
+
+@dataclass
+class CaptiveData:
+    """A captive run's points: the flow each was held in and its six F/T channels' samples
+    (point p owns rows offsets[p]:offsets[p + 1] of `ft`, shape (n, 6), in the rig's frame)."""
+
+    run_id: str
+    angle: str  # "yaw" or "attack"
+    step_idx: np.ndarray
+    speed_mps: np.ndarray  # as the carriage reported it (the target where it reported none)
+    angle_deg: np.ndarray
+    t_s: np.ndarray  # each point's mean sample time (acquisition order)
+    ft: np.ndarray
+    offsets: np.ndarray
+
+
+def _flow_of(run_id: str, store: Store, field_name: str, value: object, bound: float) -> float:
+    """A stored speed or angle, checked finite and within `bound` (DataError otherwise)."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not (
+            np.isfinite(value) and abs(value) <= bound):
+        raise DataError(f"{store.path}: run {run_id}: {field_name} is {value!r}, not a number "
+                        f"within +-{bound:g}")
+    return float(value)
+
+
+def load_captive(store: Store, run_id: str) -> CaptiveData | None:
+    """The captive part of a run (None when its protocol has no `captive:` axis): each stored
+    point's flow from the plan and the carriage's `captive` events, and its F/T samples."""
+    run = store.run(run_id)
+    captive = (run.get("protocol") or {}).get("captive")
+    if not captive:
+        return None
+    kind = captive.get("angle", "yaw") if isinstance(captive, dict) else None
+    if kind not in ("yaw", "attack"):
+        raise DataError(f"{store.path}: run {run_id}: protocol.captive.angle is {kind!r}, not "
+                        "'yaw' or 'attack'")
+    plan = {s.get("idx"): s for s in run.get("plan") or [] if isinstance(s, dict)}
+    reached: dict[int, float] = {}
+    for e in store.events(run_id, "captive"):
+        value = (e.get("detail") or {}).get("reached_mps")
+        if value is not None and e.get("step_idx") is not None:
+            reached[int(e["step_idx"])] = _flow_of(run_id, store, "reached_mps", value, 1e3)
+    idx, speed, angle, t_mid, parts, counts = [], [], [], [], [], []
+    current: tuple[float, float, float] | None = None  # last reported: target, angle, reached
+    for chunk in store.iter_point_samples(run_id, ("t_s", *FT_CHANNELS)):
+        for i in np.unique(chunk["step_idx"]):
+            step = plan.get(int(i)) or {}
+            target = _flow_of(run_id, store, f"plan[{i}].speed_mps", step.get("speed_mps"), 1e3)
+            deg = _flow_of(run_id, store, f"plan[{i}].angle_deg", step.get("angle_deg"), 180.0)
+            if int(i) in reached:
+                current = (target, deg, reached[int(i)])
+            rows = chunk["step_idx"] == i
+            idx.append(int(i))
+            speed.append(current[2] if current and current[:2] == (target, deg) else target)
+            angle.append(deg)
+            t_mid.append(float(np.mean(chunk["t_s"][rows])))
+            parts.append(np.column_stack([chunk[c][rows] for c in FT_CHANNELS]))
+            counts.append(int(rows.sum()))
+    if not idx:
+        raise UsageError(f"run {run_id} has no recorded points: nothing to calibrate")
+    return CaptiveData(run_id, kind, np.array(idx),
+                       np.array(speed), np.array(angle), np.array(t_mid),
+                       np.concatenate(parts), np.concatenate(([0], np.cumsum(counts))))

@@ -282,6 +282,12 @@ def _coef(name: str, fit: LinearFit, i: int, unit: str, y: np.ndarray, rms_unit:
     return Coefficient(name, value, value - hw, value + hw, unit, len(y), r2, rms, rms_unit, note)
 
 
+def fitted(name: str, fit: LinearFit, i: int, unit: str, y: np.ndarray, rms_unit: str,
+           note: str = "") -> Coefficient:
+    """Coefficient `i` of a fit with its 95 % interval (Student's t on the fit's dof) and quality."""
+    return _coef(name, fit, i, unit, y, rms_unit, note)
+
+
 Cov2 = tuple[tuple[float, float], tuple[float, float]]
 
 

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from rigtool.analysis.captive import CaptiveResult
 from rigtool.analysis.curves import CommandCurve, CurveParams
 from rigtool.analysis.depth_fits import FitParams
 from rigtool.analysis.dynamics import Dynamics
@@ -180,6 +181,7 @@ class CalibrationResult:
     warnings: list[str]
     voltage_laws: list[VoltageLaw] = field(default_factory=list)  # per depth, voltage sweeps
     dynamics: Dynamics | None = None  # step-response runs
+    captive: CaptiveResult | None = None  # captive runs: the held vehicle's damping laws
 
 
 @dataclass(frozen=True)

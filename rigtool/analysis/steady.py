@@ -385,6 +385,25 @@ def _ramp_rates(samples: Samples, in_window: np.ndarray, n_points: int) -> np.nd
     return out
 
 
+def point_channel_stats(x: np.ndarray, offsets: np.ndarray, unit: str,
+                        n_blocks: int = SettlingCriterion.n_blocks) -> ChannelStats:
+    """Per-point statistics of any channel (e.g. an F/T channel) over all of each point's
+    samples (point p owns x[offsets[p]:offsets[p + 1]]): mean, and a standard error that takes
+    autocorrelation into account as the steady windows' do (AR(1) or batch means, the larger)."""
+    n_points = len(offsets) - 1
+    n = np.diff(offsets)
+    pid = np.repeat(np.arange(n_points), n)
+    pos = np.arange(pid.size) - offsets[pid]
+    key = pid * n_blocks + (pos * n_blocks) // np.maximum(n[pid], 1)
+    ok = np.isfinite(x)
+    cnt = np.bincount(key[ok], minlength=n_points * n_blocks).reshape(n_points, n_blocks)
+    total = np.bincount(key[ok], weights=x[ok], minlength=n_points * n_blocks)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = total.reshape(n_points, n_blocks) / cnt
+    return _window_stats(x, pid, offsets, n_points, unit,
+                         _batch_se(means, np.ones_like(means, dtype=bool)))
+
+
 def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
                   crit: SettlingCriterion) -> tuple[np.ndarray, np.ndarray]:
     """Block means (points x blocks) and the mask of blocks outside the settling tolerance."""

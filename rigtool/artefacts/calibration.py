@@ -35,6 +35,13 @@ from rigtool.analysis.efficiency import (
 )
 from rigtool.analysis.fits import Coefficient, ZeroLine
 from rigtool.analysis.results import CalibrationResult, DepthSection, VoltageLaw
+from rigtool.artefacts.captive import (
+    CAPTIVE_COLUMNS,
+    CAPTIVE_DOC,
+    CAPTIVE_FILE,
+    captive_doc,
+    captive_rows,
+)
 from rigtool.artefacts.write import (
     MISSING,
     atomic_write,
@@ -79,12 +86,19 @@ def write_artefacts(cal: CalibrationResult, out_dir: str | Path,
         "inverse_lut": lut_text(cal, created),
         "performance": performance_text(cal),
     }
+    captive = target / CAPTIVE_FILE
+    if cal.captive is not None:
+        paths = [atomic_write(captive, csv_text(head + CAPTIVE_DOC, CAPTIVE_COLUMNS,
+                                                captive_rows(cal.captive)))]
+    else:
+        paths = []
+        captive.unlink(missing_ok=True)  # from an earlier calibration
     stale = target / FILES["voltage"]
     if cal.voltage_laws:
         texts["voltage"] = csv_text(head + VOLTAGE_DOC, VOLTAGE_COLUMNS, voltage_rows(cal))
     elif stale.exists():
         stale.unlink()  # from an earlier calibration of a run that no longer has voltages
-    return [atomic_write(target / FILES[key], text) for key, text in texts.items()]
+    return [atomic_write(target / FILES[key], text) for key, text in texts.items()] + paths
 
 
 def _csv_head(cal: CalibrationResult, created: str) -> list[str]:
@@ -138,6 +152,7 @@ def calibration_document(cal: CalibrationResult, created_utc: str) -> dict:
             "max_abs_bias_n": float(np.max(np.abs(cal.drift.bias_n))),
         },
         "warnings": list(cal.warnings),
+        **({} if cal.captive is None else {"captive": captive_doc(cal.captive, _coef_doc)}),
     })
 
 

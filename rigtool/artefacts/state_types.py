@@ -27,6 +27,7 @@ from types import MappingProxyType
 from typing import Any
 
 from rigtool.analysis import (
+    captive,
     curves,
     depth_fits,
     dynamics,
@@ -46,6 +47,10 @@ Fields = dict[str, Any]
 TYPES: Mapping[str, type] = MappingProxyType({
     "betm.EstimatorErrors/1": results.EstimatorErrors,
     "calibrate.Calibration/1": results.CalibrationResult,
+    "captive.CaptiveLaw/1": captive.CaptiveLaw,
+    "captive.CaptivePoints/1": captive.CaptivePoints,
+    "captive.CaptiveResult/1": captive.CaptiveResult,
+    "captive.LiftDrag/1": captive.LiftDrag,
     "calibrate.CalibrationParams/1": results.CalibrationParams,
     "calibrate.DepthSection/1": results.DepthSection,
     "cavitation.CavitationParams/1": results.CavitationParams,

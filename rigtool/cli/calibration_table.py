@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 from rich.table import Table
 
 if TYPE_CHECKING:
+    from rigtool.analysis.captive import CaptiveResult
     from rigtool.analysis.dynamics import Dynamics
     from rigtool.analysis.results import CalibrationResult
 
@@ -31,7 +32,11 @@ def _num(v: float) -> str:
 
 
 def summary_rows(cal: CalibrationResult) -> list[SummaryRow]:
-    """(name, value, lo, hi, unit, note) rows; NaN where not applicable."""
+    """(name, value, lo, hi, unit, note) rows; NaN where not applicable. A captive run's rows
+    are its damping laws (its thruster, held at one command, has none to show)."""
+    if cal.captive is not None and len({float(c) for s in cal.sections
+                                        for c in s.points.command}) == 1:
+        return _captive_rows(cal.captive)
     rows: list[SummaryRow] = []
     multi = len(cal.sections) > 1
     for sec in cal.sections:
@@ -65,6 +70,28 @@ def summary_rows(cal: CalibrationResult) -> list[SummaryRow]:
             rows.append((c.name + suffix, c.value, c.lo, c.hi, c.unit, c.note))
     if cal.dynamics is not None:
         rows += _dynamics_rows(cal.dynamics)
+    return rows
+
+
+def _captive_rows(res: CaptiveResult) -> list[SummaryRow]:
+    """Each axis's law coefficients (or its refusal), its zero drift, and drag and lift per
+    angle."""
+    rows: list[SummaryRow] = []
+    for law in res.laws:
+        if law.linear is None or law.quadratic is None:
+            rows.append((f"{law.force} law", NAN, NAN, NAN, "", law.refused))
+            continue
+        for c in (law.linear, law.quadratic):
+            rows.append((c.name, c.value, c.lo, c.hi, c.unit, f"R2={c.r2:.4f}, n={c.n}"))
+        if law.drift is not None:
+            d = law.drift
+            rows.append((d.name, d.value, d.lo, d.hi, d.unit, "zero drift (nuisance)"))
+    for ld in res.lift_drag:
+        coefs = (ld.drag_linear, ld.drag_quadratic, ld.lift_linear, ld.lift_quadratic)
+        if ld.refused:
+            rows.append((f"lift/drag @ {ld.angle_deg:g} deg", NAN, NAN, NAN, "", ld.refused))
+        rows += [(f"{c.name} @ {ld.angle_deg:g} deg", c.value, c.lo, c.hi, c.unit, "")
+                 for c in coefs if c is not None]
     return rows
 
 

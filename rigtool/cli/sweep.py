@@ -128,6 +128,11 @@ def _print_plan(setup: SweepSetup, neutral: float) -> None:
     if p.voltage is not None:
         out.print(f"  supply voltages: {', '.join(f'{v:g} V' for v in p.voltage.voltages_v())} "
                   f"({p.voltage.mode}, each held within {p.voltage.tolerance_frac:.0%})")
+    if p.captive is not None:
+        c = p.captive
+        out.print(f"  captive flow: {', '.join(f'{v:g}' for v in c.speeds_mps)} m/s at "
+                  f"{c.angle} {', '.join(f'{a:g}' for a in c.angles_deg)} deg ({c.mode}, "
+                  f"settle {c.settle_s:g} s; the carriage stops on every exit)")
     out.print(f"  per point: settle {timing.settle.max_seconds():g} s max, acquire "
               f"{timing.acquire.n_samples} samples at {timing.acquire.rate_hz:g} Hz, rest {timing.rest_s:g} s; "
               f"tare {timing.tare}")

@@ -174,6 +174,24 @@ class Supply(Protocol):
 
 
 @runtime_checkable
+class Carriage(Protocol):
+    """Sets the flow or tow speed (m/s, signed) and the held vehicle's angle (deg) of a captive
+    run: a towing carriage, a flume pump with a rotary stage."""
+
+    reached_by: str  # who reports the setting reached: "carriage", "operator", "simulator"
+
+    def set_flow(self, speed_mps: float, angle_deg: float) -> tuple[float | None, float | None]:
+        """Stop if the angle changes, turn, then reach `speed_mps`; return (speed, angle)
+        reached as reported, None where nothing reported it."""
+
+    def stop(self) -> None:
+        """Speed 0: the safe state. Idempotent, callable from any exit path."""
+
+    def close(self) -> None:
+        """Stop and release the transport."""
+
+
+@runtime_checkable
 class Clock(Protocol):
     """Monotonic time source; the simulator injects a virtual one."""
 

@@ -30,6 +30,9 @@ DRIVERS: dict[str, dict[str, tuple[str, str]]] = {
     "depth_stage": {
         "serial-stage": ("rigtool.devices.serial_stage", "SerialStage"),
     },
+    "carriage": {
+        "serial-carriage": ("rigtool.devices.serial_carriage", "SerialCarriage"),
+    },
     "supply": {
         "scpi-supply": ("rigtool.devices.scpi_supply", "ScpiSupply"),
     },

@@ -103,7 +103,11 @@ def render_report(store: Store, run_id: str, calibration: CalibrationResult | No
         from rigtool.report.cavitation import cavitation_view
 
         cav = cavitation_view(cavitation, image_format)
-    return _template().render(cav=cav,
+    from rigtool.report.captive import captive_view
+
+    with fg.style():
+        captive = captive_view(None if cal is None else cal.captive, image_format)
+    return _template().render(cav=cav, captive=captive,
         run=run, meta=_meta_rows(run, steps, cal), protocol=_flatten(run.get("protocol") or {}),
         warnings=run_warnings(run, events, cal, extra_warnings), events=_event_counts(events),
         cal=cal, sections=sections, drift=drift, voltages=voltages, dynamics=dynamics, unit=unit,

@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from rigtool.devices.base import ActuatorInfo, Clock, Device, FeedbackBlock, ForceBlock
+from rigtool.sim.flow import CaptiveFlow
 from rigtool.sim.physics import ThrusterTwin
 
 STAGE_SPEED_M_S = 0.05
@@ -26,6 +27,7 @@ class SimWorld:
         self.twin = twin
         self.clock = clock
         self.feedback: list[FeedbackBlock] = []
+        self.flow: CaptiveFlow | None = None  # the held vehicle of a captive run
 
     def wait_until(self, t: float) -> None:
         """Let time pass until `t` (instant on a virtual clock)."""
@@ -99,7 +101,8 @@ class SimForceSensor(Device):
                                                  temperature_c=out.temperature_c))
         seq = np.arange(self._seq, self._seq + n)
         self._seq += n
-        return ForceBlock(t, out.ft - self._bias, seq)
+        ft = out.ft if self.world.flow is None else out.ft + self.world.flow.loads(t)
+        return ForceBlock(t, ft - self._bias, seq)
 
     def set_bias(self, bias: np.ndarray) -> None:
         self._bias = self._bias + np.asarray(bias, dtype=float)
@@ -158,3 +161,36 @@ class SimSupply(Device):
     def _safe_state(self) -> None:
         """Output off on `close`."""
         self.safe()
+
+
+class SimCarriage(Device):
+    """The twin's towing carriage (or flume pump) and rotary stage: the flow reaches a new speed
+    with its lag, in the world's time; the angle turns with the flow stopped."""
+
+    reached_by = "simulator"
+
+    def __init__(self, world: SimWorld, flow: CaptiveFlow) -> None:
+        self.world = world
+        self.flow = flow
+        world.flow = flow
+
+    def set_flow(self, speed_mps: float, angle_deg: float) -> tuple[float, float]:
+        """Stop to turn when the angle changes, then reach `speed_mps`; return what was reached."""
+        if angle_deg != self.flow.angle_deg:
+            self._reach(0.0)
+            self.flow.set_angle(angle_deg)
+        return self._reach(speed_mps), self.flow.angle_deg
+
+    def stop(self) -> None:
+        """Speed 0, waiting until the flow is at rest (as the real driver waits for DONE)."""
+        self._reach(0.0)
+
+    def _reach(self, speed_mps: float) -> float:
+        clock = self.world.clock
+        self.flow.set_speed(clock.now(), speed_mps)
+        self.world.wait_until(self.flow.settled_at(clock.now()))
+        return float(self.flow.speed_at(clock.now()))
+
+    def _safe_state(self) -> None:
+        """Speed 0 on `close`."""
+        self.stop()
