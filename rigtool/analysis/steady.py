@@ -401,7 +401,7 @@ def point_channel_stats(x: np.ndarray, offsets: np.ndarray, unit: str,
     with np.errstate(invalid="ignore", divide="ignore"):
         means = total.reshape(n_points, n_blocks) / cnt
     return _window_stats(x, pid, offsets, n_points, unit,
-                         _batch_se(means, np.ones_like(means, dtype=bool)))
+                         _batch_se(means, np.ones_like(means, dtype=bool)), np.zeros_like(x))
 
 
 def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
