@@ -74,7 +74,8 @@ def summarise(truth: np.ndarray, docs: list[dict], names: list[str]) -> list[str
                      f"covered {int(cover[:, cut].sum())}/{cover[:, cut].size}")
     worst = max(h["percent_of_range"] for d in docs for h in d["held_out"])
     lines.append(f"  held-out prediction worst {worst:.2f} % of range")
-    agree = [d["global_vs_least_squares"] for d in docs if d["global_vs_least_squares"] is not None]
+    agree = [d["global_vs_least_squares"]["largest_relative_difference"] for d in docs
+             if d["global_vs_least_squares"] is not None]
     if agree:
         lines.append(f"  global vs least squares: worst {100 * max(agree):.2f} %")
     return lines

@@ -23,7 +23,7 @@ from rigtool.artefacts.vehicle_model import FILE as MODEL_FILE
 from rigtool.artefacts.vehicle_model import validate_model
 from rigtool.artefacts.write import json_text, write_all
 from rigtool.errors import UsageError
-from rigtool.importers.vehicle_log import read_vehicle_log
+from rigtool.importers.vehicle_log import VehicleLog, read_vehicle_log, split_at_gaps
 from rigtool.report.vehicle_html import REPORT_FILE, render_identification
 from rigtool.vehicle_file import Vehicle
 
@@ -47,7 +47,7 @@ def allocation(vehicle: Vehicle) -> np.ndarray:
 
 def parse_dofs(text: str | None) -> list[int]:
     """`surge,heave` -> DOF indices; all six when None."""
-    if not text:
+    if text is None:
         return list(range(6))
     names = [x.strip() for x in text.split(",") if x.strip()]
     unknown = [n for n in names if n not in DOFS]
@@ -57,9 +57,24 @@ def parse_dofs(text: str | None) -> list[int]:
     return sorted({DOFS.index(n) for n in names})
 
 
-def _log_input(path: Path, vehicle: Vehicle, maps: dict[str, ThrusterInput]) -> tuple[LogInput, dict]:
-    """Read one log and turn its commands into thrusts; refuse commands outside a calibration."""
-    log = read_vehicle_log(path, [t.log_column for t in vehicle.thrusters])
+def _log_inputs(path: Path, vehicle: Vehicle, maps: dict[str, ThrusterInput]
+                ) -> tuple[list[LogInput], dict]:
+    """Read one log (cut at its time gaps) and turn its commands into thrusts; refuse
+    commands outside a calibration."""
+    whole = read_vehicle_log(path, [t.log_column for t in vehicle.thrusters])
+    parts = split_at_gaps(whole)
+    inputs = [_thrusts(path, part, vehicle, maps) for part in parts]
+    notes = whole.notes + [n for part in parts[1:] for n in part.notes] if len(parts) > 1 \
+        else whole.notes
+    info = {"file": str(path), "rows": len(whole.t_s), "skipped_rows": whole.skipped_rows,
+            "duration_s": float(sum(p.t_s[-1] for p in parts)), "parts": len(parts),
+            "notes": notes}
+    return inputs, info
+
+
+def _thrusts(path: Path, log: VehicleLog, vehicle: Vehicle, maps: dict[str, ThrusterInput]
+             ) -> LogInput:
+    """One log part with each thruster's command turned into its thrust."""
     thrusts = np.empty_like(log.commands)
     for k, t in enumerate(vehicle.thrusters):
         thrusts[:, k] = maps[t.name].thrust(log.commands[:, k])
@@ -69,9 +84,7 @@ def _log_input(path: Path, vehicle: Vehicle, maps: dict[str, ThrusterInput]) -> 
                              f"{log.commands[bad[0], k]:g} at t = {log.t_s[bad[0]]:g} s) lie "
                              f"outside the commands calibrated in {maps[t.name].source}")
     lags = np.array([maps[t.name].lag_s for t in vehicle.thrusters])
-    info = {"file": str(path), "rows": len(log.t_s), "skipped_rows": log.skipped_rows,
-            "duration_s": float(log.t_s[-1]), "notes": log.notes}
-    return LogInput(str(path), log.t_s, log.nu, log.attitude, thrusts, lags), info
+    return LogInput(str(path), log.t_s, log.nu, log.attitude, thrusts, lags)
 
 
 SIMULATOR_BLOCKS = ("gz-hydrodynamics", "uuv-fossen")
@@ -96,7 +109,9 @@ def identify_vehicle(vehicle: Vehicle, logs: list[Path], maps: dict[str, Thruste
                      ) -> tuple[Identification, list[Path]]:
     """Identify and write vehicle_model.json, identification.json, the report and the
     simulator blocks the model fills (gz-sim Hydrodynamics, uuv_simulator HMFossen)."""
-    inputs, sources = zip(*(_log_input(Path(p), vehicle, maps) for p in logs), strict=True)
+    read = [_log_inputs(Path(p), vehicle, maps) for p in logs]
+    inputs = [part for parts, _ in read for part in parts]
+    sources = [info for _, info in read]
     body = RigidBody(vehicle.mass_kg, vehicle.inertia_kg_m2, vehicle.cob_m, vehicle.weight_n,
                      vehicle.buoyancy_n)
     ident = identify(list(inputs), allocation(vehicle), body, dofs or list(range(6)), method,

@@ -148,6 +148,9 @@ def test_a_wrong_vehicle_file_names_file_line_and_field(flown, tmp_path, capsys,
     (lambda rows: [rows[0].replace("t3_us", "t3")] + rows[1:], "no column t3_us"),
     (lambda rows: rows[:50] + [rows[49]] + rows[50:], "log.csv:51: t_s does not increase"),
     (lambda rows: [rows[0]] + [_degrees(r) for r in rows[1:]], "angles must be in radians"),
+    (lambda rows: [rows[0]] + [_scaled(r, (4, 5, 6), 57.3) for r in rows[1:]],
+     "p/q/r do not match how roll_rad and pitch_rad change"),
+    (lambda rows: rows[:9] + ["x" * 200_000] + rows[9:], "not a CSV table"),
 ])
 def test_a_wrong_log_is_refused_naming_what(flown, tmp_path, capsys, edit, expected):
     flight = _flight(tmp_path, flown)
@@ -156,6 +159,30 @@ def test_a_wrong_log_is_refused_naming_what(flown, tmp_path, capsys, edit, expec
     assert main(["identify", str(flight / "vehicle.yaml"), str(flight / "log.csv"), "--out",
                  str(tmp_path / "m")]) == 2
     assert expected in capsys.readouterr().err
+
+
+def _scaled(row: str, columns: tuple[int, ...], factor: float) -> str:
+    cells = row.split(",")
+    for c in columns:
+        cells[c] = str(float(cells[c]) * factor)
+    return ",".join(cells)
+
+
+def test_an_empty_dofs_list_is_a_usage_error(flown, tmp_path, capsys):
+    assert main(["identify", str(flown / "vehicle.yaml"), str(flown / "log.csv"), "--dofs", "",
+                 "--out", str(tmp_path / "m")]) == 2
+    assert "--dofs" in capsys.readouterr().err
+
+
+def test_a_log_is_cut_at_a_logger_dropout_not_bridged():
+    from rigtool.importers.vehicle_log import VehicleLog, split_at_gaps
+
+    t = np.r_[np.arange(0, 20, 0.05), 50 + np.arange(0, 20, 0.05)]
+    log = VehicleLog("x.csv", t, np.zeros((t.size, 6)), np.zeros((t.size, 2)),
+                     np.zeros((t.size, 8)))
+    parts = split_at_gaps(log)
+    assert [p.t_s[0] for p in parts] == [0.0, 0.0] and [p.t_s.size for p in parts] == [400, 400]
+    assert "cut at a 30 s gap at t = 50 s" in parts[1].notes[0]
 
 
 def _degrees(row: str) -> str:

@@ -52,7 +52,11 @@ def identification_document(ident: Identification, sources: list[dict]) -> dict:
         "structures": ident.structures,
         "structure_held_out_sse": ident.structure_errors,
         "estimates": ident.estimates,
-        "global_vs_least_squares": ident.global_agreement,
+        "global_vs_least_squares": None if ident.global_agreement is None else {
+            "largest_relative_difference": ident.global_agreement,
+            "meaning": "the largest |global - least squares| / |least squares| over the free "
+                       "parameters, both minimising the per-DOF output error on the same "
+                       "segments"},
         "held_out": [{"dof": h.dof, "rms": h.rms, "range": h.range, "percent_of_range": h.percent}
                      for h in ident.held_out],
         "parameters": {p.name: _parameter(p) for p in ident.parameters},

@@ -27,6 +27,8 @@ ATTITUDE_COLUMNS = ("roll_rad", "pitch_rad", "yaw_rad")
 POSITION_COLUMNS = ("x_m", "y_m", "z_m")
 MIN_ROWS = 50
 MAX_ANGLE_RAD = 3.5  # beyond pi, an angle column is in degrees
+RATE_SLACK = 3.0  # how far the attitude's own slopes may disagree with the body rates
+GAP_STEPS = 5.0  # a time step this many times the median one is a gap: the log is cut there
 
 
 @dataclass(frozen=True)
@@ -54,7 +56,10 @@ def _header(rows: list[list[str]], path: Path) -> dict[str, int]:
 
 def _parse(text: str, path: Path) -> list[list[str]]:
     """Rows of cells; the first is the header."""
-    rows = list(csv.reader(io.StringIO(text)))
+    try:
+        rows = list(csv.reader(io.StringIO(text)))
+    except csv.Error as exc:
+        raise UsageError(f"{path}: not a CSV table ({exc})") from None
     rows = [r for r in rows if any(c.strip() for c in r)]
     if len(rows) > MAX_ROWS + 1:
         raise UsageError(f"{path}: more than {MAX_ROWS} rows; split the log")
@@ -114,6 +119,7 @@ def read_vehicle_log(path: str | Path, command_columns: list[str]) -> VehicleLog
     _check_angles(attitude, path)
     rest = data[:, 3 + k:]
     nu = rest if has_nu else _velocities_from_pose(t, rest, attitude)
+    _check_rates(t, nu, attitude, path)
     notes = [] if has_nu else ["body velocities derived from the pose (local polynomial slopes)"]
     if skipped:
         notes.append(f"{skipped} rows skipped for empty or non-numeric cells")
@@ -121,11 +127,47 @@ def read_vehicle_log(path: str | Path, command_columns: list[str]) -> VehicleLog
                       not has_nu, notes)
 
 
+def split_at_gaps(log: VehicleLog) -> list[VehicleLog]:
+    """The log cut wherever a time step exceeds GAP_STEPS median steps (a logger dropout):
+    nothing is interpolated across a gap, each part starts its own time at 0."""
+    dt = np.diff(log.t_s)
+    cuts = np.flatnonzero(dt > GAP_STEPS * np.median(dt)) + 1
+    if not cuts.size:
+        return [log]
+    parts = []
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(log.t_s)], strict=True):
+        note = (f"{log.source}: cut at a {dt[lo - 1]:.3g} s gap at t = {log.t_s[lo]:g} s"
+                if lo else f"{log.source}: split at {cuts.size} time gap(s)")
+        parts.append(VehicleLog(log.source, log.t_s[lo:hi] - log.t_s[lo], log.nu[lo:hi],
+                                log.attitude[lo:hi], log.commands[lo:hi], 0,
+                                log.derived_velocities, [note]))
+    return parts
+
+
 def _check_angles(attitude: np.ndarray, path: Path) -> None:
     """Refuse attitude columns that are plainly in degrees."""
     if np.abs(attitude).max() > MAX_ANGLE_RAD:
         raise UsageError(f"{path}: roll_rad/pitch_rad reach {np.abs(attitude).max():.4g}: "
                          "angles must be in radians")
+
+
+def _check_rates(t: np.ndarray, nu: np.ndarray, attitude: np.ndarray, path: Path) -> None:
+    """Refuse body rates that do not turn the logged roll and pitch (deg/s logged as rad/s,
+    or a wrong sign convention): the Euler-angle rates they give must match the angles'
+    own slopes to within a factor RATE_SLACK."""
+    phi, theta = attitude[:, 0], attitude[:, 1]
+    p, q, r = nu[:, 3], nu[:, 4], nu[:, 5]
+    predicted = np.concatenate((p + (q * np.sin(phi) + r * np.cos(phi)) * np.tan(theta),
+                                q * np.cos(phi) - r * np.sin(phi)))
+    measured = np.concatenate((np.gradient(phi, t), np.gradient(theta, t)))
+    size = float(np.dot(predicted, predicted))
+    if size == 0.0 or float(np.dot(measured, measured)) == 0.0:
+        return
+    slope = float(np.dot(predicted, measured)) / size
+    if not 1.0 / RATE_SLACK <= slope <= RATE_SLACK:
+        raise UsageError(f"{path}: p/q/r do not match how roll_rad and pitch_rad change (the "
+                         f"angles turn {slope:.3g} times as fast as the rates say): rates must "
+                         "be rad/s in body axes x forward, y starboard, z down")
 
 
 def _velocities_from_pose(t: np.ndarray, pose: np.ndarray, attitude: np.ndarray) -> np.ndarray:

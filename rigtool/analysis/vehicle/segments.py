@@ -9,6 +9,7 @@ import numpy as np
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from rigtool.analysis.vehicle.model import Segments
+from rigtool.errors import UsageError
 
 MAX_SMOOTH_S = 1.0  # the longest smoothing window tried
 SEGMENT_S = 5.0
@@ -92,6 +93,8 @@ def prepare(logs: list[LogInput], allocation: np.ndarray, dt_s: float,
     length = max(int(round(segment_s / dt_s)), 10)
     for index, log in enumerate(logs):
         grid, nu, att, thrust = _uniform(log, dt_s)
+        if len(grid) < length:
+            continue  # a part shorter than a segment (a log cut at its gaps) adds nothing
         smooth = _smoothed(nu, dt_s)
         tau = thrust @ allocation.T
         mids = (0.5 * (nu[1:] + nu[:-1]), 0.5 * (smooth[1:] + smooth[:-1]),
@@ -106,6 +109,9 @@ def prepare(logs: list[LogInput], allocation: np.ndarray, dt_s: float,
                 seg[key].append(value[cut])
             seg["log"].append(index)
             seg["start"].append(grid[s])
+    if not parts["nu"]:
+        raise UsageError(f"no log (nor part of one between time gaps) lasts one {segment_s:g} s "
+                         "segment")
     whole = {k: np.concatenate(v) for k, v in parts.items()}
     segments = Segments(dt_s, *(np.array(seg[k]) for k in ("nu", "smooth", "tau", "att")),
                         np.array(seg["log"]), np.array(seg["start"]))
