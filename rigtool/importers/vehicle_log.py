@@ -20,8 +20,8 @@ from scipy.signal import savgol_filter
 from rigtool.errors import UsageError
 from rigtool.files import read_regular_text
 
-MAX_LOG_BYTES = 256 << 20  # a one-hour log at 100 Hz with eight thrusters is ~60 MiB
-MAX_ROWS = 2_000_000
+MAX_LOG_BYTES = 128 << 20  # a one-hour log at 100 Hz with eight thrusters is ~60 MiB
+MAX_ROWS = 400_000  # over two hours at 50 Hz; identification holds ~1 kB per row
 VELOCITY_COLUMNS = ("u_mps", "v_mps", "w_mps", "p_radps", "q_radps", "r_radps")
 ATTITUDE_COLUMNS = ("roll_rad", "pitch_rad", "yaw_rad")
 POSITION_COLUMNS = ("x_m", "y_m", "z_m")
