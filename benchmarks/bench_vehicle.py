@@ -21,6 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from rigtool.analysis.vehicle.model import NAMES  # noqa: E402
 from rigtool.sim.vehicle_params import BLUEROV2, BLUEROV2_HEAVY  # noqa: E402
 
 PROTOCOL = Path(__file__).resolve().parents[1] / "protocols" / "esc-1100-1900.yaml"
@@ -90,7 +91,7 @@ def main() -> None:
     parser.add_argument("--case", action="append", metavar="TRUTH:NOISE",
                         help="e.g. bluerov2:0.03 (repeatable; default: all four cases)")
     args = parser.parse_args()
-    names = None
+    names = list(NAMES)  # the truth's order (identification.json sorts its keys)
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         cal = calibration(tmp)
@@ -106,7 +107,6 @@ def main() -> None:
                 print(f"  refused: {refused}")
             if not docs:
                 continue
-            names = names or list(docs[0]["parameters"])
             print(f"{truth_name}, noise {100 * noise:g} %, {len(docs)} seeds, "
                   f"{args.duration:g} s logs, method {args.method}")
             print("\n".join(summarise(truth, docs, names)), flush=True)

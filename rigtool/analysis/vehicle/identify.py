@@ -190,8 +190,8 @@ def _parameters(theta: np.ndarray, draws: np.ndarray, free: np.ndarray, dofs: np
             out.append(Parameter(name, None, None, None, f"{DOFS[dof]} not identified (--dofs)"))
         elif not free[k]:
             out.append(Parameter(name, 0.0, None, None,
-                                 f"not in the {structures[dof]} structure chosen for {DOFS[dof]} "
-                                 "by held-out error"))
+                                 f"assumed 0, not measured: not in the {structures[dof]} "
+                                 f"structure chosen for {DOFS[dof]} by held-out error"))
         elif lo[k] < 0 < hi[k] and (hi[k] - lo[k]) / 2 > UNRESOLVED * abs(theta[k]):
             out.append(Parameter(name, None, float(lo[k]), float(hi[k]),
                                  f"not resolved by these logs: 95 % interval {lo[k]:.3g} to "
