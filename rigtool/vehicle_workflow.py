@@ -117,9 +117,11 @@ def identify_vehicle(vehicle: Vehicle, logs: list[Path], maps: dict[str, Thruste
     ident = identify(list(inputs), allocation(vehicle), body, dofs or list(range(6)), method,
                      seed)
     notes = [n for s in sources for n in s["notes"]]
-    notes += [f"{t.name}: no thrust lag known (give lag_s in the vehicle file, or calibrate "
-              "a step-response run): thrust taken as steady at each command"
-              for t in vehicle.thrusters if maps[t.name].lag_s == 0.0]
+    no_lag = [t.name for t in vehicle.thrusters if maps[t.name].lag_s == 0.0]
+    if no_lag:
+        notes.append(f"no thrust lag known for {', '.join(no_lag)} (give lag_s in the vehicle "
+                     "file, or calibrate a step-response run): thrust taken as steady at each "
+                     "command")
     rigid = rigid_summary(vehicle.name, vehicle.mass_kg, vehicle.inertia_kg_m2, vehicle.cob_m,
                           vehicle.weight_n, vehicle.buoyancy_n, vehicle.water_density_kg_m3,
                           vehicle.gravity_m_s2)
