@@ -112,7 +112,7 @@ def test_stall_times_out_with_the_position(stage_twin, open_stage):
     drv = open_stage(stage_twin.pty_path, zero_offset_m=0.1, timeout_s=0.3)
     stage_twin.stalled = True
     t0 = time.monotonic()
-    with pytest.raises(DeviceError, match=r"no DONE from serial stage on .*stopped at 100.000 mm"):
+    with pytest.raises(DeviceError, match=r"no DONE reply from serial stage on .*stopped at 100.000 mm"):
         drv.move_to(0.1)
     assert time.monotonic() - t0 < 2.0
     assert stage_twin.target_mm is None  # the driver sent STOP

@@ -12,18 +12,15 @@ from __future__ import annotations
 import contextlib
 import math
 import re
-import time
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import MAX_FLOW_MPS, Baudrate, PositiveSeconds
-from rigtool.devices.base import Device
-from rigtool.devices.framing import LineFramer
+from rigtool.devices.line_protocol import LineProtocolDevice
 from rigtool.errors import DeviceError, UsageError
 
 _LINE = re.compile(r"(?P<kind>OK|ERR|DONE|STATE)(?:\s+(?P<arg>.*?))?\s*")
-_MAX_LINE = 256  # bytes; a longer run without a line end is garbage
 Speed = Annotated[float, Field(gt=0, le=MAX_FLOW_MPS, allow_inf_nan=False)]
 
 
@@ -48,23 +45,16 @@ class SerialCarriageConfig(BaseModel):
         return self
 
 
-class SerialCarriage(Device):
+class SerialCarriage(LineProtocolDevice):
     """Carriage driver: sets the flow speed and angle and reports what was reached."""
 
     reached_by = "carriage"
+    line_pattern = _LINE
 
     def __init__(self, config: SerialCarriageConfig) -> None:
-        import serial
         self.config = config
         self.name = f"serial carriage on {config.url}"
-        self.stats = dict.fromkeys(("lines", "garbage", "unexpected", "errors", "timeouts"), 0)
-        self._framer = LineFramer(_MAX_LINE)
-        self._pending: list[str] = []
-        try:
-            self._ser = serial.serial_for_url(config.url, baudrate=config.baudrate, timeout=0.02,
-                                              write_timeout=config.timeout_s)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceError(f"cannot open {config.url} (serial carriage): {exc}") from None
+        self._open_port(config.url, config.baudrate, config.timeout_s, "serial carriage")
         try:
             self.state()
         except DeviceError:
@@ -103,12 +93,6 @@ class SerialCarriage(Device):
         """Speed 0 on `close`."""
         self.stop()
 
-    def _release(self) -> None:
-        """Release the port (on `close`)."""
-        import serial
-        with contextlib.suppress(serial.SerialException, OSError):
-            self._ser.close()
-
     # -- internals ------------------------------------------------------------------------
     def _wait_done(self, budget_s: float, what: str) -> tuple[float, float]:
         try:
@@ -118,59 +102,6 @@ class SerialCarriage(Device):
                 with contextlib.suppress(DeviceError):
                     self._request("STOP", "OK")
             raise DeviceError(str(exc)) from None
-
-    def _request(self, line: str, kind: str) -> str | None:
-        """Send `line` and return the argument of the first `kind` reply."""
-        import serial
-        if self._closed:
-            raise DeviceError(f"{self.name} is closed")
-        try:
-            self._ser.reset_input_buffer()  # a stale reply must not answer this request
-            self._framer.clear()
-            self._pending.clear()
-            self._ser.write(f"{line}\n".encode("ascii"))
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceError(f"cannot write to {self.name}: {exc}") from None
-        return self._expect(kind, self.config.timeout_s, line)
-
-    def _expect(self, kind: str, budget_s: float, what: str) -> str | None:
-        """Read lines until one of `kind` (ERR raises); DeviceError after `budget_s`."""
-        deadline = time.monotonic() + budget_s
-        while time.monotonic() < deadline:
-            if not self._pending:
-                self._pending = self._lines()
-            while self._pending:
-                m = _LINE.fullmatch(self._pending.pop(0))
-                if m is None:
-                    self.stats["garbage"] += 1
-                elif m["kind"] == "ERR":
-                    self.stats["errors"] += 1
-                    raise DeviceError(f"{self.name} refused {what!r}: {m['arg'] or 'ERR'}")
-                elif m["kind"] == kind:
-                    return m["arg"]
-                else:
-                    self.stats["unexpected"] += 1
-        self.stats["timeouts"] += 1
-        raise DeviceError(f"no {kind} reply from {self.name} to {what!r} within {budget_s:.3g} s")
-
-    def _lines(self) -> list[str]:
-        """Complete lines read within one poll period (undecodable ones counted as garbage)."""
-        import serial
-        try:
-            chunk = self._ser.read(max(1, self._ser.in_waiting))
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceError(f"lost connection to {self.name}: {exc}") from None
-        parts, overflow = self._framer.feed(chunk)
-        self.stats["garbage"] += int(overflow)
-        out = []
-        for raw in parts:
-            try:
-                out.append(raw.decode("ascii").strip())
-            except UnicodeDecodeError:
-                self.stats["garbage"] += 1
-                continue
-            self.stats["lines"] += 1
-        return out
 
 
 def _pair(text: str | None, name: str) -> tuple[float, float]:

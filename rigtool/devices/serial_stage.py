@@ -9,25 +9,17 @@ surface with `zero_offset_m` and `direction`.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import re
-import time
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, DepthM, PositiveSeconds
-from rigtool.devices.base import Device
-from rigtool.devices.framing import LineFramer
+from rigtool.devices.line_protocol import LineProtocolDevice, ReplyTimeout
 from rigtool.errors import DeviceError, UsageError
 
 _LINE = re.compile(r"(?P<kind>OK|ERR|DONE|POS)(?:\s+(?P<arg>.*?))?\s*")
-_MAX_LINE = 256  # bytes; a longer run without a line end is garbage
-
-
-class _Timeout(DeviceError):
-    """The stage did not answer in time."""
 
 
 class SerialStageConfig(BaseModel):
@@ -51,23 +43,16 @@ class SerialStageConfig(BaseModel):
         return self
 
 
-class SerialStage(Device):
+class SerialStage(LineProtocolDevice):
     """DepthStage driver: moves the truss and reports the depth actually reached."""
 
     reached_by = "stage"
+    line_pattern = _LINE
 
     def __init__(self, config: SerialStageConfig) -> None:
-        import serial
         self.config = config
         self.name = f"serial stage on {config.url}"
-        self.stats = dict.fromkeys(("lines", "garbage", "unexpected", "errors", "timeouts"), 0)
-        self._framer = LineFramer(_MAX_LINE)
-        self._pending: list[str] = []
-        try:
-            self._ser = serial.serial_for_url(config.url, baudrate=config.baudrate, timeout=0.02,
-                                              write_timeout=config.timeout_s)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceError(f"cannot open {config.url} (serial stage): {exc}") from None
+        self._open_port(config.url, config.baudrate, config.timeout_s, "serial stage")
         try:
             self.position_mm()
         except DeviceError:
@@ -87,12 +72,6 @@ class SerialStage(Device):
         budget = abs(target_mm - start_mm) / cfg.speed_mm_s + cfg.timeout_s
         reached_mm = self._wait_done(budget, f"reach {target_mm:.3f} mm")
         return self.depth_m(reached_mm)
-
-    def _release(self) -> None:
-        """Release the port (on `close`)."""
-        import serial
-        with contextlib.suppress(serial.SerialException, OSError):
-            self._ser.close()
 
     # -- extras ---------------------------------------------------------------------------
     def position_mm(self) -> float:
@@ -122,7 +101,7 @@ class SerialStage(Device):
     def _wait_done(self, budget_s: float, what: str) -> float:
         try:
             return _number(self._expect("DONE", budget_s, what), self.name)
-        except _Timeout as exc:
+        except ReplyTimeout as exc:
             where = ""
             try:
                 self.stop()
@@ -130,62 +109,6 @@ class SerialStage(Device):
             except DeviceError:
                 pass
             raise DeviceError(f"{exc}{where}") from None
-
-    def _request(self, line: str, kind: str) -> str | None:
-        """Send `line` and return the argument of the first `kind` reply."""
-        import serial
-        if self._closed:
-            raise DeviceError(f"{self.name} is closed")
-        try:
-            self._ser.reset_input_buffer()  # a stale reply must not answer this request
-            self._framer.clear()
-            self._pending.clear()
-            self._ser.write(f"{line}\n".encode("ascii"))
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceError(f"cannot write to {self.name}: {exc}") from None
-        return self._expect(kind, self.config.timeout_s, line)
-
-    def _expect(self, kind: str, budget_s: float, what: str) -> str | None:
-        """Read lines until one of `kind` (ERR raises); DeviceError after `budget_s`."""
-        deadline = time.monotonic() + budget_s
-        while time.monotonic() < deadline:
-            if not self._pending:
-                self._pending = self._lines()
-            while self._pending:
-                text = self._pending.pop(0)
-                m = _LINE.fullmatch(text)
-                if m is None:
-                    self.stats["garbage"] += 1
-                    continue
-                if m["kind"] == "ERR":
-                    self.stats["errors"] += 1
-                    raise DeviceError(f"{self.name} refused {what!r}: {m['arg'] or 'ERR'}")
-                if m["kind"] == kind:
-                    return m["arg"]
-                self.stats["unexpected"] += 1
-        self.stats["timeouts"] += 1
-        reply = "no DONE" if kind == "DONE" else f"no {kind} reply"
-        raise _Timeout(f"{reply} from {self.name} to {what!r} within {budget_s:.3g} s")
-
-    def _lines(self) -> list[str]:
-        """Complete lines read within one poll period (undecodable ones counted as garbage)."""
-        import serial
-        try:
-            chunk = self._ser.read(max(1, self._ser.in_waiting))
-        except (serial.SerialException, OSError) as exc:
-            raise DeviceError(f"lost connection to {self.name}: {exc}") from None
-        parts, overflow = self._framer.feed(chunk)
-        if overflow:
-            self.stats["garbage"] += 1
-        out = []
-        for raw in parts:
-            try:
-                out.append(raw.decode("ascii").strip())
-            except UnicodeDecodeError:
-                self.stats["garbage"] += 1
-                continue
-            self.stats["lines"] += 1
-        return out
 
 
 def _number(text: str | None, name: str) -> float:
