@@ -28,10 +28,12 @@ if TYPE_CHECKING:  # the plan's pydantic models cost 0.25 s to import: not at st
 
 def _live_text(step: PlanStep, unit: str, thrust_n: float | None,
                command: float | None = None) -> str:
-    """One progress line: the command (the step's unless given), depth and thrust read at it."""
+    """One progress line: the command (the step's unless given), depth, the supply voltage of
+    the pass (when the protocol sets one) and thrust read at it."""
     thrust = "   --   " if thrust_n is None else f"{thrust_n:8.2f}"
     cmd = step.command if command is None else command
-    return (f"cmd {cmd:8.2f} {unit_label(unit)}  depth {step.depth_m:5.2f} m  "
+    supply = "" if step.voltage_v is None else f"supply {step.voltage_v:5.1f} V  "
+    return (f"cmd {cmd:8.2f} {unit_label(unit)}  depth {step.depth_m:5.2f} m  {supply}"
             f"thrust {thrust} N")
 
 

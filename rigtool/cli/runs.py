@@ -30,13 +30,19 @@ def cmd_runs(args: argparse.Namespace) -> int:
         if not rows:
             out.print(f"no runs in {store.path}")
             return 0
-        table = Table("name", "status", "created (UTC)", "points", "unit")
+        table = Table("name", "status", "created (UTC)", "points", "unit", "calibrated (UTC)")
         table.columns.insert(0, Column("run id", no_wrap=True))
         for r in rows:
-            table.add_row(r["id"], r["name"], r["status"], r["created_utc"][:16].replace("T", " "),
-                          f"{r['n_steps']}/{r['n_planned']}", r["command_unit"])
+            table.add_row(r["id"], r["name"], r["status"], _minute(r["created_utc"]),
+                          f"{r['n_steps']}/{r['n_planned']}", r["command_unit"],
+                          _minute(r["calibrated_utc"]) if r["calibrated_utc"] else "no")
         out.print(table)
         return 0
+
+
+def _minute(utc: str) -> str:
+    """An ISO time to the minute, as the listing shows it."""
+    return utc[:16].replace("T", " ")
 
 
 def cmd_show(args: argparse.Namespace) -> int:

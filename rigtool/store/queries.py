@@ -256,14 +256,17 @@ class RunQueries:
         return [self._run_id(r[0]) for r in self.conn.execute("SELECT id FROM runs ORDER BY id")]
 
     def runs(self, limit: int = 50) -> list[dict]:
-        """The newest `limit` runs: id, name, status, created_utc, n_planned, command_unit and
-        n_steps (stored points), each value checked."""
+        """The newest `limit` runs: id, name, status, created_utc, n_planned, command_unit,
+        n_steps (stored points) and calibrated_utc (the newest calibration's time, None when
+        never calibrated), each value checked."""
         names = ("id", "name", "status", "created_utc", "n_planned", "command_unit")
         self._read.find_bad(None, "runs", names, "1", ())
+        self._read.find_bad(None, "calibrations", ("created_utc",), "1", ())
         return self._read.listing(
             f"SELECT {', '.join('r.' + n for n in names)}, "
-            "(SELECT count(*) FROM steps s WHERE s.run_id = r.id) AS n_steps "
-            "FROM runs r ORDER BY r.id DESC LIMIT ?", [limit])
+            "(SELECT count(*) FROM steps s WHERE s.run_id = r.id) AS n_steps, "
+            "(SELECT max(c.created_utc) FROM calibrations c WHERE c.run_id = r.id) "
+            "AS calibrated_utc FROM runs r ORDER BY r.id DESC LIMIT ?", [limit])
 
     def run_fingerprints(self) -> list[dict]:
         """Per run, oldest first, what tells whether it changed since an export: status, end
