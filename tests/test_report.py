@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import html
+import json
 import re
+import shutil
+import subprocess
 import time
 from html.parser import HTMLParser
 from pathlib import Path
@@ -212,3 +216,35 @@ def test_warnings_repeated_at_several_depths_are_merged():
     merged = group_by_depth(["drift", "0.2 m: few points", "0.3 m: few points", "0.3 m: poor"],
                             ["0.2 m", "0.3 m"])
     assert merged == ["drift", "0.2 m, 0.3 m: few points", "0.3 m: poor"]
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+MEASURE = ("<script>document.body.dataset.widths = JSON.stringify([...document.querySelectorAll("
+           "'table')].map(t => [t.id, t.getBoundingClientRect().width, "
+           "t.parentElement.clientWidth]))</script></body>")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium not installed (Debian: "
+                    "apt-get install chromium)")
+@pytest.mark.parametrize("window", [1300, 760])
+def test_tables_keep_to_their_column_in_chromium(can_report, tmp_path, window):
+    """Every table, the coefficient tables too, is laid out within its column (as Chromium
+    lays the page out; the measuring script is added to a copy, the report has none)."""
+    path, _, _ = can_report
+    copy = tmp_path / "measured.html"
+    copy.write_text(path.read_text().replace("</body>", MEASURE))
+    dom = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
+                          "--hide-scrollbars", f"--window-size={window},900", "--dump-dom",
+                          copy.as_uri()], capture_output=True, text=True, timeout=90).stdout
+    found = re.search(r'data-widths="([^"]*)"', dom)
+    assert found, dom[-2000:]
+    widths = json.loads(html.unescape(found.group(1)))
+    assert any(name.startswith("coefficients-") for name, _, _ in widths)
+    assert [(n, w, c) for n, w, c in widths if w > c + 0.5] == []
+
+
+def test_protocol_settings_are_open_so_they_print(can_report):
+    """A closed <details> does not print: the protocol settings are open."""
+    path, _, _ = can_report
+    tag = re.search(r'<details[^>]*id="protocol"[^>]*>', path.read_text())
+    assert tag and re.search(r"\bopen\b", tag.group(0))
