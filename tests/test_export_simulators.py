@@ -71,7 +71,7 @@ def lab(tmp_path_factory, shipped_sweep):
     for kind, overrides in STEP_TWINS.items():
         (tmp / f"{kind}.yaml").write_text(text.replace(
             "overrides: {inflow_gain: 0.35, inflow_tau_s: 0.6}", f"overrides: {overrides}")
-            .replace("thruster_id: T1", "thruster_id: demo"))  # the same twin as quick-demo
+            .replace("thruster_id: bldc-350w", "thruster_id: demo"))  # the same twin as quick-demo
         assert run("sweep", tmp / f"{kind}.yaml", "--sim", "--db", db) == 0
         assert run("calibrate", "last", "--db", db, "--out", tmp / kind) == 0
         step = next((tmp / kind).iterdir())

@@ -11,7 +11,7 @@
 
 #define RIGTOOL_SOURCE_RUN "RUN-ID"
 #define RIGTOOL_RUN_NAME "dynamics-steps-esc"
-#define RIGTOOL_THRUSTER_ID "T1"
+#define RIGTOOL_THRUSTER_ID "esc-thruster"
 #define RIGTOOL_CREATED_UTC "TIME"
 #define RIGTOOL_COMMAND_UNIT "pulse_us"
 #define RIGTOOL_NEUTRAL_COMMAND 1500.0

@@ -11,7 +11,7 @@
 
 #define RIGTOOL_SOURCE_RUN "RUN-ID"
 #define RIGTOOL_RUN_NAME "dynamics-steps"
-#define RIGTOOL_THRUSTER_ID "T1"
+#define RIGTOOL_THRUSTER_ID "bldc-350w"
 #define RIGTOOL_CREATED_UTC "TIME"
 #define RIGTOOL_COMMAND_UNIT "percent"
 #define RIGTOOL_NEUTRAL_COMMAND 0.0
