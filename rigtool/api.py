@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from rigtool import vehicle_workflow
+from rigtool import display, vehicle_workflow
 from rigtool.analysis.vehicle.identify import METHODS, Identification
 from rigtool.artefacts.hydro_formats import HydroOptions
 from rigtool.dbpath import DB_ENV, DEFAULT_DB
@@ -44,10 +44,20 @@ LUT_NEEDS = ("depth_m", "branch", "direction", "thrust_n", "command")
 MAX_CSV_BYTES = 32 << 20  # a calibration CSV (real ones: a few kB per depth)
 MAX_CSV_ROWS = 500_000
 MAX_CSV_COLUMNS = 64  # real ones have 6 or 13
+PANDAS_HINT = ("pip install pandas (or, in a clone of rigtool, pip install -e '.[pandas]'; "
+               "`rigtool[pandas]` resolves only where rigtool comes from a package index)")
+LAB_RUNS_SHOWN = 10  # runs a lab's notebook display lists
+COEFFICIENTS_SHOWN = 40  # from each end of a calibration's coefficients (real ones: about 30)
 
 
 class Columns(dict):
     """Column name -> numpy array, all of one length."""
+
+    def __repr__(self) -> str:
+        return display.columns_repr("table", self)
+
+    def _repr_html_(self) -> str:
+        return display.columns_html("rigtool table", self)
 
     def to_pandas(self) -> Any:
         """A pandas DataFrame of the columns (needs pandas)."""
@@ -56,6 +66,12 @@ class Columns(dict):
 
 class Records(list):
     """A list of dicts, one per row."""
+
+    def __repr__(self) -> str:
+        return display.records_repr("records", self)
+
+    def _repr_html_(self) -> str:
+        return display.records_html("rigtool records", self)
 
     def to_pandas(self) -> Any:
         """A pandas DataFrame, one row per record (needs pandas)."""
@@ -66,7 +82,7 @@ def _pandas() -> Any:
     try:
         import pandas
     except ImportError as exc:
-        raise ImportError("to_pandas() needs pandas: pip install 'rigtool[pandas]'") from exc
+        raise ImportError(f"to_pandas() needs pandas: {PANDAS_HINT}") from exc
     return pandas
 
 
@@ -116,6 +132,16 @@ class Lab:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def __repr__(self) -> str:
+        return f"<rigtool lab {self.path}>"
+
+    def _repr_html_(self) -> str:
+        runs = self.store.runs(limit=LAB_RUNS_SHOWN)
+        return display.fields_html(
+            f"rigtool lab {Path(self.path).name}",
+            [("database", self.path), ("mode", "read-only" if self.store.read_only else "write")],
+            display.records_html(f"newest runs (up to {LAB_RUNS_SHOWN})", runs))
 
     def close(self) -> None:
         """Close the database; closing twice is harmless."""
@@ -184,6 +210,14 @@ class Run:
     def __repr__(self) -> str:
         return f"<rigtool run {self.id} {self.name!r} {self.status}>"
 
+    def _repr_html_(self) -> str:
+        r = self.record
+        return display.fields_html(f"rigtool run {r.name}", [
+            ("id", r.id), ("status", r.status), ("created (UTC)", r.created_utc),
+            ("finished (UTC)", r.finished_utc or "-"), ("stop reason", r.stop_reason or "-"),
+            ("thruster", r.thruster_id or "-"), ("command unit", r.command_unit),
+            ("points planned", r.n_planned), ("rig", r.rig_name or "-")])
+
     def points(self) -> Columns:
         """One row per stored point: step_idx, command, depth_m, ..., thrust_mean_n, ...
         (statistics over all of the point's samples; points.csv has the steady window's)."""
@@ -213,6 +247,15 @@ class Value:
     unit: str
     n: int = 0
     r2: float = math.nan
+
+    def __repr__(self) -> str:
+        return f"<rigtool value {self.name} = {self}>"
+
+    def __str__(self) -> str:
+        return display.interval_text(self.value, self.lo, self.hi, self.unit)
+
+    def _repr_html_(self) -> str:
+        return f"<code>{display.escaped(self.name)} = {display.escaped(str(self))}</code>"
 
     @property
     def low(self) -> float:
@@ -330,6 +373,21 @@ class Calibration:
 
     def __repr__(self) -> str:
         return f"<rigtool calibration of run {self.run_id}, depths {self.depths}>"
+
+    def _repr_html_(self) -> str:
+        coefficients = [{"coefficient": v.name, "value": v.value, "95 % low": v.lo,
+                         "95 % high": v.hi, "unit": v.unit, "n": v.n}
+                        for v in self.coefficients.values()]
+        dynamics = self.dynamics
+        source = self.document.get("source") or {}
+        return display.fields_html(f"rigtool calibration of run {self.run_id}", [
+            ("thruster", source.get("thruster_id") or "-"), ("command unit", self.command_unit),
+            ("depths (m)", ", ".join("not set" if d is None else f"{d:g}" for d in self.depths)),
+            ("supply voltages (V)", ", ".join(f"{v:g}" for v in self.voltages) or "-"),
+            ("dynamics", "-" if dynamics is None else repr(dynamics)),
+            ("warnings", len(self.warnings))],
+            display.records_html("coefficients of the deepest section", coefficients,
+                                 head=COEFFICIENTS_SHOWN))
 
     @property
     def depths(self) -> list[float | None]:

@@ -162,7 +162,7 @@ RANKS = {
                   "rigtool.progress", "rigtool.check", "rigtool.importers",
                   "rigtool.limit_sources", "rigtool.sensor_rate", "rigtool.vehicle_workflow"),
     "interfaces": ("rigtool", "rigtool.__main__", "rigtool.launch", "rigtool.cli", "rigtool.api",
-                   "rigtool.watch", "rigtool.export", "rigtool.dataset"),
+                   "rigtool.watch", "rigtool.export", "rigtool.dataset", "rigtool.display"),
 }
 ORDER = list(RANKS)
 
