@@ -22,8 +22,9 @@ import pytest
 from rigtool.cli import main
 from rigtool.store import Store
 from rigtool.watch import Watcher, WatchServer
-from rigtool.watch.data import MAX_TRACE, decimate, fit_cp
+from rigtool.watch.data import MAX_TRACE, decimate, detail_text, fit_cp
 
+from .conftest import PROTOCOLS
 from .helpers import sim_process, stop_processes
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -130,6 +131,37 @@ def test_data_of_a_finished_run(tmp_path):
     assert d["fit"]["provisional"] and "provisional" in d["fit"]["label"]
     assert d["fit"]["fwd"]["C_p"] > 0 and d["fit"]["rev"]["C_p"] > 0
     json.dumps(d, allow_nan=False)
+    assert d["database"] == "w.sqlite"  # two servers on one PC: which database this is
+
+
+def test_event_details_read_as_text_not_json(tmp_path):
+    """A tare's six biases read as four significant digits each, not 17-digit JSON floats."""
+    db = _sim_run(tmp_path)
+    watcher = Watcher(db)
+    try:
+        watcher.start()
+        items = watcher.data()["events"]["items"]
+    finally:
+        watcher.close()
+    tare = next(e["detail"] for e in items if e["kind"] == "tare")
+    assert re.search(r"\bbias \[[^\]]+\]", tare) and "{" not in tare and '"' not in tare
+    numbers = re.findall(r"[-+]?\d[\d.]*(?:e[-+]?\d+)?", tare)
+    assert numbers and all(len(re.sub(r"e.*|[-+.]", "", n).lstrip("0")) <= 4 for n in numbers)
+    assert detail_text({"a": {"b": [0.1 + 0.2, None, True]}, "c": "x y"}) == (
+        "a {b [0.3, null, true]}; c x y")
+
+
+def test_sweep_watch_does_not_say_ctrl_c_stops_the_page(tmp_path):
+    """Beside a sweep, Ctrl-C stops the sweep: the announcement says the page lasts while the
+    sweep runs; `rigtool watch` alone says Ctrl-C stops it."""
+    proc = subprocess.run([sys.executable, "-m", "rigtool.cli", "sweep",
+                           str(PROTOCOLS / "quick-demo.yaml"), "--sim", "--watch", "0", "--db",
+                           str(tmp_path / "s.sqlite")], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    line = next(x for x in proc.stderr.splitlines() if x.startswith("watch the run at"))
+    assert line.endswith("(read-only; served while the sweep runs)")
+    assert "Ctrl-C stops it" not in proc.stderr
 
 
 def _running_run(db: Path, name: str, pid: int | None = None) -> str:
@@ -387,3 +419,17 @@ def test_hostile_text_is_shown_literally(tmp_path):
     assert html.unescape(title).startswith("completed · <script>document.title=")  # no script ran
     assert "<img" not in dom and "<iframe" not in dom and "<svg" not in dom and "<b>" not in dom
     assert dom.count("<script") == 2  # uPlot and app.js only
+
+
+@needs_chromium
+def test_page_names_its_database_and_keeps_one_time_zone(served):
+    """The page names the database file and the run, says its times are UTC and shows no
+    local clock, and draws thrust, speed and current each on a chart of its own."""
+    dom = _dom(server_url := served.url)
+    assert _text(dom, "db-name") == "w.sqlite" and _text(dom, "run-name") == "watch-sim"
+    assert "times in UTC" in dom and re.search(r"updated \d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC",
+                                                 _text(dom, "conn")), server_url
+    assert not re.search(r"\d:\d\d:\d\d\s?[AP]M", dom)
+    assert "w.sqlite" in html.unescape(re.search(r"<title>(.*?)</title>", dom, re.S).group(1))
+    charts = re.findall(r'<div id="trace-(\w+)"><div class="uplot', dom)
+    assert charts == ["thrust_n", "speed_rpm", "current_a"]

@@ -38,7 +38,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
         watcher.close()
         raise
     out.print(f"run {run_id}")
-    announce_watch(server.url, args.bind)
+    announce_watch(server.url, args.bind, lasts="Ctrl-C stops it")
     try:
         with stop_on_signals():
             server.serve_forever(poll_interval=0.5)
@@ -75,11 +75,12 @@ def watching(port: int | None, db: Path, bind: str):
                 server.stop()
 
 
-def announce_watch(url: str, bind: str) -> None:
-    """Where the watch page is, and a warning when it is reachable from the network."""
+def announce_watch(url: str, bind: str, lasts: str = "served while the sweep runs") -> None:
+    """Where the watch page is and how long it lasts (beside a sweep, Ctrl-C stops the sweep,
+    not the page), and a warning when it is reachable from the network."""
     from rigtool.watch.server import is_loopback
 
-    err.print(f"watch the run at {url} (read-only; Ctrl-C stops it)")
+    err.print(f"watch the run at {url} (read-only; {lasts})")
     if not is_loopback(bind):
         err.print(f"warning: the watch page is served on {bind}: anyone who can reach this "
                   "host can read the run (names, events, data); it commands nothing")

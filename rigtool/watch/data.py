@@ -210,7 +210,8 @@ class Watcher:
     def _build(self, lab: rigtool.api.Lab, run_id: str | None, now: float) -> dict:
         bounds = {"max_points": MAX_POINTS, "max_trace": MAX_TRACE, "max_events": MAX_EVENTS}
         if run_id is None:
-            return {"run": None, "waiting": f"no run in {self.db.name} yet", "bounds": bounds}
+            return {"run": None, "waiting": f"no run in {self.db.name} yet", "bounds": bounds,
+                    "database": self.db.name}
         store = lab.store
         record = self._record(store, run_id, now)
         points = self._rows.points(store, run_id)
@@ -223,6 +224,7 @@ class Watcher:
                                                "created_utc", "finished_utc", "command_unit",
                                                "n_planned")}
                    | {"ended": record["status"] in ENDED, "rig": record["rig_name"]},
+            "database": self.db.name,
             "progress": self._progress(record, points, current, now),
             "points": self._points(points),
             "trace": self._trace_of(store, run_id, points),
@@ -341,7 +343,7 @@ class Watcher:
     def _events(events: list[dict]) -> dict:
         items = []
         for e in events[-MAX_EVENTS:]:
-            detail = json.dumps(e["detail"], ensure_ascii=False, default=str)
+            detail = detail_text(e["detail"])
             items.append({"t_s": _num(e["t_s"]), "kind": str(e["kind"]),
                           "step_idx": e["step_idx"], "trip": e["kind"] in TRIPS,
                           "detail": detail[:MAX_DETAIL] + ("…" if len(detail) > MAX_DETAIL else "")})
@@ -356,6 +358,22 @@ class Watcher:
                                  and v > 0} for k, v in counters.items()]
         return {"roles": roles, "problem_points": len(summary["problem_points"]),
                 "points": stored}
+
+
+def detail_text(detail: Any, nested: bool = False) -> str:
+    """An event's detail as a person reads it: `key value` pairs joined by `; ` (a nested
+    object in braces), lists in brackets, numbers to 4 significant digits (not JSON with
+    17-digit floats)."""
+    if isinstance(detail, dict):
+        pairs = "; ".join(f"{k} {detail_text(v, True)}" for k, v in detail.items())
+        return "{" + pairs + "}" if nested else pairs
+    if isinstance(detail, (list, tuple)):
+        return "[" + ", ".join(detail_text(v, True) for v in detail) + "]"
+    if isinstance(detail, bool) or detail is None:
+        return json.dumps(detail)
+    if isinstance(detail, float):
+        return f"{detail:.4g}"
+    return str(detail)
 
 
 def _timing(timing: dict) -> dict:

@@ -36,11 +36,18 @@ function fill(tbody, rows) {
   tbody.replaceChildren(...rows);
 }
 
+function utc(iso) {
+  // "2026-12-02T02:57:31.123+00:00" -> "2026-12-02 02:57:31"
+  return iso ? String(iso).replace("T", " ").slice(0, 19) : "";
+}
+
 function showRun(d) {
   const run = d.run;
   text("run-name", run.name);
   text("run-id", `run ${run.id}`);
-  text("run-rig", run.rig ? `rig ${run.rig}` : "");
+  text("run-started", run.created_utc ? `· started ${utc(run.created_utc)}` +
+       (run.finished_utc ? `, ended ${utc(run.finished_utc)}` : "") : "");
+  text("run-rig", run.rig ? `· rig ${run.rig}` : "");
   const ended = $("ended");
   if (run.ended) {
     ended.hidden = false;
@@ -49,7 +56,7 @@ function showRun(d) {
   } else {
     ended.hidden = true;
   }
-  document.title = `${run.ended ? run.status : "running"} · ${run.name} · rigtool watch`;
+  document.title = `${run.ended ? run.status : "running"} · ${run.name} · ${d.database} · rigtool watch`;
 }
 
 function showProgress(p, unit) {
@@ -95,24 +102,36 @@ function showPoints(pts, unit) {
        (pts.truncated ? `, newest ${pts.n_sent} sent` : "") + ")");
 }
 
+const TRACE_HEIGHT = 320;  // the three quantities share it, one chart each, one time axis
+
+function traceChart(el, c, last, height, data) {
+  // One quantity over run time, on its own axis; the charts share the cursor.
+  const div = document.createElement("div");
+  div.id = `trace-${c[0]}`;
+  el.appendChild(div);
+  return new uPlot({ width: width(el), height, cursor: { sync: { key: "trace" } },
+    series: [{ label: "t (s)" }, { label: c[1], stroke: c[3], width: 1 }],
+    scales: { x: { time: false } }, legend: { show: false },
+    axes: [{ label: last ? "run time (s)" : null, size: last ? 50 : 20, values: last ? undefined : (u, splits) => splits.map(() => "") },
+           { label: c[1], stroke: c[3], size: 60 }] }, data, div);
+}
+
 function showTrace(tr) {
   const el = $("trace-chart");
   const info = $("trace-info");
   if (!tr) { info.textContent = "no point stored yet"; return; }
   const cols = [["thrust_n", "thrust (N)", "N", "#1f77b4"], ["speed_rpm", "speed (r/min)", "rpm", "#2ca02c"],
                 ["current_a", "current (A)", "A", "#d62728"]].filter(c => tr[c[0]] != null);
-  const data = [tr.t_s, ...cols.map(c => tr[c[0]])];
   const key = cols.map(c => c[0]).join("|");
   if (!state.tracePlot || state.traceKey !== key) {
-    if (state.tracePlot) state.tracePlot.destroy();
-    const series = [{ label: "t (s)" }, ...cols.map(c => ({ label: c[1], stroke: c[3], scale: c[2], width: 1 }))];
-    const axes = [{ label: "run time (s)" }, ...cols.map((c, i) => ({ scale: c[2], label: c[1],
-      side: i === 0 ? 3 : 1, stroke: c[3], grid: { show: i === 0 } }))];
-    const scales = { x: { time: false } };
-    state.tracePlot = new uPlot({ width: width(el), height: 320, series, axes, scales }, data, el);
+    if (state.tracePlot) state.tracePlot.forEach(p => p.destroy());
+    el.replaceChildren();
+    const each = Math.round(TRACE_HEIGHT / cols.length);
+    state.tracePlot = cols.map((c, i) => traceChart(el, c, i === cols.length - 1,
+      each + (i === cols.length - 1 ? 30 : 0), [tr.t_s, tr[c[0]]]));
     state.traceKey = key;
   } else {
-    state.tracePlot.setData(data);
+    cols.forEach((c, i) => state.tracePlot[i].setData([tr.t_s, tr[c[0]]]));
   }
   if (state.traceStep !== tr.step_idx) {
     state.traceStep = tr.step_idx;
@@ -194,7 +213,8 @@ async function poll() {
     if (!resp.ok) throw new Error(d.error || resp.statusText);
     render(d);
     conn.className = "conn";
-    conn.textContent = `updated ${new Date().toLocaleTimeString()}` + (d.run && d.run.ended ? " (run ended)" : "");
+    text("db-name", d.database);
+    conn.textContent = `updated ${utc(new Date().toISOString())} UTC` + (d.run && d.run.ended ? " (run ended)" : "");
   } catch (err) {
     conn.className = "conn lost";
     conn.textContent = `no data: ${err.message}` + (state.ended ? "" : " (the watcher or the sweep may have stopped)");
@@ -203,8 +223,9 @@ async function poll() {
 }
 
 window.addEventListener("resize", () => {
-  for (const [plot, id] of [[state.pointsPlot, "points-chart"], [state.tracePlot, "trace-chart"]]) {
-    if (plot) plot.setSize({ width: width($(id)), height: 320 });
+  if (state.pointsPlot) state.pointsPlot.setSize({ width: width($("points-chart")), height: 320 });
+  for (const plot of state.tracePlot || []) {
+    plot.setSize({ width: width($("trace-chart")), height: plot.height });
   }
 });
 
