@@ -31,6 +31,7 @@ from rigtool.errors import UsageError
 from rigtool.files import decode_utf8, read_regular_bytes
 from rigtool.models import laws
 from rigtool.models.thrust_map import STATUS_KEYS, ThrustMap, thrust_map
+from rigtool.progress_hook import ProgressHook, no_progress
 from rigtool.readback import MAX_JSON_BYTES, Invalid, calibration_document, parse_json, show
 from rigtool.store import RunRecord, Store
 from rigtool.vehicle_file import Vehicle, load_vehicle
@@ -688,14 +689,17 @@ def vehicle_thrusters(vehicle: Vehicle, folders: dict[str, Path]) -> dict[str, T
 def identify_vehicle(vehicle_file: str | os.PathLike[str], logs: Sequence[str | os.PathLike[str]],
                      out_dir: str | os.PathLike[str] = "vehicle-model", *, method: str = "nls",
                      dofs: str | None = None, seed: int = 1, link: str = "base_link",
-                     namespace: str | None = None) -> Identification:
+                     namespace: str | None = None,
+                     progress: ProgressHook = no_progress) -> Identification:
     """Identify the vehicle of `vehicle_file` from free-running `logs` (docs/vehicle.md) and
     write vehicle_model.json, identification.json, identification.html and the gz-sim and
-    uuv_simulator blocks (for the model link `link`) to `out_dir`."""
+    uuv_simulator blocks (for the model link `link`) to `out_dir`; `progress(task, done,
+    total)` hears of the long fits."""
     if method not in METHODS:
         raise UsageError(f"method {method!r}: choose from {', '.join(METHODS)}")
     vehicle, folders = load_vehicle(vehicle_file)
     ident, _ = vehicle_workflow.identify_vehicle(
         vehicle, [Path(p) for p in logs], vehicle_thrusters(vehicle, folders), Path(out_dir),
-        method, vehicle_workflow.parse_dofs(dofs), seed, HydroOptions(link, namespace))
+        method, vehicle_workflow.parse_dofs(dofs), seed, HydroOptions(link, namespace),
+        progress)
     return ident

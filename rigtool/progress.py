@@ -1,5 +1,6 @@
-"""Terminal progress: a live bar with ETA for sweeps, a spinner for analysis stages; sparse
-plain lines (or nothing) when the output is not a terminal."""
+"""Terminal progress: a live bar with ETA for sweeps, a spinner for analysis stages with a
+bar per task the analysis reports (its `ProgressHook`); sparse plain lines (or nothing) when
+the output is not a terminal."""
 
 from __future__ import annotations
 
@@ -14,12 +15,15 @@ from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
     Progress,
+    SpinnerColumn,
+    TaskID,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
 from rich.text import Text
 
+from rigtool.progress_hook import ProgressHook, no_progress
 from rigtool.units import unit_label
 
 if TYPE_CHECKING:  # the plan's pydantic models cost 0.25 s to import: not at start-up
@@ -151,15 +155,34 @@ def default_reporter() -> RichReporter | PlainReporter:
     return RichReporter() if sys.stderr.isatty() else PlainReporter()
 
 
+class _TaskBars:
+    """A ProgressHook drawing one bar per reported task under the stage's spinner."""
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+        self.tasks: dict[str, TaskID] = {}
+
+    def __call__(self, task: str, done: int, total: int) -> None:
+        if task not in self.tasks:
+            self.tasks[task] = self.progress.add_task("  " + task, total=total or None)
+        self.progress.update(self.tasks[task], completed=done, total=total or None)
+
+
 @contextmanager
-def stage(text: str, console: Console | None = None) -> Iterator[None]:
-    """A spinner with the elapsed time while one analysis stage runs, on a terminal only
-    (pipes and logs stay quiet); the line stays with its duration when the stage ends."""
+def stage(text: str, console: Console | None = None) -> Iterator[ProgressHook]:
+    """A spinner with the elapsed time while one stage runs, and a bar (done/total, elapsed,
+    ETA) for each task the stage reports through the hook it yields; on a terminal only
+    (stdout and stderr both: pipes and logs stay quiet). The stage's line stays with its
+    duration when it ends."""
     con = console or Console(stderr=True, markup=False, highlight=False)
-    if not con.is_terminal:
-        yield
+    if not (con.is_terminal and sys.stdout.isatty()):
+        yield no_progress
         return
     t0 = time.monotonic()
-    with con.status(text + " ..."):
-        yield
+    bars = Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
+                    MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
+                    console=con, transient=True)
+    with bars:
+        bars.add_task(text + " ...", total=None)
+        yield _TaskBars(bars)
     con.print(f"{text}: {time.monotonic() - t0:.1f} s")

@@ -24,6 +24,7 @@ from rigtool.artefacts.vehicle_model import validate_model
 from rigtool.artefacts.write import json_text, write_all
 from rigtool.errors import UsageError
 from rigtool.importers.vehicle_log import VehicleLog, read_vehicle_log, split_at_gaps
+from rigtool.progress_hook import ProgressHook, no_progress
 from rigtool.report.vehicle_html import REPORT_FILE, render_identification
 from rigtool.vehicle_file import Vehicle
 
@@ -105,17 +106,18 @@ def _blocks(model: dict, options: HydroOptions, out_dir: Path) -> tuple[dict, li
 
 def identify_vehicle(vehicle: Vehicle, logs: list[Path], maps: dict[str, ThrusterInput],
                      out_dir: Path, method: str = "nls", dofs: list[int] | None = None,
-                     seed: int = 1, options: HydroOptions | None = None
-                     ) -> tuple[Identification, list[Path]]:
+                     seed: int = 1, options: HydroOptions | None = None,
+                     progress: ProgressHook = no_progress) -> tuple[Identification, list[Path]]:
     """Identify and write vehicle_model.json, identification.json, the report and the
-    simulator blocks the model fills (gz-sim Hydrodynamics, uuv_simulator HMFossen)."""
+    simulator blocks the model fills (gz-sim Hydrodynamics, uuv_simulator HMFossen); the
+    fits reported to `progress`."""
     read = [_log_inputs(Path(p), vehicle, maps) for p in logs]
     inputs = [part for parts, _ in read for part in parts]
     sources = [info for _, info in read]
     body = RigidBody(vehicle.mass_kg, vehicle.inertia_kg_m2, vehicle.cob_m, vehicle.weight_n,
                      vehicle.buoyancy_n)
     ident = identify(list(inputs), allocation(vehicle), body, dofs or list(range(6)), method,
-                     seed)
+                     seed, progress)
     notes = [n for s in sources for n in s["notes"]]
     no_lag = [t.name for t in vehicle.thrusters if maps[t.name].lag_s == 0.0]
     if no_lag:

@@ -78,9 +78,9 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     stage_notes = [*cav_stage.warnings, *(
         f"quasi-cavitation: {n}" for n in (unchecked_thruster(store, run_id, rid, "training")
                                            for rid in extra) if n)]
-    with stage(f"calibrating run {run_id}"):
+    with stage(f"calibrating run {run_id}") as progress:
         run = load_run(store, run_id)
-        cal = analyse(run)
+        cal = analyse(run, progress=progress)
         if _add_captive(store, run_id, cal):  # a held vehicle: no propeller to ventilate
             cav_stage = dataclasses.replace(cav_stage, base_run_id=None, warn=False, notes=())
             stage_notes = []
@@ -92,10 +92,11 @@ def calibrate(store: Store, run_ref: str, out_dir: str | Path = "calibrations", 
     (folder / REPORT_FILE).unlink(missing_ok=True)  # the earlier calibration's: write it again
     cav, notes, paths = None, list(stage_notes), []
     if cav_stage.base_run_id is not None:
-        with stage(f"quasi-cavitation model of run {run_id} (base run {cav_stage.base_run_id})"):
+        with stage(f"quasi-cavitation model of run {run_id} (base run {cav_stage.base_run_id})"
+                   ) as progress:
             cav = calibrate_cavitation(store, run_id, cav_stage.base_run_id,
                                        params=CavitationParams(causal=causal), train_with=extra,
-                                       run=run)
+                                       run=run, progress=progress)
         store.replace_events(run_id, EVENT_KIND, cav.events)
         cal.warnings += mark_ventilated(cal, cav.events)
         paths += write_cavitation_artefacts(cav, out_dir, created_utc=created)
@@ -299,8 +300,8 @@ def calibration_of(store: Store, run_id: str) -> CalibrationResult:
         if cal is None:
             raise UsageError(f"run {run_id} has no points: there is no calibration to compare")
         return cal
-    with stage(f"calibrating run {run_id}"):
-        return calibrate_run(store, run_id)
+    with stage(f"calibrating run {run_id}") as progress:
+        return calibrate_run(store, run_id, progress=progress)
 
 
 def compare(store: Store, run_refs: Sequence[str], reference: str | None = None,

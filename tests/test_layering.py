@@ -150,7 +150,7 @@ RANKS = {
                    "rigtool.files", "rigtool.outpaths", "rigtool.readback", "rigtool.spool",
                    "rigtool.ids", "rigtool.dbpath", "rigtool.counters",
                    "rigtool.thruster_profiles", "rigtool.version", "rigtool.models",
-                   "rigtool.stopping"),
+                   "rigtool.stopping", "rigtool.progress_hook"),
     "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan", "rigtool.accuracy",
                "rigtool.vehicle_file"),
     "devices": ("rigtool.devices", "rigtool.sim", "rigtool.rig"),

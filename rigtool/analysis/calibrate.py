@@ -55,6 +55,7 @@ from rigtool.analysis.results import (
 from rigtool.analysis.steady import PointTable
 from rigtool.analysis.voltage import fit_voltage_law, voltage_point
 from rigtool.analysis.zero_search import ZeroPoints, fit_zero_line, section_anchors
+from rigtool.progress_hook import ProgressHook, counted, no_progress
 from rigtool.store import Store
 from rigtool.version import __version__
 
@@ -65,20 +66,23 @@ CHECKED_FITS = ("C_p_fwd", "C_p_rev", "C_n", "k_free", "C_i_fwd_direct", "C_i_re
 
 
 
-def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None) -> CalibrationResult:
+def calibrate_run(store: Store, run_id: str, params: CalibrationParams | None = None,
+                  progress: ProgressHook = no_progress) -> CalibrationResult:
     """Load `run_id` from the store and analyse it."""
-    return calibrate(load_run(store, run_id), params)
+    return calibrate(load_run(store, run_id), params, progress)
 
 
-def calibrate(run: RunData, params: CalibrationParams | None = None) -> CalibrationResult:
-    """Analyse a loaded run: steady windows, then per depth the curve, fits and quality."""
+def calibrate(run: RunData, params: CalibrationParams | None = None,
+              progress: ProgressHook = no_progress) -> CalibrationResult:
+    """Analyse a loaded run: steady windows, then per depth the curve, fits and quality
+    (each section, and a step run's dynamics candidates, reported to `progress`)."""
     p = params or CalibrationParams()
     windows, table = point_pass(run, p.settling)
     spreads = SpreadPass(run, windows)
     drift = run_tare_drift(run.tares, run.session_starts_s)
     warnings = _run_warnings(run, table, drift, p)
     sections = []
-    for rows in _groups(run.steps):
+    for rows in counted(_groups(run.steps), "fits per depth and supply voltage", progress):
         sec = _section(run, table.take(rows), spreads.section(rows), drift, p)
         volts = run.steps.voltage_v[rows[0]] if run.steps.voltage_v is not None else NAN
         if math.isfinite(volts):
@@ -95,7 +99,7 @@ def calibrate(run: RunData, params: CalibrationParams | None = None) -> Calibrat
     for law in laws:
         prefix = "" if law.depth_m is None else f"{law.depth_m:g} m: "
         warnings += [prefix + w for w in law.warnings]
-    dynamics, notes = _dynamics(run) if run.step_response else (None, [])
+    dynamics, notes = _dynamics(run, progress) if run.step_response else (None, [])
     warnings += notes
     return CalibrationResult(
         run_id=run.run_id, run_name=run.name, run_status=run.status,
@@ -133,7 +137,7 @@ def mark_ventilated(cal: CalibrationResult, events: list[dict]) -> list[str]:
             "(marked unsteady in points.csv)"]
 
 
-def _dynamics(run: RunData) -> tuple[Dynamics | None, list[str]]:
+def _dynamics(run: RunData, progress: ProgressHook) -> tuple[Dynamics | None, list[str]]:
     """Identify the dynamics of a step-response run from its points in time order; the
     warnings say why when there are none."""
     ok = np.flatnonzero(run.steps.status == "ok")
@@ -144,7 +148,7 @@ def _dynamics(run: RunData) -> tuple[Dynamics | None, list[str]]:
         thrust_n.append(block.samples.thrust_n[keep])
     series = StepSeries(np.concatenate(t_s), np.concatenate(thrust_n),
                         run.steps.t_acquire_s[ok], run.steps.command[ok], run.neutral_command)
-    dynamics = identify(series)
+    dynamics = identify(series, progress=progress)
     if dynamics is not None:
         return dynamics, dynamics.warnings
     reason = no_dynamics_reason(series) or "no model could be fitted to the steps"

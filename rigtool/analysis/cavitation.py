@@ -64,9 +64,12 @@ from rigtool.analysis.trainset import (
 from rigtool.errors import UsageError
 from rigtool.models import Z95, ThrustModel, gp_features, model_from_document
 from rigtool.models.qctm import shortfall
+from rigtool.progress_hook import ProgressHook, counted, no_progress
 from rigtool.store import Store
 
 EVENT_KIND = "ventilation"
+CAVITATION_STAGES = ("BETM", "events and training blocks", "GP fit and interval check",
+                     "2-fold evaluation")  # reported as done/total to the progress hook
 # (speed, current, depth, segment) of consecutive blocks -> (thrust, lo95, hi95)
 Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
                      tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -281,12 +284,13 @@ def _quiet_cuts(t: np.ndarray, vent: np.ndarray, k: int) -> np.ndarray:
 
 
 def crossfit(pool: TrainingSet, gp: ExactGp, params: CavitationParams,
-             fold: np.ndarray) -> np.ndarray:
+             fold: np.ndarray, progress: ProgressHook = no_progress) -> np.ndarray:
     """`variance_parts` x rows of `pool`: each fold predicted by a model fitted
     as the main one (selection, mean term, noise model; `gp`'s kernel hyperparameters) on the
-    other folds alone; NaN where a fold model has too few rows."""
+    other folds alone; NaN where a fold model has too few rows. Each fold's GP fit is
+    reported to `progress`."""
     out = np.full((3, len(pool)), np.nan)
-    for k in np.unique(fold):
+    for k in counted(np.unique(fold), "GP fits of the interval-check folds", progress):
         test = fold == k
         train = select(pool.take(np.flatnonzero(~test)), params.budget)
         if len(train) >= MIN_FOLD_ROWS:
@@ -294,14 +298,15 @@ def crossfit(pool: TrainingSet, gp: ExactGp, params: CavitationParams,
     return out
 
 
-def check_intervals(pool: TrainingSet, gp: ExactGp, params: CavitationParams) -> dict:
+def check_intervals(pool: TrainingSet, gp: ExactGp, params: CavitationParams,
+                    progress: ProgressHook = no_progress) -> dict:
     """Check the 95 % intervals on held-out folds (`check_folds`) and scale them: the noise
     model's quiet and ventilating levels are shifted until CHECK_LEVEL (95 %) of the held-out
     blocks during events and OUTSIDE_CHECK_LEVEL of those outside events are covered (classes
     by the detected events; `calibrate_gate`). Sets gp.noise; returns the figures for
     cavitation.json."""
     fold, kind = check_folds(pool)
-    mean, post, noise = crossfit(pool, gp, params, fold)
+    mean, post, noise = crossfit(pool, gp, params, fold, progress)
     resid = pool.y - mean
     cls = pool.block_class if pool.block_class is not None else np.full(len(pool), "outside")
     groups = {c: np.isfinite(resid) & (cls == c) for c in CHECK_CLASSES}
@@ -553,21 +558,26 @@ ONE_RUN_WARNING = ("the model is trained on this one run, so its 95 % intervals 
 def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
                          params: CavitationParams | None = None,
                          train_with: Sequence[str] = (),
-                         run: RunData | None = None) -> CavitationResult:
+                         run: RunData | None = None,
+                         progress: ProgressHook = no_progress) -> CavitationResult:
     """Full quasi-cavitation analysis of `run_id` (reads the store, never writes: the detected
     events are in the result for the caller to store). The model is trained on `run_id` and
     the runs `train_with` (full ids, see `training_runs`): with two runs or more, held-out
     twin runs met the accuracy targets; with one, not always.
 
     UsageError when the analysis does not apply or no base run is usable (`cavitation_stage`).
-    `run`: `run_id` already loaded (calibrate has it), so it is not read twice.
+    `run`: `run_id` already loaded (calibrate has it), so it is not read twice. The stages and
+    the GP fits of each fold are reported to `progress`.
     """
     p = params or CavitationParams()
     stage = cavitation_stage(store, run_id, base_run_id)
     if stage.base_run_id is None:
         raise UsageError(stage.reason)
     base_id = stage.base_run_id
+    task = "quasi-cavitation stages"
+    progress(task, 0, len(CAVITATION_STAGES))
     betm, deep_blocks, deep_samples = build_betm(load_run(store, base_id), p)
+    progress(task, 1, len(CAVITATION_STAGES))
     run = run if run is not None and run.run_id == run_id else load_run(store, run_id)
     events, det_blocks = find_events(run, betm, p)
     records = event_records(run, events)
@@ -581,9 +591,11 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
 
         pool = concat([all_blocks, *(_training_set(store, rid, betm, p) for rid in train_with)])
     training = select(pool, p.budget)
-    gp = fit_checked(pool, training, p)
-
-    evaluation, series = _two_fold(store, run, all_blocks, det_blocks, events, gp, p)
+    progress(task, 2, len(CAVITATION_STAGES))
+    gp = fit_checked(pool, training, p, progress)
+    progress(task, 3, len(CAVITATION_STAGES))
+    evaluation, series = _two_fold(store, run, all_blocks, det_blocks, events, gp, p, progress)
+    progress(task, 4, len(CAVITATION_STAGES))
     warnings = [] if train_with else [ONE_RUN_WARNING]
     if len(training) < 50:
         warnings.append(f"only {len(training)} training blocks: the GP is poorly constrained")
@@ -595,11 +607,12 @@ def calibrate_cavitation(store: Store, run_id: str, base_run_id: str | None,
                             floor=gp.check["floor"])
 
 
-def fit_checked(pool: TrainingSet, training: TrainingSet, params: CavitationParams) -> ExactGp:
+def fit_checked(pool: TrainingSet, training: TrainingSet, params: CavitationParams,
+                progress: ProgressHook = no_progress) -> ExactGp:
     """The model fitted on `training` (selected from `pool`), its intervals checked and scaled
     on held-out folds of `pool` and its floor stated (gp.check: "intervals", "floor")."""
     gp = fit_gp(training, params)
-    check = check_intervals(pool, gp, params)
+    check = check_intervals(pool, gp, params, progress)
     gp.check = {"intervals": check, "floor": stated_floor(pool, gp, check)}
     return gp
 
@@ -612,14 +625,16 @@ def _training_set(store: Store, run_id: str, betm: Betm, p: CavitationParams) ->
 
 
 def _two_fold(store: Store, run: RunData, all_blocks: TrainingSet, det_blocks: Blocks,
-              events: list[Event], gp: ExactGp, p: CavitationParams
+              events: list[Event], gp: ExactGp, p: CavitationParams,
+              progress: ProgressHook = no_progress
               ) -> tuple[Evaluation, dict[str, np.ndarray]]:
     """2-fold evaluation inside the run (folds from `point_folds`), hyperparameters and mean
     term fixed from the main fit."""
     fold = np.asarray(all_blocks.provenance["fold"])
     n = len(all_blocks)
     pred, std, miss = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n)
-    for k in np.unique(fold) if np.unique(fold).size > 1 else ():
+    folds = np.unique(fold) if np.unique(fold).size > 1 else ()
+    for k in counted(folds, "GP fits of the 2-fold evaluation", progress):
         train = select(all_blocks.take(np.flatnonzero(fold != k)), p.budget)
         test = np.flatnonzero(fold == k)
         model = fit_exact(train.xf, train.y, train.w, p.gp, hyper=gp.hyper, noise=gp.noise,

@@ -57,6 +57,7 @@ from rigtool.analysis.stats import (
     effective_sample_size,
     lag1_autocorrelation,
 )
+from rigtool.progress_hook import ProgressHook, no_progress
 
 Z95 = 1.959963984540054
 BIC_MARGIN = 10.0
@@ -375,9 +376,11 @@ class _Run:
     direction_fold: np.ndarray  # the same, alternating within steps up, down, through zero
 
 
-def identify(series: StepSeries, full_scale_n: float | None = None) -> Dynamics | None:
-    """Fit the candidate models, select by held-out steps and judge adequacy; None when the
-    run cannot be fitted at all (`no_dynamics_reason` says why)."""
+def identify(series: StepSeries, full_scale_n: float | None = None,
+             progress: ProgressHook = no_progress) -> Dynamics | None:
+    """Fit the candidate models (each reported to `progress`), select by held-out steps and
+    judge adequacy; None when the run cannot be fitted at all (`no_dynamics_reason` says
+    why)."""
     prepared = _prepare(series)
     if isinstance(prepared, str):
         return None
@@ -385,7 +388,7 @@ def identify(series: StepSeries, full_scale_n: float | None = None) -> Dynamics 
     run = _setup(clean, full_scale_n)
     if run is None:
         return None
-    fits = _candidates(run)
+    fits = _candidates(run, progress)
     if "one-state" not in fits:
         return None
     models = {kind: f[0] for kind, f in fits.items()}
@@ -534,22 +537,30 @@ PRIORS = {"one-state": (), "two-state": ("one-state",), "yoerger": ("one-state",
           "healey": ("one-state", "two-state", "yoerger")}
 
 
-def _candidates(run: _Run) -> dict[str, Fitted]:
+def _candidates(run: _Run, progress: ProgressHook = no_progress) -> dict[str, Fitted]:
     """The closed-form candidates; Healey's inflow too when none of them fits within
-    HEALEY_TRIGGER of full scale (it has no closed form, so it costs more)."""
+    HEALEY_TRIGGER of full scale (it has no closed form, so it costs more). Each candidate
+    tried is reported to `progress` (of the six there can be)."""
     fits: dict[str, Fitted] = {}
+    task, total, tried = "dynamics candidates", len(PRIORS), 0
+    progress(task, 0, total)
     for kind in (*KINDS[:3], "rise-fall"):
         if kind != "one-state" and "one-state" not in fits:
             break
         fit = _candidate(run, kind, [fits[k][1:] for k in PRIORS[kind] if k in fits])
+        tried += 1
+        progress(task, tried, total)
         if fit is not None:
             fits[kind] = fit
     for kind in _healey_order(fits):
         if not _misfit(fits, run):
             break
         fit = _candidate(run, kind, [fits[k][1:] for k in PRIORS[kind] if k in fits])
+        tried += 1
+        progress(task, tried, total)
         if fit is not None:
             fits[kind] = fit
+    progress(task, total, total)
     return fits
 
 

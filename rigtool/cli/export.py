@@ -38,8 +38,8 @@ def cmd_export(args: argparse.Namespace) -> int:
                 raise UsageError("--all writes a Parquet dataset: drop --format csv")
             from rigtool.dataset.update import export_dataset
 
-            with stage(f"exporting every run of {store.path} to {args.all}"):
-                done = export_dataset(store, Path(args.all))
+            with stage(f"exporting every run of {store.path} to {args.all}") as progress:
+                done = export_dataset(store, Path(args.all), progress)
             kept = f", {len(done.kept)} kept (not in this database)" if done.kept else ""
             out.print(f"{args.all}: {len(done.written)} run(s) written, {done.unchanged} "
                       f"unchanged{kept}; {done.runs} run(s), {done.rows:,} sample rows "

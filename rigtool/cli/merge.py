@@ -29,8 +29,9 @@ def cmd_merge(args: argparse.Namespace) -> int:
             raise UsageError(f"{src} is the output: give another -o")
     created = not target.exists()
     try:
-        with Store(target) as store, stage(f"merging {len(sources)} database(s) into {target}"):
-            reports = store.merge_from(sources)
+        with (Store(target) as store,
+              stage(f"merging {len(sources)} database(s) into {target}") as progress):
+            reports = store.merge_from(sources, progress)
     except (DataError, UsageError) as exc:
         if created:  # a refused merge leaves no empty database where there was none
             for path in (target, *(target.with_name(target.name + x) for x in ("-wal", "-shm"))):

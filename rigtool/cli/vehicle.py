@@ -16,6 +16,7 @@ from rigtool import api
 from rigtool.analysis.vehicle.identify import METHODS
 from rigtool.cli.console import out
 from rigtool.errors import UsageError
+from rigtool.progress import stage
 from rigtool.sim.vehicle_params import BLUEROV2, BLUEROV2_HEAVY
 from rigtool.sim.vehicle_twin import VehicleTwin, excitation, free_run
 from rigtool.thruster_profiles import PROFILES
@@ -57,9 +58,10 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
-    ident = api.identify_vehicle(args.vehicle, args.logs, args.out, method=args.method,
-                                 dofs=args.dofs, seed=args.seed, link=args.link,
-                                 namespace=args.namespace)
+    with stage(f"identifying {args.vehicle}") as progress:
+        ident = api.identify_vehicle(args.vehicle, args.logs, args.out, method=args.method,
+                                     dofs=args.dofs, seed=args.seed, link=args.link,
+                                     namespace=args.namespace, progress=progress)
     out.print(f"identified {', '.join(ident.dofs)} ({ident.method}); wrote {args.out}/")
     for p in ident.parameters:
         if p.value is None:

@@ -24,6 +24,7 @@ from rigtool.dataset.partition import DATA_FILE, DATASET_VERSION, SCHEMA, write_
 from rigtool.dataset.tables import CALIBRATIONS_FILE, RUNS_FILE, write_tables
 from rigtool.errors import RigtoolError, UsageError
 from rigtool.ids import utc_now
+from rigtool.progress_hook import ProgressHook, counted, no_progress
 from rigtool.store import RunRecord, Store
 from rigtool.version import __version__
 
@@ -41,9 +42,10 @@ class Summary:
     rows: int = 0  # sample rows it holds now
 
 
-def export_dataset(store: Store, folder: Path) -> Summary:
+def export_dataset(store: Store, folder: Path, progress: ProgressHook = no_progress) -> Summary:
     """Update the dataset in `folder` from `store` (see the module docstring). Runs are
-    planned and checked before the folder is made or anything is written in it."""
+    planned and checked before the folder is made or anything is written in it; each run
+    written is reported to `progress`."""
     _check_folder(folder)
     old = read_manifest(folder) if folder.is_dir() else None
     with store.snapshot():
@@ -62,7 +64,7 @@ def export_dataset(store: Store, folder: Path) -> Summary:
                                    "this one again")
             if old is None:  # marks the folder as a dataset before any partition is written
                 write_manifest(folder, {}, _schema_names(), DATASET_VERSION)
-            return update.write(todo)
+            return update.write(todo, progress)
 
 
 def _check_folder(folder: Path) -> None:
@@ -105,10 +107,11 @@ class _Update:
         self.summary = Summary()
         self.saved_at = time.monotonic()
 
-    def write(self, todo: list[tuple[RunRecord, dict]]) -> Summary:
+    def write(self, todo: list[tuple[RunRecord, dict]],
+              progress: ProgressHook = no_progress) -> Summary:
         """Write the planned runs, then the calibrations table and the manifest if anything
         changed."""
-        for record, fingerprint in todo:
+        for record, fingerprint in counted(todo, "runs written", progress):
             self._write(record, fingerprint)
             if time.monotonic() - self.saved_at > CHECKPOINT_S:
                 self._save()

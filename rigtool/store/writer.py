@@ -16,6 +16,7 @@ import numpy as np
 
 from rigtool.errors import UsageError
 from rigtool.ids import new_run_id, utc_now
+from rigtool.progress_hook import ProgressHook, counted, no_progress
 from rigtool.spool import SAMPLES_PER_CHUNK, SampleSpool
 from rigtool.store.codec import SAMPLE_COLUMNS, block_row
 from rigtool.store.connection import Transaction
@@ -229,7 +230,8 @@ class RunWriter(RunQueries):
                 "VALUES (?, ?, ?, ?, ?)",
                 [(run_id, r.get(t_key), kind, r.get(step_key), json.dumps(r)) for r in records])
 
-    def merge_from(self, sources: Iterable[str | Path]) -> list[MergeReport]:
+    def merge_from(self, sources: Iterable[str | Path],
+                   progress: ProgressHook = no_progress) -> list[MergeReport]:
         """Merge other stores into this one, every row checked first: a run this one lacks is
         copied (run, points under new step ids, samples, events, calibrations); of a run it
         has, what is new is brought over: points it lacks, a later status (a resumed run),
@@ -240,7 +242,8 @@ class RunWriter(RunQueries):
 
         The whole merge is one transaction: any refused row rolls all of it back. Sources
         are opened read-only (immutable when they have no write-ahead log), so not even
-        their -wal or -shm files are created. Returns a MergeReport per source.
+        their -wal or -shm files are created. Returns a MergeReport per source; each source
+        merged is reported to `progress`.
         """
         opened = []
         try:
@@ -248,7 +251,8 @@ class RunWriter(RunQueries):
                 opened.append(MergeSource(Path(path), self.version))
             with self.transaction():
                 here = set(self.run_ids())
-                return [src.copy_into(self._read, here) for src in opened]
+                return [src.copy_into(self._read, here)
+                        for src in counted(opened, "databases merged", progress)]
         finally:
             for src in opened:
                 src.close()

@@ -34,6 +34,7 @@ from rigtool.analysis.vehicle.model import (
 )
 from rigtool.analysis.vehicle.segments import LogInput, Prepared, common_step, prepare
 from rigtool.errors import UsageError
+from rigtool.progress_hook import ProgressHook, no_progress
 
 METHODS = ("ls", "nls", "global", "all")
 STRUCTURES = {"linear+quadratic": (True, True), "quadratic": (False, True), "linear": (True, False)}
@@ -115,11 +116,15 @@ def _per_dof_sse(prob: Problem, theta: np.ndarray, seg: Segments) -> np.ndarray:
     return out
 
 
-def _choose_structures(body: RigidBody, prep: Prepared, dofs: np.ndarray,
-                       train: np.ndarray) -> tuple[dict[int, str], dict[str, dict[str, float]]]:
-    """Per DOF, the damping structure with the least held-out error over FOLDS folds."""
+def _choose_structures(body: RigidBody, prep: Prepared, dofs: np.ndarray, train: np.ndarray,
+                       progress: ProgressHook = no_progress
+                       ) -> tuple[dict[int, str], dict[str, dict[str, float]]]:
+    """Per DOF, the damping structure with the least held-out error over FOLDS folds (each
+    fold's fit reported to `progress`)."""
     errors = {}
-    for name in STRUCTURES:
+    task, n_fits = "damping-structure folds", len(STRUCTURES) * FOLDS
+    progress(task, 0, n_fits)
+    for k, name in enumerate(STRUCTURES):
         prob = _problem(body, prep, dofs, _mask(dofs, dict.fromkeys(range(6), name)))
         start = equation_error(prob, prep)
         total = np.zeros(6)
@@ -129,6 +134,7 @@ def _choose_structures(body: RigidBody, prep: Prepared, dofs: np.ndarray,
             fit = output_error(prob, prep.segments.take(fit_on), start, coupled=False,
                                max_nfev=FOLD_NFEV)
             total += _per_dof_sse(prob, fit.theta, prep.segments.take(check))
+            progress(task, k * FOLDS + fold + 1, n_fits)
         errors[name] = total
     chosen = {}
     for i in np.flatnonzero(dofs):
@@ -202,9 +208,11 @@ def _parameters(theta: np.ndarray, draws: np.ndarray, free: np.ndarray, dofs: np
 
 
 def identify(logs: list[LogInput], allocation: np.ndarray, body: RigidBody, dofs: list[int],
-             method: str = "nls", seed: int = 1) -> Identification:
+             method: str = "nls", seed: int = 1,
+             progress: ProgressHook = no_progress) -> Identification:
     """The vehicle's hydrodynamic parameters from `logs`; UsageError when the logs cannot
-    identify a parameter asked for, naming it and why."""
+    identify a parameter asked for, naming it and why. The structure folds and the final
+    fits are reported to `progress`."""
     dt = common_step(logs)
     prep = prepare(logs, allocation, dt)
     n_seg = len(prep.segments)
@@ -220,7 +228,8 @@ def identify(logs: list[LogInput], allocation: np.ndarray, body: RigidBody, dofs
     index = np.arange(n_seg)
     held = index[index % HOLD_OUT_EVERY == HOLD_OUT_EVERY - 1]
     train = index[index % HOLD_OUT_EVERY != HOLD_OUT_EVERY - 1]
-    structures, structure_errors = _choose_structures(body, prep, mask, train)
+    structures, structure_errors = _choose_structures(body, prep, mask, train, progress)
+    progress("final fits", 0, 2)
     prob = _problem(body, prep, mask, _mask(mask, structures))
     fit_seg = prep.segments.take(train)
     estimates = {"ls": equation_error(prob, prep)}
@@ -229,7 +238,9 @@ def identify(logs: list[LogInput], allocation: np.ndarray, body: RigidBody, dofs
     if method in ("global", "all"):
         estimates["global"], agreement = _global(prob, fit_seg, estimates["ls"], seed)
     start = estimates["global"] if method == "global" else per_dof.theta
+    progress("final fits", 1, 2)
     fit = output_error(prob, fit_seg, start, coupled=True)
+    progress("final fits", 2, 2)
     estimates["nls"] = fit.theta
     chosen = estimates["ls"] if method == "ls" else fit.theta
     draws = (_ls_intervals(prob, prep, chosen, seed) if method == "ls"
