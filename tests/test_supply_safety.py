@@ -214,9 +214,28 @@ def test_check_reports_the_supplys_protections_and_leaves_it_as_found(bench, cap
     assert twin.history == [] and all(line.endswith("?") for line in twin.lines)
 
 
+def _voltage_reads(twin: ScpiSupplyTwin) -> int:
+    """How many times the sweep has read the supply's terminal voltage so far."""
+    return sum(1 for line in list(twin.lines) if line.upper().startswith("MEAS:VOLT"))
+
+
+def _held(twin: ScpiSupplyTwin, stop: threading.Event, flip_s: float) -> bool:
+    """Wait `flip_s`, then until the supply's voltage has been read once more; True when
+    `stop` was set meanwhile."""
+    reads = _voltage_reads(twin)
+    if stop.wait(flip_s):
+        return True
+    while _voltage_reads(twin) <= reads:
+        if stop.wait(0.01):
+            return True
+    return False
+
+
 def _cc_part_way(twin: ScpiSupplyTwin, db, after_points: int, flip_s: float | None = None):
     """Once `after_points` points are stored, the load grows so that 12 V needs 12 A: the
-    supply goes constant-current (3.5 A into 1 ohm: 3.5 V); with `flip_s` it comes and goes."""
+    supply goes constant-current (3.5 A into 1 ohm: 3.5 V); with `flip_s` it comes and goes,
+    each state held for at least `flip_s` and until the sweep has read the voltage in it (a
+    count, not a wall-clock window: a loaded machine slows the reads, not what they see)."""
     stop = threading.Event()
     seen: list[int] = []
 
@@ -233,10 +252,10 @@ def _cc_part_way(twin: ScpiSupplyTwin, db, after_points: int, flip_s: float | No
             time.sleep(0.01)
         while not stop.is_set():
             twin.load_ohm = 1.0
-            if flip_s is None or stop.wait(flip_s):
+            if flip_s is None or _held(twin, stop, flip_s):
                 return
             twin.load_ohm = 4.0
-            stop.wait(flip_s)
+            _held(twin, stop, flip_s)
 
     thread = threading.Thread(target=_watch, daemon=True)
     thread.start()
