@@ -6,6 +6,7 @@ from __future__ import annotations
 import compileall
 import fcntl
 import os
+import signal
 import sqlite3
 import sys
 from collections.abc import Callable
@@ -43,6 +44,22 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Run the long files first; every other file keeps its place (the sort is stable)."""
     rank = {name: i for i, name in enumerate(LONG_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+@pytest.fixture
+def terminal_signals():
+    """Signals as at an interactive shell, for a test that sends them: SIGINT raises
+    KeyboardInterrupt, SIGTERM and SIGHUP have their default action, here and in the
+    processes the test starts. A suite launched in the background inherits SIGINT ignored
+    (`cmd &` in a script) and under nohup SIGHUP too, and rigtool rightly keeps ignoring what
+    its launcher ignored; so such a test sets what it needs, and the launch's dispositions
+    come back after it."""
+    wanted = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: signal.SIG_DFL,
+              signal.SIGHUP: signal.SIG_DFL}
+    before = {sig: signal.signal(sig, handler) for sig, handler in wanted.items()}
+    yield
+    for sig, handler in before.items():
+        signal.signal(sig, handler)
 
 
 @pytest.fixture

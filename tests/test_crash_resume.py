@@ -17,6 +17,8 @@ from rigtool.store import Store
 
 from .conftest import SMALL_PROTOCOL
 
+pytestmark = pytest.mark.usefixtures("terminal_signals")  # the sweeps are stopped by SIGINT and SIGTERM
+
 N_POINTS = 41
 MEDIUM = SMALL_PROTOCOL.replace(
     "values: [-50, 0, 50, 100]", "range: {start: -100, stop: 100, step: 5}"

@@ -17,6 +17,8 @@ from rigtool.report import figures as fg
 from rigtool.store import Store
 from rigtool.workflows import stored_results
 
+pytestmark = pytest.mark.usefixtures("terminal_signals")  # sweeps stopped by Ctrl-C and resumed
+
 TWIN = """\
 rigtool_protocol: 1
 name: drift-twin

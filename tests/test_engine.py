@@ -15,6 +15,8 @@ from rigtool.sweep import open_checked, resolve
 
 from .conftest import SMALL_PROTOCOL
 
+pytestmark = pytest.mark.usefixtures("terminal_signals")  # the Ctrl-C, SIGTERM and SIGHUP tests, and the handlers they restore
+
 
 class RecordingActuator:
     """Wraps the twin's actuator and records every command it is sent."""

@@ -18,6 +18,8 @@ from rigtool.sweep import open_checked, resolve
 
 from .conftest import SMALL_PROTOCOL
 
+pytestmark = pytest.mark.usefixtures("terminal_signals")  # the tests press Ctrl-C or send SIGTERM
+
 TRIPPING = SMALL_PROTOCOL.replace("max_thrust_n: 90", "max_thrust_n: 20")
 
 

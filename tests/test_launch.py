@@ -6,7 +6,11 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from rigtool.errors import EXIT_FAILED, EXIT_INTERRUPTED
+
+pytestmark = pytest.mark.usefixtures("terminal_signals")  # every test here sends its child a signal
 
 # A signal delivered to the process itself at a chosen moment, then the real entry point.
 IMPORTING = """

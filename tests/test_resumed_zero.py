@@ -29,6 +29,8 @@ from rigtool.thruster_profiles import PROFILES
 
 from .conftest import PROTOCOLS
 
+pytestmark = pytest.mark.usefixtures("terminal_signals")  # sweeps stopped by Ctrl-C and resumed
+
 BLDC = """\
 rigtool_protocol: 1
 name: bldc-resume
