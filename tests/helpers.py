@@ -12,6 +12,9 @@ from pathlib import Path
 
 import can
 
+SIM_START_S = 120.0  # a `rigtool sim` starting up (imports, sockets) on a loaded machine: a
+# wait for it to be ready, not a measurement (seconds at load 20 on two cores)
+
 
 def wait_for(predicate, timeout_s: float = 3.0, poll_s: float = 0.02) -> bool:
     """Poll `predicate` until it holds or `timeout_s` passes."""
@@ -71,7 +74,7 @@ def sim_process(rig: Path, profile: str, *extra: str,
          "127.0.0.1:0", "--rig-out", str(rig), *extra],
         stdout=stdout, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 20
+        deadline = time.monotonic() + SIM_START_S
         while not rig.exists():
             assert proc.poll() is None, proc.communicate()[1]
             assert time.monotonic() < deadline, "rigtool sim did not write its rig file"
