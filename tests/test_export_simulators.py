@@ -555,8 +555,7 @@ def sdf_checker(tmp_path_factory):
 
 def sdf_check(checker: tuple[Path, str], plugin_text: str) -> str:
     """The plugin as SDFormat reads it back (ToString), failing on any parse error."""
-    body = "".join(line for line in plugin_text.splitlines(keepends=True)
-                   if not line.startswith("<!--"))
+    body = re.sub(r"<!--.*?-->\n?", "", plugin_text, flags=re.S)  # comments span lines
     exe, version = checker
     res = subprocess.run([str(exe)], input=WORLD.format(version=version, plugin=body),
                          capture_output=True, text=True)
