@@ -29,7 +29,7 @@ NEUTRAL_US = 1500.0  # AP_Motors6DOF writes 1500 us for zero thrust; it is not a
 EXPO_GRID = np.arange(-1.0, 1.0 + 1e-9, 0.005)  # WebTools: expo -1..1 in steps of 0.005
 THROTTLE_STEP = 0.001  # WebTools: actuator test values 0..1 in steps of 0.001
 THROTTLE = np.linspace(0.0, 1.0, 1001)
-SPIN_ARM = 0.0  # armed with no demand: the output stays at 1500 us (AP_Motors6DOF's neutral)
+SPIN_ARM = 0.0  # the neutral (1500 us): never above any thruster's MOT_SPIN_MIN
 SPIN_ARM_DEFAULT = 0.1  # AP_MOTORS_SPIN_ARM_DEFAULT, what a file without the line leaves
 
 
@@ -175,7 +175,7 @@ def render(x: ExportInput) -> str:
              "# MOT_SPIN_ARM 0: ArduPilot requires MOT_SPIN_ARM <= MOT_SPIN_MIN (its",
              f"# metadata; the arming check refuses more), its default {SPIN_ARM_DEFAULT:g} is "
              f"{'above' if p['MOT_SPIN_MIN'] < SPIN_ARM_DEFAULT else 'not above'}",
-             "# this MOT_SPIN_MIN, and 0 keeps an armed thruster with no demand at 1500 us.",
+             "# this MOT_SPIN_MIN; 0 (1500 us, no thrust) is never above a thruster's.",
              *(f"{name},{_value(name, p[name])}" for name in names)]
     if math.isfinite(p["reverse_ratio"]):
         lines += ["# Reverse / forward thrust at full demand, for the thrust asymmetry parameter",
