@@ -151,7 +151,7 @@ RANKS = {
                    "rigtool.files", "rigtool.outpaths", "rigtool.readback", "rigtool.spool",
                    "rigtool.ids", "rigtool.dbpath", "rigtool.counters",
                    "rigtool.thruster_profiles", "rigtool.version", "rigtool.models",
-                   "rigtool.stopping"),
+                   "rigtool.stopping", "rigtool.sections"),
     "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan", "rigtool.accuracy",
                "rigtool.vehicle_file"),
     "devices": ("rigtool.devices", "rigtool.sim", "rigtool.rig"),
