@@ -6,6 +6,7 @@ and the update switch adds its golden and rewrites nothing else."""
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 
@@ -77,12 +78,13 @@ def test_a_new_calibration_file_is_one_declaration(shipped_sweep, tmp_path, monk
         shutil.copy(GOLDEN / "quick-demo" / name, want / name)
     (want / golden_files.FILE_LIST).write_text("".join(f"{n}\n" for n in kept))
     before = {n: (want / n).read_text() for n in kept}
-    assert golden_files.update(want, got) == ["added thrust_per_ampere.csv",
-                                              "rewrote calibration.json", "listed 6 files"]
+    assert golden_files.update(want, got) == ["rewrote calibration.json",
+                                              "added thrust_per_ampere.csv", "listed 6 files"]
     assert all((want / n).read_text() == before[n] for n in kept if n != "calibration.json")
-    changed = [line for line in (want / "calibration.json").read_text().splitlines()
-               if line not in before["calibration.json"].splitlines()]
-    assert changed == ['    "thrust_per_ampere": "thrust_per_ampere.csv"'], changed
+    now, was = (json.loads(t) for t in ((want / "calibration.json").read_text(),
+                                         before["calibration.json"]))
+    assert now.pop("files") == {**was.pop("files"), "thrust_per_ampere": "thrust_per_ampere.csv"}
+    assert golden_files.differences(json.dumps(now, indent=1), json.dumps(was, indent=1)) == []
 
 
 def test_docs_list_each_declared_calibration_file():

@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from .test_protocol_limits import NO_FEEDBACK
+
 DRIVER = '''\
 """A throwaway single-axis load cell with a temperature channel (test only)."""
 
@@ -55,18 +57,6 @@ print(json.dumps(results))
 RIG = ("rigtool_rig: 1\nname: load-cell-bench\n"
        "actuator: {{driver: stm32-bridge, url: 'socket://127.0.0.1:9'}}\n"
        "sensor:\n  driver: load-cell\n  url: /dev/null\n{extra}")
-PROTOCOL = """\
-rigtool_protocol: 1
-name: load-cell
-command: {{unit: pwm_counts, values: [0, 300]}}
-depth: {{unit: cm, values: [30]}}
-timing:
-  settle: {{seconds: 0.2}}
-  acquire: {{samples: 100, rate_hz: 500}}
-limits:
-  max_thrust_n: 20
-{limit}
-"""
 
 
 CASES = {  # name: (protocol limit, rig addition)
@@ -83,7 +73,7 @@ def _dry_runs(tmp_path: Path, register: bool) -> dict[str, tuple[int, str, str]]
     for name, (limit, extra) in CASES.items():
         (tmp_path / name).mkdir()
         (tmp_path / name / "rig.yaml").write_text(RIG.format(extra=extra))
-        (tmp_path / name / "p.yaml").write_text(PROTOCOL.format(limit=limit))
+        (tmp_path / name / "p.yaml").write_text(NO_FEEDBACK.format(limit=limit))
     done = subprocess.run([sys.executable, "-c", REGISTER, "register" if register else "plain",
                            *(str(tmp_path / name) for name in CASES)],
                           capture_output=True, text=True, timeout=120,
@@ -98,7 +88,7 @@ def test_a_registered_driver_is_parsed_and_its_declared_capabilities_are_used(tm
     assert code == 0, err
     assert "load-cell sensor" in out and "measured over 0.5 s" in out
     assert not (tmp_path / "temperature" / "db.sqlite").exists()
-    for name, where, why in (("torque", "p.yaml:10", "limits.max_torque_nm"),
+    for name, where, why in (("torque", "p.yaml:11", "limits.max_torque_nm"),
                              ("mount", "rig.yaml", "single-axis"),
                              ("field", "rig.yaml:7", "sensor.baud: unknown field")):
         code, _, err = got[name]
