@@ -1,12 +1,12 @@
 """`rigtool sim --help` offers the sensor personalities and thruster profiles from their one
-list each (sim/server.py SENSORS, thruster_profiles.PROFILES), not a copy in the help text."""
+list each (sim/personalities.py SENSORS, thruster_profiles.PROFILES), not a copy in the help text."""
 
 from __future__ import annotations
 
 import pytest
 
 from rigtool.cli import main
-from rigtool.sim.server import SENSORS
+from rigtool.sim.personalities import SENSORS
 from rigtool.thruster_profiles import PROFILES
 
 

@@ -12,7 +12,7 @@ from rigtool.cli.console import err, out
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
-    from rigtool.sim.server import SENSORS
+    from rigtool.sim.personalities import SENSORS
     from rigtool.thruster_profiles import PROFILES
 
     p = sub.add_parser("sim", help="run the simulator twin on real transports and print its rig file")

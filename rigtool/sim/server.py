@@ -16,12 +16,10 @@ import yaml
 from rigtool.devices import udp_loopback
 from rigtool.errors import UsageError
 from rigtool.sim.live import LiveTwin
+from rigtool.sim.personalities import SENSORS
 from rigtool.sim.physics import ThrusterTwin
 from rigtool.thruster_profiles import profile_with_overrides
 
-# Sensor personality -> the ascii-gauge preset it speaks (None: the Net F/T over UDP); the
-# one list `rigtool sim --sensor` offers.
-SENSORS: dict[str, str | None] = {"netft": None, "mark10": "mark10", "hx711": "hx711-csv"}
 LOOPBACK = "127.0.0.1"
 NETFT_PORT = 49152
 STAGE_ZERO_OFFSET_M = 0.1  # stage position (m) at which the propeller centre is at the surface
