@@ -103,7 +103,7 @@ class Rig(BaseModel):
         if self.simulator is None and (self.actuator is None or self.sensor is None):
             raise ValueError("a hardware rig needs both an `actuator:` and a `sensor:` section "
                              "(or use a `simulator:` section)")
-        if self.mount is not None and self.sensor is not None and self.sensor.axes == 1:
+        if self.mount is not None and self.sensor is not None and self.sensor.axes < 6:
             raise ValueError("`mount:` transforms six-axis sensors; a single-axis gauge maps its "
                              "axis with its own `channel` and `sign`")
         return self
