@@ -14,6 +14,7 @@ C_p error, and the thrust_lag_s interval's coverage of the lag.
     python benchmarks/bench_other_stands.py 47000 47040           # held-out seeds
     python benchmarks/bench_other_stands.py 47000 47040 "ramp"    # only cases named so
     python benchmarks/bench_other_stands.py 47000 47040 steps     # only the step tables
+    python benchmarks/bench_other_stands.py 47000 47020 "rov"     # only the in-water table
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import rigtool  # noqa: E402
-from tests.standlogs import Stand, ramp_log, step_table  # noqa: E402
+from tests.standlogs import Stand, ramp_log, rov_table, step_table  # noqa: E402
 
 CASES = {
     "quadratic, one-way": (Stand(offset_n=0.1), "quadratic", False),
@@ -79,6 +80,29 @@ def ramp_case(seed: int, tmp: Path, end_hold_s: float) -> tuple[float, bool]:
                                 0.0))
     warned = any(w.startswith("sensor zero drifts") for w in depth["warnings"])
     return float(np.max(np.abs(got - want)) / full), warned
+
+
+def rov_case(seed: int, tmp: Path) -> float:
+    """An in-water table (10 rows a side, 1.5 % FS noise, reverse 0.8 x forward): the worst
+    error of cal.command over 10-95 % of each side's full thrust, % of forward full scale
+    (the thrust the thruster gives at the command answered, minus the thrust asked)."""
+    csv, db, out = tmp / f"w{seed}.csv", tmp / "w.sqlite", tmp / "cal"
+    csv.write_text(rov_table(seed), encoding="utf-8")
+    text = subprocess.run(["rigtool", "import", str(csv), "--db", str(db)], check=True,
+                          capture_output=True, text=True).stdout
+    run_id = text.split("run ")[-1].strip()
+    subprocess.run(["rigtool", "calibrate", run_id, "--db", str(db), "--out", str(out)],
+                   check=True, capture_output=True)
+    cal = rigtool.load_calibration(out / run_id)
+    cp, rev, full = 5e-6, 0.8, 5e-6 * 2700.0**2
+    worst = 0.0
+    for sign, top in ((1.0, full), (-1.0, rev * full)):
+        want = sign * np.linspace(0.1, 0.95, 30) * top
+        cmd = np.asarray(cal.command(want), dtype=float)
+        n = np.where(np.abs(cmd - 1500.0) < 25.0, 0.0, 3000.0 * (cmd - 1500.0) / 400.0)
+        got = np.where(n > 0, cp, cp * rev) * np.abs(n) * n
+        worst = max(worst, float(np.max(np.abs(got - want)) / full))
+    return worst
 
 
 RAMP_SPEED_CASES = {f"ramp {rate:g} Hz with speed, {f'lag {lag:g} s' if lag else 'no lag'}":
@@ -158,6 +182,11 @@ def main(first: int, stop: int, only: str = "") -> None:
         if updown:
             line += f", commands between the edges in {in_band}/{k} seeds"
         print(line, flush=True)
+    if only in "rov table" and not steps:
+        with tempfile.TemporaryDirectory() as tmp:
+            errs = [rov_case(seed, Path(tmp)) for seed in range(first, stop)]
+        print(f"rov table, 10 rows a side: cal.command worst {100 * max(errs):.2f} % FS "
+              f"(median {100 * float(np.median(errs)):.2f} %)", flush=True)
     for end_hold_s in (0.0, 10.0) if only in "ramp 5 Hz, no speed" and not steps else ():
         with tempfile.TemporaryDirectory() as tmp:
             res = [ramp_case(seed, Path(tmp), end_hold_s) for seed in range(first, stop)]

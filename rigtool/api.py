@@ -33,9 +33,13 @@ from rigtool.models import laws
 from rigtool.models.thrust_map import STATUS_KEYS, ThrustMap, thrust_map
 from rigtool.progress_hook import ProgressHook, no_progress
 from rigtool.readback import MAX_JSON_BYTES, Invalid, calibration_document, parse_json, show
+from rigtool.sections import deepest_depth, middle_voltage
 from rigtool.store import RunRecord, Store
 from rigtool.vehicle_file import Vehicle, load_vehicle
 from rigtool.vehicle_workflow import ThrusterInput
+
+__all__ = ["Calibration", "Columns", "ConsumerModel", "Lab", "Records", "Run", "StepDynamics",
+           "Value", "identify_vehicle", "load_calibration", "open", "vehicle_thrusters"]
 
 CALIBRATION_FILE = "calibration.json"
 CURVE_FILE = "command_curve.csv"
@@ -524,20 +528,6 @@ class Calibration:
                 return d
         raise ValueError(f"no section at {voltage:g} V; this calibration was swept at "
                          f"{', '.join(f'{v:g} V' for v in self.voltages) or 'no voltages'}")
-
-
-def deepest_depth(depths: Sequence[float | None]) -> float | None:
-    """The depth a calibration's methods use by default: the deepest set (the thruster's own
-    thrust; shallower points may ventilate), else the first (not set)."""
-    known = [d for d in depths if d is not None]
-    return max(known) if known else depths[0]
-
-
-def middle_voltage(voltages: Sequence[float | None]) -> int:
-    """Index of the middle supply voltage among one depth's sections (None sorts first)."""
-    order = sorted(range(len(voltages)),
-                   key=lambda i: -math.inf if voltages[i] is None else voltages[i])
-    return order[(len(order) - 1) // 2]
 
 
 def _depth_from(doc: dict, curve: Columns, lut: Columns) -> _Depth:

@@ -13,6 +13,7 @@ import numpy as np
 
 from rigtool.devices.registry import open_device
 from rigtool.rig import RigSet
+from rigtool.sensor_rate import native_rate_hz
 from rigtool.units import FT_CHANNELS
 
 if TYPE_CHECKING:
@@ -20,6 +21,7 @@ if TYPE_CHECKING:
 
 FEEDBACK = {"speed_rpm": "r/min", "current_a": "A", "voltage_v": "V"}
 SETTLE_S = 1.0  # after a test command, before measuring
+CHUNK_S = 0.1  # seconds of samples per read
 
 
 @dataclass
@@ -55,19 +57,24 @@ def _stats(name: str, unit: str, values: np.ndarray) -> ChannelStats | None:
 
 def run_check(rigset: RigSet, seconds: float = 3.0, rate_hz: float = 1000.0,
               command: float | None = None) -> CheckReport:
-    """Read the sensor and feedback for `seconds` (optionally at a test `command`), then neutral."""
+    """Read the sensor and feedback for `seconds` (optionally at a test `command`), then neutral.
+
+    Each read asks for CHUNK_S of samples at the rate the sensor streams at (measured, as a
+    sweep does, unless it samples as asked), so a slow gauge reads for `seconds`, not for the
+    time `rate_hz` samples would take it."""
     act, sensor = rigset.actuator, rigset.sensor
     act.neutral()
     act.read_feedback()
     try:
-        chunk = max(1, round(0.1 * rate_hz))
+        native, _ = native_rate_hz(sensor, rate_hz)
+        chunk = max(1, round(CHUNK_S * (native or rate_hz)))
         if command is not None:
             act.set_command(command)
-            for _ in range(round(SETTLE_S / 0.1)):
+            for _ in range(round(SETTLE_S / CHUNK_S)):
                 sensor.read(chunk, rate_hz)
             act.read_feedback()
         blocks, feedback = [], []
-        for _ in range(max(1, round(seconds / 0.1))):
+        for _ in range(max(1, round(seconds / CHUNK_S))):
             blocks.append(sensor.read(chunk, rate_hz))
             feedback.append(act.read_feedback())
     finally:

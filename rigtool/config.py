@@ -156,10 +156,17 @@ def format_validation_error(path: Path, exc: ValidationError, data: Any, lines: 
             msg = "unknown field (check the spelling; unknown fields are not ignored)"
         elif err["type"] == "missing":
             msg = "required field is missing"
-        elif "input" in err and err["type"] not in ("model_type",):
-            msg = f"{msg} (got {err['input']!r})"
+        elif "input" in err and err["type"] != "model_type" and not isinstance(err["input"], dict):
+            msg = f"{msg} (got {_shown(err['input'])})"
         problems.append(f"{path}:{line or '?'}: {field}: {msg}")
     return problems
+
+
+def _shown(value: Any, limit: int = 80) -> str:
+    """A value as an error shows it: its repr, cut to `limit` characters (a whole mapping is
+    never shown: the field and line already say where)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def locate(path: Path, loc: Loc) -> str:

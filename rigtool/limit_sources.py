@@ -10,12 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from rigtool.config import locate
-from rigtool.devices.ascii_gauge import has_temperature
 from rigtool.devices.base import ActuatorInfo
 from rigtool.protocol import Protocol
 from rigtool.rig import Rig
-
-MEASURING_SUPPLIES = ("scpi-supply",)  # drivers that read back volts and amps (`measure()`)
 
 
 def _supply_measures(protocol: Protocol, rig: Rig) -> bool:
@@ -24,17 +21,17 @@ def _supply_measures(protocol: Protocol, rig: Rig) -> bool:
     if protocol.voltage is None or protocol.voltage.mode != "preset":
         return False
     return rig.simulator is not None or (rig.supply is not None
-                                         and rig.supply.driver in MEASURING_SUPPLIES)
+                                         and rig.supply.measures_supply)
 
 
 def _sensor_torque(rig: Rig) -> bool:
-    """Six-axis sensors (and the twin's) measure torque; single-axis gauges do not."""
-    return rig.simulator is not None or getattr(rig.sensor, "driver", None) != "ascii-gauge"
+    """Whether the sensor measures torque (the twin's does; a driver declares it on its config)."""
+    return rig.simulator is not None or (rig.sensor is not None and rig.sensor.measures_torque)
 
 
 def _sensor_temperature(rig: Rig) -> bool:
-    sensor = rig.sensor
-    return getattr(sensor, "driver", None) == "ascii-gauge" and has_temperature(sensor)
+    """Whether the sensor, as configured, reads a temperature (declared on its config)."""
+    return rig.sensor is not None and rig.sensor.temperature_source()
 
 
 def missing_sources(protocol: Protocol, rig: Rig, info: ActuatorInfo) -> dict[str, str]:
@@ -53,7 +50,7 @@ def missing_sources(protocol: Protocol, rig: Rig, info: ActuatorInfo) -> dict[st
         missing["max_power_w"] = ("no power: the actuator does not report both voltage_v and "
                                   "current_a, and no measuring supply is programmed")
     if limits.max_torque_nm is not None and not _sensor_torque(rig):
-        missing["max_torque_nm"] = "no torque: the single-axis gauge measures force only"
+        missing["max_torque_nm"] = "no torque: the sensor measures force only"
     if limits.max_temperature_c is not None and "temperature_c" not in fb \
             and not _sensor_temperature(rig):
         missing["max_temperature_c"] = (

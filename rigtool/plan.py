@@ -207,10 +207,6 @@ class SensorTiming:
     def acquire_s(self) -> float:
         return self.n_read / self.sensor_rate_hz
 
-    def samples_for(self, seconds: float) -> int:
-        """Sensor samples in `seconds` (at least one)."""
-        return max(1, round(seconds * self.sensor_rate_hz))
-
     def describe(self) -> str:
         """One line for --dry-run and the run's events."""
         plan = (f"{self.n_stored} samples at {self.stored_rate_hz:g} Hz "

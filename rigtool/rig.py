@@ -5,9 +5,11 @@
 
 from __future__ import annotations
 
+import functools
+import operator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -16,7 +18,6 @@ from rigtool.accuracy import SensorAccuracy
 from rigtool.bounds import DepthM
 from rigtool.clock import RealClock, VirtualClock
 from rigtool.config import load_model, locate
-from rigtool.devices.ascii_gauge import AsciiGaugeConfig
 from rigtool.devices.axes import rotation_deg, wrench_transform
 from rigtool.devices.base import (
     Actuator,
@@ -31,28 +32,26 @@ from rigtool.devices.dbc_can import DbcCanConfig, DbcMismatch
 from rigtool.devices.depth import ManualDepth, PresetDepth
 from rigtool.devices.manual_carriage import ManualCarriage
 from rigtool.devices.manual_supply import ManualSupply
-from rigtool.devices.netft import NetFTConfig
-from rigtool.devices.registry import actuator_info, open_device
-from rigtool.devices.scpi_supply import ScpiSupplyConfig
-from rigtool.devices.serial_carriage import SerialCarriageConfig
-from rigtool.devices.serial_stage import SerialStageConfig
-from rigtool.devices.stm32_bridge import Stm32BridgeConfig
-from rigtool.devices.vesc_can import VescCanConfig
+from rigtool.devices.registry import actuator_info, config_models, open_device
 from rigtool.devices.visa_link import sim_file
 from rigtool.errors import ConfigError, UsageError
 from rigtool.protocol import CaptiveAxis, SimulatorSpec
 from rigtool.thruster_profiles import profile_with_overrides
 from rigtool.units import FT_CHANNELS
 
-# Each device section is validated against the config model of the driver it names
-# (devices/registry.py says which class opens it).
-ActuatorConfig = Annotated[
-    Union[Stm32BridgeConfig, VescCanConfig, DbcCanConfig], Field(discriminator="driver")  # noqa: UP007
-]
-SensorConfig = Annotated[Union[NetFTConfig, AsciiGaugeConfig], Field(discriminator="driver")]  # noqa: UP007
-StageConfig = Annotated[Union[SerialStageConfig], Field(discriminator="driver")]  # noqa: UP007
-SupplyConfig = Annotated[Union[ScpiSupplyConfig], Field(discriminator="driver")]  # noqa: UP007
-CarriageConfig = Annotated[Union[SerialCarriageConfig], Field(discriminator="driver")]  # noqa: UP007
+
+def _section(role: str) -> Any:
+    """A device section: the config model of the driver its `driver:` field names, one of those
+    devices/registry.py lists for `role` (the registry is the one list)."""
+    return Annotated[functools.reduce(operator.or_, config_models(role)),
+                     Field(discriminator="driver")]
+
+
+ActuatorConfig = _section("actuator")
+SensorConfig = _section("sensor")
+StageConfig = _section("depth_stage")
+SupplyConfig = _section("supply")
+CarriageConfig = _section("carriage")
 
 
 class ThrustAxis(BaseModel):
@@ -104,7 +103,7 @@ class Rig(BaseModel):
         if self.simulator is None and (self.actuator is None or self.sensor is None):
             raise ValueError("a hardware rig needs both an `actuator:` and a `sensor:` section "
                              "(or use a `simulator:` section)")
-        if self.mount is not None and getattr(self.sensor, "driver", None) == "ascii-gauge":
+        if self.mount is not None and self.sensor is not None and self.sensor.axes < 6:
             raise ValueError("`mount:` transforms six-axis sensors; a single-axis gauge maps its "
                              "axis with its own `channel` and `sign`")
         return self

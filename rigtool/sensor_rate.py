@@ -119,9 +119,8 @@ def dry_run_rate(protocol: Protocol, rig: Rig) -> str:
     if rig.simulator is not None:
         return f"{sensor_timing(protocol, None).describe()} (the twin samples at the rate asked)"
     driver = getattr(rig.sensor, "driver", "?")
-    where = ("the box's RDT rate (netftapi2.xml), checked over 0.5 s" if driver == "ati-netft"
-             and getattr(rig.sensor, "counts_per_force", None) is None
-             else "measured over 0.5 s")
+    stated = rig.sensor.stated_rate() if rig.sensor is not None else None
+    where = f"{stated}, checked over 0.5 s" if stated else "measured over 0.5 s"
     return (f"{protocol.timing.acquire.n_samples} samples at {protocol.timing.acquire.rate_hz:g} Hz "
             f"per point if the {driver} sensor runs at that rate; its rate is {where} when it "
             "opens, then a multiple is averaged down, another rate acquires the protocol's "

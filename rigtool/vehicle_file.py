@@ -13,7 +13,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from rigtool.config import load_model
+from rigtool.config import FieldError, load_model
 
 Length = Annotated[float, Field(ge=-100.0, le=100.0)]
 Vector = tuple[Length, Length, Length]
@@ -66,14 +66,16 @@ class Vehicle(BaseModel):
 
     @model_validator(mode="after")
     def _distinct(self) -> Vehicle:
-        for what, values in (("name", [t.name for t in self.thrusters]),
-                             ("column", [t.log_column for t in self.thrusters])):
-            dup = sorted({v for v in values if values.count(v) > 1})
-            if dup:
-                raise ValueError(f"thrusters share a {what}: {', '.join(dup)}")
+        for what, field, values in (("name", "name", [t.name for t in self.thrusters]),
+                                    ("column", "column", [t.log_column for t in self.thrusters])):
+            second = next((i for i, v in enumerate(values) if v in values[:i]), None)
+            if second is not None:
+                dup = sorted({v for v in values if values.count(v) > 1})
+                raise FieldError(("thrusters", second, field),
+                                 f"thrusters share a {what}: {', '.join(dup)}")
         if any(self.cog_m):
-            raise ValueError("cog_m must be (0, 0, 0): body axes have their origin at the centre "
-                             "of gravity (give positions and cob_m from it)")
+            raise FieldError(("cog_m",), "cog_m must be (0, 0, 0): body axes have their origin at "
+                             "the centre of gravity (give positions and cob_m from it)")
         return self
 
     @property

@@ -10,7 +10,7 @@ import pytest
 
 import rigtool
 from rigtool.analysis.calibrate import calibrate_run
-from rigtool.artefacts.calibration import write_artefacts
+from rigtool.artefacts.calibration import CALIBRATION_FILES, write_artefacts
 from rigtool.store import StepRecord, Store
 
 CP_FWD, CP_REV, CN, I0 = 1.926e-5, 0.8 * 1.926e-5, 1.2e-9, 0.3
@@ -192,12 +192,14 @@ def _read_csv(path):
 
 def test_artefacts_formats(can_cal, tmp_path):
     paths = write_artefacts(can_cal, tmp_path, CREATED)
-    assert [p.name for p in paths] == ["calibration.json", "points.csv", "command_curve.csv",
-                                       "inverse_lut.csv", "performance.csv"]
+    written = [f for f in CALIBRATION_FILES if f.written(can_cal)]  # no voltage, no captive
+    assert [p.name for p in paths] == [f.name for f in written]
+    assert len(written) == len(CALIBRATION_FILES) - 2
     assert all(p.parent == tmp_path / can_cal.run_id for p in paths)
     doc = json.loads(paths[0].read_text())
     assert doc["format"] == "rigtool-calibration" and doc["format_version"] == 1
     assert doc["tool_version"] == rigtool.__version__ and doc["created_utc"] == CREATED
+    assert doc["files"] == {f.key: f.name for f in written[1:]}
     assert doc["source"]["run_id"] == can_cal.run_id
     assert doc["source"]["command_unit"] == "percent"
     assert doc["analysis"]["settling"]["n_blocks"] == 20

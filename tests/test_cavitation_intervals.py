@@ -391,7 +391,7 @@ def test_mean_term_error_during_events_is_what_the_signals_allow(twin, which):
     -1 / cav_current_drop (z noise does not shrink it), and its error there is no more above
     the measured thrust than that of the best mean from (z, command) fitted on the held-out
     blocks themselves: conditioning on the truth, not the mean term, makes it look biased
-    (docs/cavitation.md, 'Where the mean term's error during events comes from')."""
+    (research/cavitation-log.md, 'Where the mean term's error during events comes from')."""
     from types import SimpleNamespace
 
     from rigtool.analysis.cavitation import training_blocks

@@ -1,5 +1,5 @@
-"""The shared device base (devices/base.py), the lazy registry of driver names, and the layer
-boundaries of devices and config: every driver over its real transport closes twice
+"""The shared device base (devices/base.py), the registry of driver names (the one list), and
+the layer boundaries of devices and config: every driver over its real transport closes twice
 harmlessly, closes at the end of a `with` (at neutral when the block raised), and refuses use
 after close; the registry names what the rig schema accepts; protocol files are validated
 without the simulator."""

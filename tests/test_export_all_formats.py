@@ -18,7 +18,6 @@ import yaml
 import rigtool
 from rigtool.artefacts.formats import FORMATS, MODULES
 from rigtool.cli import main
-from rigtool.cli.calibrate import VEHICLE_FORMATS
 
 from .conftest import PROTOCOLS
 
@@ -53,10 +52,6 @@ STEPS = ("rigtool_protocol: 1\nname: steps\nsimulator: {profile: can-bldc, seed:
          "depth: {unit: m, values: [1.0]}\n"
          "timing: {settle: {seconds: 0}, acquire: {seconds: 2.0, rate_hz: 500}, rest_s: 0, "
          "tare: at_start}\n")
-
-
-def test_cli_offers_every_registered_format():
-    assert tuple(VEHICLE_FORMATS) == tuple(MODULES)
 
 
 @pytest.fixture(scope="module")

@@ -132,15 +132,29 @@ def no_empty_list(doc: object) -> bool:
     return True
 
 
+def ardusub_pwm(sign: float, act: np.ndarray, half: float) -> np.ndarray:
+    """AP_Motors6DOF::calc_thrust_to_pwm: 1500 + thrust x range in single precision, returned
+    as int16_t (truncated toward zero: whole microseconds)."""
+    f32 = np.float32
+    return np.trunc(f32(1500) + f32(sign) * act.astype(f32) * f32(half)).astype(float)
+
+
 @pytest.mark.parametrize("name", ["esc", "fwd"])
 def test_ardupilot_expo_linearises_thrust(runs, name):
+    """The .param as AP_Param loads it: MOT_SPIN_ARM within its metadata and not above
+    MOT_SPIN_MIN (AP_MotorsMulticopter's arming check, which refuses MOT_SPIN_ARM >
+    MOT_SPIN_MIN, and its default 0.1 would be above 0.07 here); the stated error is the
+    linearised thrust's largest deviation with the pulse truncated to whole us as ArduSub
+    writes it, and the curve-alone figure beside it is without that."""
     _, _, folder, cal = runs[name]
     text = (folder / FORMATS["ardupilot"]).read_text()
     p = parse_param(text)
-    assert set(p) == {"MOT_PWM_MIN", "MOT_PWM_MAX", "MOT_SPIN_MIN", "MOT_SPIN_MAX",
-                      "MOT_THST_EXPO"}
+    assert set(p) == {"MOT_PWM_MIN", "MOT_PWM_MAX", "MOT_SPIN_ARM", "MOT_SPIN_MIN",
+                      "MOT_SPIN_MAX", "MOT_THST_EXPO"}
     assert p["MOT_PWM_MAX"] == 1900 and p["MOT_PWM_MIN"] == (1100 if name == "esc" else 1500)
+    assert 0.0 <= p["MOT_SPIN_ARM"] <= p["MOT_SPIN_MIN"] <= 0.3  # arming_checks
     err_stated = stated(text, r"by at most ([0-9.]+) %")
+    curve_stated = stated(text, r"the curve alone\n# ([0-9.]+) %")
     assert err_stated <= ARDUPILOT_BOUND_PCT
     demand = np.linspace(0, 1, 1001)
     act = p["MOT_SPIN_MIN"] + (p["MOT_SPIN_MAX"] - p["MOT_SPIN_MIN"]) * ardupilot_expo(
@@ -148,16 +162,68 @@ def test_ardupilot_expo_linearises_thrust(runs, name):
     halves = [(1.0, p["MOT_PWM_MAX"] - 1500)]
     if p["MOT_PWM_MIN"] < 1500:
         halves.append((-1.0, 1500 - p["MOT_PWM_MIN"]))
+    errors, curve = [], []
     for sign, half in halves:
-        f = sign * cal.thrust(1500 + sign * act * half)
+        full = sign * cal.thrust(1500 + sign * half)
+        f = sign * cal.thrust(ardusub_pwm(sign, act, half))
         assert np.all(np.isfinite(f))
-        err = np.max(np.abs(f - demand * f[-1])) / f[-1]
-        assert 100 * err <= err_stated + 0.01
+        errors.append(np.max(np.abs(f - demand * full)) / full)
+        f = sign * cal.thrust(1500 + sign * act * half)
+        curve.append(np.max(np.abs(f - demand * full)) / full)
+    assert 100 * max(errors) == pytest.approx(err_stated, abs=0.01)
+    assert 100 * max(curve) == pytest.approx(curve_stated, abs=0.01)
     if name == "esc":
+        assert err_stated >= 0.45  # whole us alone cost about 0.5 % near full reverse
         ratio = stated(text, r"reverse_ratio ([0-9.]+)")
         assert ratio == pytest.approx(-cal.thrust(1100.0) / cal.thrust(1900.0), abs=1e-3)
     else:
         assert "reverse_ratio" not in text
+
+
+def px4_limits(text: str) -> tuple[int, int]:
+    """The PWM_MAIN_MIN/MAX values the file tells the user to type (whole us)."""
+    m = re.search(r"PWM_MAIN_MIN<ch> (\S+), PWM_MAIN_MAX<ch> (\S+?)[ .]", text)
+    return int(m.group(1)), int(m.group(2))
+
+
+def px4_range(text: str) -> tuple[float, float]:
+    """The run's command range the advised output limits stand for: the limits themselves for
+    a pulse-width run, else the stated fractions of the driver's -100..100 % span."""
+    m = re.search(r"Those are (\S+) and (\S+) of the way", text)
+    if m is None:
+        return px4_limits(text)
+    return -100.0 + 200.0 * float(m.group(1)), -100.0 + 200.0 * float(m.group(2))
+
+
+def px4_output(u: float, lo: int, hi: int) -> int:
+    """MixingOutput::output_limit_calc_single: -1..1 interpolated onto minimum..maximum,
+    lroundf, constrained to 0..65535 (uint16)."""
+    value = lo + (min(max(u, -1.0), 1.0) + 1.0) / 2.0 * (hi - lo)
+    return min(max(int(math.floor(value + 0.5)), 0), 65535)
+
+
+@pytest.mark.parametrize("name", ["esc", "demo", "fwd"])
+def test_px4_output_range_is_typed_in_driver_units(runs, name):
+    """The output limits advised are what PX4 takes: whole, non-negative driver values (us
+    here); through output_limit_calc_single they command the run's range, its neutral at the
+    middle of a reversible motor's -1..1 (a percent run via a PWM-input ESC taking 1100..1900
+    us for -100..100 %, as the file says)."""
+    _, _, folder, cal = runs[name]
+    text = (folder / FORMATS["px4"]).read_text()
+    lo_us, hi_us = px4_limits(text)
+    assert 0 <= lo_us < hi_us <= 65535
+    assert not re.search(r"(MIN|MAX)<ch> -", text)
+    lo, hi = px4_range(text)
+    assert (lo, hi) == pytest.approx(COMMAND_RANGE[name])
+    to_run = (lambda us: us) if name != "demo" else (lambda us: (us - 1500.0) / 4.0)
+    if name == "fwd":  # non-reversible: 0..1 remapped to -1..1 first
+        assert to_run(px4_output(-1.0, lo_us, hi_us)) == lo == cal.neutral
+    else:
+        assert to_run(px4_output(0.0, lo_us, hi_us)) == cal.neutral
+        assert to_run(px4_output(-1.0, lo_us, hi_us)) == pytest.approx(lo)
+    assert to_run(px4_output(1.0, lo_us, hi_us)) == pytest.approx(hi)
+    if name == "demo":
+        assert "cannot be typed" in text and "UAVCAN_EC_MIN" in text
 
 
 @pytest.mark.parametrize("name", ["esc", "demo", "fwd"])
@@ -167,8 +233,7 @@ def test_px4_thrust_model_matches_cal(runs, name):
     p = parse_qgc(text)
     f, ct = p["THR_MDL_FAC"], p["CA_ROTOR0_CT"]
     assert 0 <= f <= 1 and ct > 0
-    lo = stated(text, r"minimum to (-?[0-9.]+)")
-    hi = stated(text, r"maximum to (-?[0-9.]+)")
+    lo, hi = px4_range(text)
     err_stated = stated(text, r"range\n# ([0-9.]+) %")
     assert err_stated <= PX4_BOUND_PCT
     u = np.linspace(0, 1, 1001)

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import rigtool
+from rigtool.devices.registry import driver_modules
 from rigtool.store import Store
 
 PACKAGE = Path(rigtool.__file__).parent
@@ -150,7 +151,8 @@ RANKS = {
                    "rigtool.files", "rigtool.outpaths", "rigtool.readback", "rigtool.spool",
                    "rigtool.ids", "rigtool.dbpath", "rigtool.counters",
                    "rigtool.thruster_profiles", "rigtool.version", "rigtool.models",
-                   "rigtool.stopping", "rigtool.progress_hook"),
+                   "rigtool.stopping", "rigtool.sections",
+                   "rigtool.progress_hook"),
     "config": ("rigtool.config", "rigtool.protocol", "rigtool.plan", "rigtool.accuracy",
                "rigtool.vehicle_file"),
     "devices": ("rigtool.devices", "rigtool.sim", "rigtool.rig"),
@@ -261,17 +263,28 @@ def test_devices_import_no_store_engine_or_analysis_and_config_no_simulator():
     assert bad == []
 
 
-DRIVERS = ("stm32_bridge", "vesc_can", "dbc_can", "netft", "ascii_gauge", "serial_stage",
-           "scpi_supply", "manual_supply")
+def _drivers_importing_drivers(graph: dict[str, set[str]], drivers: set[str]) -> list[tuple]:
+    """(driver, driver it imports) pairs: `drivers` are the registry's modules."""
+    return sorted((m, t) for m, targets in graph.items() if m in drivers
+                  for t in targets if t in drivers)
 
 
 def test_a_driver_imports_no_other_driver():
     """Shared pieces (units, framing, the CAN link, the base) live in shared modules, not in
-    one driver that the others import."""
-    bad = sorted((m, t) for m, targets in _full().items() for t in targets
-                 if m.rpartition(".")[2] in DRIVERS and m.startswith("rigtool.devices.")
-                 and t.rpartition(".")[2] in DRIVERS and t.startswith("rigtool.devices."))
-    assert bad == []
+    one driver that the others import; the drivers are those devices/registry.py lists."""
+    drivers = driver_modules()
+    assert len(drivers) >= 8 and drivers <= set(MODULES)
+    assert _drivers_importing_drivers(_full(), drivers) == []
+
+
+def test_the_driver_rule_fails_on_a_registered_driver_that_imports_another(tmp_path):
+    """A new driver registered in the table and importing an existing driver is caught."""
+    path = tmp_path / "load_cell.py"
+    path.write_text("from rigtool.devices.ascii_gauge import LineParser\n")
+    graph = {**_full(), "rigtool.devices.load_cell": _all_imports("rigtool.devices.load_cell", path)}
+    drivers = driver_modules() | {"rigtool.devices.load_cell"}
+    assert _drivers_importing_drivers(graph, drivers) == [
+        ("rigtool.devices.load_cell", "rigtool.devices.ascii_gauge")]
 
 
 # Who may call what (docs/design.md): runs are written by the run layer (the engine during a

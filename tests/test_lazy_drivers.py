@@ -10,6 +10,7 @@ import sys
 
 def test_importing_the_rig_loads_no_transport_library():
     code = ("import sys, rigtool.rig, rigtool.cli, rigtool.sweep, rigtool.api\n"
+            "rigtool.cli.build_parser()\n"  # every command's options, as `rigtool X --help`
             "print(sorted(m for m in ('serial', 'can', 'cantools') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()

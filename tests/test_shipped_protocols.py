@@ -2,13 +2,13 @@
 the CLI with exit 0, as a user would run it on the simulated rig (luo2020-cavitation after its
 deep base run). calibrate --export writes every vehicle file or none (exit 2 naming what is
 missing), no file holds an empty list, and the calibration and vehicle files are byte for byte
-those committed under tests/golden/ (run id, times and tool version aside): a restructuring
-must not change a number. `RIGTOOL_UPDATE_GOLDEN=1` writes them anew after an intended change."""
+those committed under tests/golden/ (run id, times and tool version aside; numbers within
+golden_files' tolerance): a restructuring must not change a number. `RIGTOOL_UPDATE_GOLDEN=1`
+updates them after an intended change, touching only what changed (tests/golden_files.py)."""
 
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import subprocess
@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 import yaml
 
-import rigtool
 from rigtool.analysis.blocks import block_means
 from rigtool.analysis.dataset import load_run
+from rigtool.artefacts.calibration import FILES
 from rigtool.artefacts.formats import FORMATS, MODULES
 from rigtool.artefacts.vehicle import ExportOptions
 from rigtool.cli import main
@@ -30,6 +30,7 @@ from rigtool.store import Store
 from rigtool.thruster_profiles import profile_with_overrides
 from rigtool.workflows import export_calibration, stored_results
 
+from . import golden_files
 from .conftest import PROTOCOLS, copy_db
 from .test_c_evaluator import C_DIR, CC, _agree
 from .test_export_all_formats import OPTIONS, empty_lists
@@ -39,8 +40,7 @@ NEEDS = {"luo2020-cavitation": "luo2020-baseline"}  # a deep base run of the sam
 GOLDEN = Path(__file__).parent / "golden"
 EXPORT_OPTIONS = ExportOptions(joint="prop_joint", link="thruster_link", namespace="auv",
                                index=2, mesh="prop.obj", material="Steel")  # as OPTIONS
-COMPARED = ("calibration.json", "points.csv", "command_curve.csv", "inverse_lut.csv",
-            "performance.csv", "voltage.csv", "captive.csv", *FORMATS.values())
+COMPARED = (*FILES.values(), *FORMATS.values())
 
 
 def test_the_list_is_the_shipped_protocols():
@@ -141,44 +141,11 @@ def _span_h(steps: list[dict]) -> float:
     return (max(s["t_end_s"] for s in steps) - min(s["t_acquire_s"] for s in steps)) / 3600
 
 
-def _normalised(text: str, folder: Path) -> str:
-    """`text` with what changes from run to run replaced: the run id, creation times and the
-    tool version."""
-    text = text.replace(folder.name, "RUN-ID")
-    text = re.sub(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?(\+00:00|Z)", "TIME", text)
-    return text.replace(rigtool.__version__, "VERSION")
-
-
 def _golden(name: str, folder: Path) -> None:
-    """Compare (or, with RIGTOOL_UPDATE_GOLDEN=1, write) the calibration and vehicle files."""
-    want = GOLDEN / name
-    got = {f: _normalised((folder / f).read_text(), folder) for f in COMPARED
+    """Compare (or, with RIGTOOL_UPDATE_GOLDEN=1, update) the calibration and vehicle files."""
+    got = {f: golden_files.normalised((folder / f).read_text(), folder) for f in COMPARED
            if (folder / f).is_file()}
     if os.environ.get("RIGTOOL_UPDATE_GOLDEN") == "1":
-        want.mkdir(parents=True, exist_ok=True)
-        for old in want.iterdir():
-            old.unlink()
-        for f, text in got.items():
-            (want / f).write_text(text)
+        golden_files.update(GOLDEN / name, got)
         return
-    assert sorted(got) == sorted(p.name for p in want.iterdir()), name
-    for f, text in got.items():
-        assert _differences(text, (want / f).read_text()) == [], f"{name}/{f} differs from tests/golden"
-
-
-NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-
-
-def _differences(got: str, want: str, rel: float = 1e-4) -> list[tuple[str, str]]:
-    """Where `got` differs from `want`: all text outside numbers byte for byte, and each number
-    within `rel` of the golden one. The last digits of a fitted value move with the machine's
-    BLAS kernels (same wheels, another CPU: C_p in its tenth digit, an ill-conditioned 70 us
-    step delay by 2e-5 of itself); a restructuring's change does not hide in the fifth. Runs
-    of white space compare equal: a list of numbers wraps where its numbers' lengths put it."""
-    got_parts, want_parts = ([" ".join(part.split()) for part in NUMBER.split(text)]
-                             for text in (got, want))
-    if got_parts != want_parts:
-        return [("text", next(f"{g!r} != {w!r}" for g, w in zip(got_parts, want_parts, strict=False)
-                              if g != w) if len(got_parts) == len(want_parts) else "layout")]
-    return [(g, w) for g, w in zip(NUMBER.findall(got), NUMBER.findall(want), strict=True)
-            if not math.isclose(float(g), float(w), rel_tol=rel, abs_tol=1e-12)]
+    assert golden_files.mismatches(GOLDEN / name, got) == []

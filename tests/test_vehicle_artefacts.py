@@ -16,7 +16,6 @@ import yaml
 import rigtool
 from rigtool.artefacts.formats import FORMATS
 from rigtool.cli import main
-from rigtool.cli.calibrate import VEHICLE_FORMATS
 
 CC = shutil.which("cc") or shutil.which("gcc")
 PROTOCOL = """\
@@ -47,10 +46,6 @@ def exported(request, tmp_path_factory):
     assert main(["calibrate", "last", "--db", db, "--out", str(out), *formats, *NAMES]) == 0
     folder = next(out.iterdir())
     return tmp, db, folder, rigtool.load_calibration(folder)
-
-
-def test_cli_and_module_agree_on_the_formats():
-    assert tuple(VEHICLE_FORMATS) == tuple(FORMATS)
 
 
 @pytest.mark.skipif(CC is None, reason="no C compiler on this machine")

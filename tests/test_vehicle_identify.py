@@ -154,7 +154,10 @@ def test_the_cli_refuses_a_one_way_log_with_exit_2(flown, tmp_path, capsys):
     (lambda y: y.replace("direction: [0.7071067811865476, -0.7071067811865476, 0.0]",
                          "direction: [1.0, -1.0, 0.0]", 1), "vehicle.yaml:10: thrusters.0.direction"),
     (lambda y: y.replace("mass_kg: 11.5", "mass_kg: -1"), "vehicle.yaml:2: mass_kg"),
-    (lambda y: y.replace("column: t2_us", "column: t1_us"), "thrusters share a column: t1_us"),
+    (lambda y: y.replace("column: t2_us", "column: t1_us"),
+     "vehicle.yaml:18: thrusters.1.column: Value error, thrusters share a column: t1_us"),
+    (lambda y: y.replace("name: t2", "name: t1", 1),
+     "vehicle.yaml:14: thrusters.1.name: Value error, thrusters share a name: t1"),
 ])
 def test_a_wrong_vehicle_file_names_file_line_and_field(flown, tmp_path, capsys, edit, expected):
     flight = _flight(tmp_path, flown)
@@ -162,13 +165,16 @@ def test_a_wrong_vehicle_file_names_file_line_and_field(flown, tmp_path, capsys,
     vehicle.write_text(edit(vehicle.read_text()))
     assert main(["identify", str(vehicle), str(flight / "log.csv"), "--out",
                  str(tmp_path / "m")]) == 2
-    assert expected in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert expected in err and "{" not in err, err
 
 
 @pytest.mark.parametrize("edit, expected", [
     (lambda rows: [rows[0].replace("t3_us", "t3")] + rows[1:], "no column t3_us"),
     (lambda rows: rows[:50] + [rows[49]] + rows[50:], "log.csv:51: t_s does not increase"),
     (lambda rows: [rows[0]] + [_degrees(r) for r in rows[1:]], "angles must be in radians"),
+    (lambda rows: [rows[0]] + [_scaled(r, (1, 2, 3), 100.0) for r in rows[1:]],
+     "velocities must be in m/s"),
     (lambda rows: [rows[0]] + [_scaled(r, (4, 5, 6), 57.3) for r in rows[1:]],
      "p/q/r do not match how roll_rad and pitch_rad change"),
     (lambda rows: rows[:9] + ["x" * 200_000] + rows[9:], "not a CSV table"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -53,6 +54,7 @@ from rigtool.analysis.results import (
     VoltageLaw,
 )
 from rigtool.analysis.steady import PointTable
+from rigtool.analysis.thrust_law import signed_law
 from rigtool.analysis.voltage import fit_voltage_law, voltage_point
 from rigtool.analysis.zero_search import ZeroPoints, fit_zero_line, section_anchors
 from rigtool.progress_hook import ProgressHook, counted, no_progress
@@ -209,7 +211,7 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
     design, design_zero = _drift_design(run, points, ok)
     fixed_zero = None if shallow or design.estimable else design_zero
 
-    def make_curve(zero: ZeroLine | None) -> CommandCurve | None:
+    def make_curve(zero: ZeroLine | None, law: Callable | None = None) -> CommandCurve | None:
         if run.command_unit not in CURVE_UNITS:
             return None
         t = points.thrust
@@ -222,7 +224,7 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
             tare_drift=_drift_per_s(drift, _tare_sessions(run)),
             sessions=run.session_starts_s, drifts=design.estimable,
             sweep=None if run.step_response else points.direction[ok],
-            zero_at_neutral=neutral_ends)
+            zero_at_neutral=neutral_ends, law=law)
 
     # The neutral command visited at times a quarter of the sweep apart (a ramp's neutral
     # ends) reads the zero line on its own where no command is measured again: the points
@@ -258,13 +260,25 @@ def _section(run: RunData, points: PointTable, samples: SectionSamples,
 
     models = _with_sensor_bound(fit(), accuracy.get("thrust_share") or 0.0)
     if not shallow:
-        curve = make_curve(models.zero)
+        curve = make_curve(models.zero, _table_law(points, models, p))
     if curve is not None:
         points.dead = curve.is_dead(points.command)
         if (points.dead & models.used).any():
             models = _with_sensor_bound(fit(), accuracy.get("thrust_share") or 0.0)
     zero = fixed_zero or models.zero or (curve.zero if curve else None)
     return _finish_section(run, points, ok, models, curve, zero, design, accuracy, shallow, p)
+
+
+def _table_law(points: PointTable, models: ModelFits, p: CalibrationParams) -> Callable | None:
+    """The fitted thrust law as the command curve's shape where most points that entered the
+    fits are single readings (a table's rows): one row's noise would otherwise pass straight
+    into the curve and the inverse table (curves.command_curve `law`). None elsewhere."""
+    used = models.used
+    se = points.thrust.se
+    once = ~(np.isfinite(se) & (se > 0)) | (points.n_window < p.fit.min_window)
+    if not used.any() or 2 * int((once & used).sum()) < used.sum():
+        return None
+    return signed_law(models.thrust_law)
 
 
 def _finish_section(run: RunData, points: PointTable, ok: np.ndarray, models: ModelFits,

@@ -381,7 +381,7 @@ FLOOR_RANGE = (0.05, 0.95)  # the floor's stated range: these quantiles of the d
 
 def stated_floor(pool: TrainingSet, gp: ExactGp, check: dict) -> dict:
     """How well speed and current can predict this thruster's thrust at all, per class, next
-    to the held-out p95 of the model and the target (see `floor_sds`), with the floor's
+    to the held-out p95 of the model and the target (see `floor_groups`), with the floor's
     range over the training's groups (points, and their depths during events) resampled: a
     floor from one run's ten events can be off by a factor of three, and the verdict says
     "out of reach" only when the whole range is above the target."""
@@ -436,16 +436,11 @@ def floor_verdict(floor: tuple[float, float, float], held: float, target: float)
     return "floor below the target (not ruled out); this model misses it on held-out data"
 
 
-def floor_sds(pool: TrainingSet, beta: float) -> dict[str, np.ndarray]:
-    """Per block of each class, the error sd no estimator from these signals beats: thrust
-    noise (quiet blocks about their point's mean) and, during events, the posterior sd of
-    the loss given z (noise beta^2 var(z) against the spread of the point's event losses)."""
-    return {c: np.repeat(sd, rows) for c, (sd, rows) in floor_groups(pool, beta).items()}
-
-
 def floor_groups(pool: TrainingSet, beta: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """`floor_sds` by group, (sd, blocks) of each: a point's quiet blocks, and its event
-    blocks at one depth."""
+    """Per class, the error sd no estimator from these signals beats, by group, (sd, blocks)
+    of each: thrust noise of a point's quiet blocks (about their point's mean) and, during
+    events, the posterior sd of the loss given z of its event blocks at one depth (noise
+    beta^2 var(z) against the spread of the point's event losses)."""
     cls = pool.block_class if pool.block_class is not None else np.full(len(pool), "outside")
     run = pool.run_id.astype(str)
     out: dict[str, list[tuple[float, int]]] = {c: [] for c in CHECK_CLASSES}

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -192,8 +193,8 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
                   params: CurveParams | None = None, tare_t_s: np.ndarray | None = None,
                   tare_drift: tuple[float, float] | None = None,
                   sessions: tuple[float, ...] = (), drifts: bool = True,
-                  sweep: np.ndarray | None = None, zero_at_neutral: bool = False
-                  ) -> CommandCurve:
+                  sweep: np.ndarray | None = None, zero_at_neutral: bool = False,
+                  law: Callable[[np.ndarray], np.ndarray] | None = None) -> CommandCurve:
     """Analyse thrust vs command of one depth's points (one entry per point, any order).
 
     Thrust is taken relative to `zero` (the sensor zero at each point's time t_s); without
@@ -207,6 +208,9 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
     from neutral than it stops coming back, the inverse table keeps only commands that start
     it. `zero_at_neutral` (no speed): the line runs through the neutral command's points
     alone (a ramp's neutral ends: its bins, read once each, would pass for a drift).
+    `law` (signed speed -> signed thrust relative to the zero): points read once each (a
+    table's rows) scatter by their full noise, so each branch follows the fitted thrust law at
+    its points' speeds, which pools every point, instead of the points themselves.
     """
     p = params or CurveParams()
     floor = max(p.floor_n, p.k_tare * zero_scatter_n if zero_scatter_n else 0.0)
@@ -246,7 +250,8 @@ def command_curve(command: np.ndarray, t_s: np.ndarray, thrust_mean: np.ndarray,
     branches = []
     for start, stop in _live_segments(direction, dead):
         sl = slice(start, stop)
-        b = _branch(cmd[sl], m[sl], se[sl], neutral_command, p)
+        target = None if law is None else law(spd[sl])
+        b = _branch(cmd[sl], m[sl], se[sl], neutral_command, p, target)
         branch_of[sl] = len(branches)
         fit[sl] = b.thrust_fit_n
         if b.saturated:
@@ -412,7 +417,9 @@ def _live_segments(direction: np.ndarray, dead: np.ndarray) -> list[tuple[int, i
 
 
 def _branch(cmd: np.ndarray, m: np.ndarray, se: np.ndarray, neutral: float,
-            p: CurveParams) -> Branch:
+            p: CurveParams, law_thrust: np.ndarray | None = None) -> Branch:
+    """One branch: the monotone fit of its thrusts (of `law_thrust`, the thrust law at its
+    points' speeds, where given and finite), its saturation, break-aways and inverse table."""
     from scipy.optimize import isotonic_regression  # on use; sklearn's costs 1.9 s more to import
 
     sign = 1 if np.nanmedian(m) > 0 else -1
@@ -420,7 +427,11 @@ def _branch(cmd: np.ndarray, m: np.ndarray, se: np.ndarray, neutral: float,
     slope = np.polyfit(cmd, m, 1)[0] if cmd.size >= 2 else 0.0
     slope_sign = int(np.sign(slope)) or sign * away
     weights = 1.0 / np.maximum(np.nan_to_num(se, nan=np.inf), 1e-6 * np.max(np.abs(m)) + 1e-12) ** 2
-    g = isotonic_regression(m, weights=weights, increasing=slope_sign > 0).x
+    if law_thrust is not None and np.isfinite(law_thrust).all():
+        m_fit, weights = law_thrust, np.ones(cmd.size)
+    else:
+        m_fit = m
+    g = isotonic_regression(m_fit, weights=weights, increasing=slope_sign > 0).x
     saturated_idx = _saturated(cmd, g, se, p)
     live = np.ones(cmd.size, dtype=bool)
     saturated = None

@@ -89,24 +89,6 @@ class SampleSpreads(Protocol):
 
 
 @dataclass
-class WindowSamples:
-    """Steady-window samples of one depth in memory; `point` indexes rows of that depth's
-    PointTable. (Calibrate streams them instead: rigtool.analysis.point_pass.)"""
-
-    point: np.ndarray
-    thrust_n: np.ndarray
-    speed_rpm: np.ndarray
-    current_a: np.ndarray
-
-    def spread(self, name: str, note: str,
-               residual: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-               ) -> Coefficient:
-        """RMS (no interval) of `residual` over these samples."""
-        return residual_spread(residual(self.point, self.thrust_n, self.speed_rpm,
-                                        self.current_a), name, note, interval=False)
-
-
-@dataclass
 class ModelFits:
     """Coefficients of one depth, the points they used, and the thrust zero they found."""
 

@@ -172,26 +172,6 @@ class StepMetrics:
     settled: bool = True  # False: still outside the band, or only just inside, at the end
     window_s: float = math.nan  # length of the hold the step was measured over
 
-    def settling_text(self) -> str:
-        """The settling time as a report shows it (censored at the end of the window)."""
-        if self.settled and math.isfinite(self.settling_s):
-            return f"{self.settling_s:.3g}"
-        if math.isfinite(self.window_s):
-            return f"> {self.window_s:.1f} s (not settled in the window)"
-        return "not settled in the window"
-
-    def measured_text(self, value: float, scale: float = 1.0, digits: int = 3) -> str:
-        """A timing measured against the end of the hold (rise, overshoot): as a number when
-        the step settled, else "not measured (not settled)": its end level is not the step's."""
-        if not self.settled:
-            return "not measured (not settled)"
-        return "" if not math.isfinite(value) else f"{scale * value:.{digits}g}"
-
-    def end_text(self) -> str:
-        """The thrust at the end of the hold, marked when it is not a settled level."""
-        text = f"{self.thrust_to_n:.3g}"
-        return text if self.settled else f"{text} (still moving)"
-
 
 @dataclass
 class Dynamics:

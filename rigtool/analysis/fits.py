@@ -723,15 +723,6 @@ def fit_thrust_current(i_a: np.ndarray, i_0: float, f_n: np.ndarray, se_f: np.nd
     return fit_directional(sign * d**power, f_n, se_f, dx, t_s, masks, zero=zero)
 
 
-def widen(c: Coefficient, se: float, z: float = 1.96) -> Coefficient:
-    """`c` with a further independent error of standard error `se` in its interval."""
-    if se <= 0 or not math.isfinite(se):
-        return c
-    extra = z * se
-    return dataclasses.replace(c, lo=c.value - math.hypot(c.value - c.lo, extra),
-                               hi=c.value + math.hypot(c.hi - c.value, extra))
-
-
 def with_systematic(c: Coefficient, rel: float) -> Coefficient:
     """`c` with rel * |value| added in quadrature to both sides of its interval.
 

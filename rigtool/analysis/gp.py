@@ -46,7 +46,7 @@ NOISE_SMOOTHING = 1.0  # length scale (standardised inputs) of `local_square_qua
 # them the likelihood went to a signal variance of 1000 and a white noise of 1e-3 (the old
 # bounds), the GP interpolated its rough targets exactly and swung to -10 (a factor exp(-10)
 # on the variance) between rows; a fold model's held-out events fell into such a hole and
-# the interval check widened the exported intervals to +-68 N (docs/cavitation.md).
+# the interval check widened the exported intervals to +-68 N (research/cavitation-log.md).
 MAX_NOISE_SIGNAL_VAR = 4.0
 MIN_NOISE_WHITE_VAR = 0.05
 MIN_SIDE_ROWS = 20  # rows a side (quiet, ventilating) needs for a noise level of its own
@@ -411,7 +411,7 @@ MIN_CHECK_ROWS = 30  # held-out rows of a class below which it gets no shift of 
 EVENT_EXTRA = 1.0  # log-variance the detected events may add to cover ventilation the gate misses
 # log-variance the check may take off the event intervals (a factor 0.55 on the sd): with the
 # missed ventilation covered apart, a check over 12-17 held-out events asked for up to -1.8
-# (sd x 0.4) and a new run's events were covered 85 % (cal-dev replay, docs/cavitation.md)
+# (sd x 0.4) and a new run's events were covered 85 % (cal-dev replay, research/cavitation-log.md)
 EVENT_SHRINK = 1.2
 MIN_MISSED_ROWS = 5  # held-out missed-ventilation rows a speed level needs for a widening
 MISSED_OWN_ROWS = 45  # missed rows from which their 95 % bound is no longer their largest

@@ -50,7 +50,7 @@ def point_pass(run: RunData, criterion: SettlingCriterion) -> tuple[SteadyWindow
 
 
 class _Strided:
-    """The values `steady.resolution` looks at, gathered block by block: every k-th finite
+    """The values `steady.printed_step` is handed, gathered block by block: every k-th finite
     value with k from the run's sample count (right when the channel has no NaN), and all
     of them while there are few. A channel with NaNs and many values is read again."""
 

@@ -166,7 +166,7 @@ class SteadyWindows:
     def point_table(self, steps: Steps, n_samples: np.ndarray,
                     resolutions: dict[str, float]) -> PointTable:
         """The run's point table; `resolutions`: the printed step of thrust, current and
-        voltage (see `resolution`; 0 or missing: none)."""
+        voltage (see `printed_step`; 0 or missing: none)."""
         n = len(steps)
         return PointTable(
             step_idx=steps.idx, command=steps.command, depth_m=steps.depth_m,
@@ -205,21 +205,15 @@ RESOLUTION_CHANNELS = ("thrust_n", "current_a", "voltage_v")  # those `resolutio
 
 
 def resolution_stride(n_finite: int) -> int:
-    """Every how many finite values `resolution` looks at, of a channel with `n_finite`."""
+    """Every how many finite values `printed_step` is handed, of a channel with `n_finite`."""
     return n_finite // RESOLUTION_SAMPLES + 1 if n_finite > RESOLUTION_SAMPLES else 1
 
 
-def resolution(x: np.ndarray) -> float:
-    """The step a channel's values are printed in (0.05 A, 0.01 kgf in N, ...): the smallest
-    gap between distinct values, or a whole fraction of it, that every value is a whole
-    multiple of; 0 when there is none (live readings) or too few distinct values to tell.
-    At most RESOLUTION_SAMPLES values, evenly strided, are looked at."""
-    v = x[np.isfinite(x)]
-    return printed_step(v[::resolution_stride(v.size)])
-
-
 def printed_step(values: np.ndarray) -> float:
-    """`resolution` of finite `values`, all of them looked at."""
+    """The step finite `values` are printed in (0.05 A, 0.01 kgf in N, ...): the smallest gap
+    between distinct values, or a whole fraction of it, that every value is a whole multiple
+    of; 0 when there is none (live readings) or too few distinct values to tell. The point
+    pass hands it at most RESOLUTION_SAMPLES values of a channel, evenly strided."""
     v = np.unique(np.abs(values))
     gaps = np.diff(v)
     if v.size < MIN_DISTINCT or not (gaps > 0).any():

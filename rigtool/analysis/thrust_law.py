@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 
 import numpy as np
 
@@ -80,6 +81,25 @@ def _fit_power(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[dict[str, f
 def evaluate(family: str, params: dict[str, float], x: np.ndarray) -> np.ndarray:
     """Thrust magnitude at speed magnitude `x` (r/min) by `family` with `params`."""
     return laws.thrust_law(family, params, x)
+
+
+def signed_law(laws_by_direction: dict[str, dict]) -> Callable[[np.ndarray], np.ndarray] | None:
+    """Signed thrust (relative to the zero) at signed speed by each direction's chosen law
+    (`choose_law` records, keyed "fwd"/"rev"); NaN on a side without a law. None without any."""
+    if not laws_by_direction:
+        return None
+
+    def thrust(speed_rpm: np.ndarray) -> np.ndarray:
+        n = np.asarray(speed_rpm, dtype=float)
+        out = np.full(n.shape, np.nan)
+        for key, sign in (("fwd", 1.0), ("rev", -1.0)):
+            law = laws_by_direction.get(key)
+            side = n * sign > 0
+            if law is not None and side.any():
+                out[side] = sign * evaluate(law["family"], law["params"], np.abs(n[side]))
+        return out
+
+    return thrust
 
 
 def _held_out_rms(family: str, x: np.ndarray, y: np.ndarray, w: np.ndarray) -> float:

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -56,20 +57,30 @@ from rigtool.outpaths import run_folder
 GRAMS_PER_NEWTON = 1000.0 / 9.80665  # grams-force per newton
 FORMAT = "rigtool-calibration"
 FORMAT_VERSION = 1
-FILES = {
-    "calibration": "calibration.json",
-    "points": "points.csv",
-    "command_curve": "command_curve.csv",
-    "inverse_lut": "inverse_lut.csv",
-    "performance": "performance.csv",
-    "voltage": "voltage.csv",
-}
 COMMAND_UNIT = "<command unit>"
+
+
+@dataclass(frozen=True)
+class CalibrationFile:
+    """One file of a calibration folder: its name, when it is written, how it is rendered
+    (from the calibration and the creation time) and its line in docs/artefacts.md."""
+
+    key: str
+    name: str
+    written: Callable[[CalibrationResult], bool]
+    render: Callable[[CalibrationResult, str], str]
+    doc: str
+    listed: bool = True  # named in calibration.json `files` (captive.csv is in `captive`)
+
+
+def _always(cal: CalibrationResult) -> bool:
+    return True
 
 
 def write_artefacts(cal: CalibrationResult, out_dir: str | Path,
                     created_utc: str | None = None) -> list[Path]:
-    """Write the artefacts of `cal` into `out_dir`/<run-id>/ and return the file paths.
+    """Write the artefacts of `cal` into `out_dir`/<run-id>/ and return the file paths; a
+    file this calibration does not write is removed (an earlier calibration's is wrong now).
 
     `created_utc` (ISO-8601) is the only timestamp written; pass the same value to get
     byte-identical files on a rerun. It defaults to now.
@@ -77,28 +88,13 @@ def write_artefacts(cal: CalibrationResult, out_dir: str | Path,
     created = created_utc or utc_now()
     target = run_folder(out_dir, cal.run_id)
     target.mkdir(parents=True, exist_ok=True)
-    head = _csv_head(cal, created)
-    texts = {
-        "calibration": json_text(calibration_document(cal, created)),
-        "points": csv_text(head + POINTS_DOC, _units(POINT_COLUMNS, cal), _point_rows(cal)),
-        "command_curve": csv_text(head + CURVE_DOC, _units(CURVE_COLUMNS, cal),
-                                  curve_rows(cal)),
-        "inverse_lut": lut_text(cal, created),
-        "performance": performance_text(cal),
-    }
-    captive = target / CAPTIVE_FILE
-    if cal.captive is not None:
-        paths = [atomic_write(captive, csv_text(head + CAPTIVE_DOC, CAPTIVE_COLUMNS,
-                                                captive_rows(cal.captive)))]
-    else:
-        paths = []
-        captive.unlink(missing_ok=True)  # from an earlier calibration
-    stale = target / FILES["voltage"]
-    if cal.voltage_laws:
-        texts["voltage"] = csv_text(head + VOLTAGE_DOC, VOLTAGE_COLUMNS, voltage_rows(cal))
-    elif stale.exists():
-        stale.unlink()  # from an earlier calibration of a run that no longer has voltages
-    return [atomic_write(target / FILES[key], text) for key, text in texts.items()] + paths
+    paths = []
+    for file in CALIBRATION_FILES:
+        if file.written(cal):
+            paths.append(atomic_write(target / file.name, file.render(cal, created)))
+        else:
+            (target / file.name).unlink(missing_ok=True)
+    return paths
 
 
 def _csv_head(cal: CalibrationResult, created: str) -> list[str]:
@@ -131,8 +127,8 @@ def calibration_document(cal: CalibrationResult, created_utc: str) -> dict:
             "propeller_diameter_m": cal.propeller_diameter_m,
             "water_density_kg_m3": cal.water_density_kg_m3,
         },
-        "files": {k: v for k, v in FILES.items()
-                  if k != "calibration" and (k != "voltage" or cal.voltage_laws)},
+        "files": {f.key: f.name for f in CALIBRATION_FILES
+                  if f.listed and f.key != "calibration" and f.written(cal)},
         "analysis": dataclasses.asdict(cal.params),
         "steady_window": {
             "method": "block-mean settling criterion (see analysis.settling)",
@@ -629,3 +625,42 @@ def performance_text(cal: CalibrationResult) -> str:
     lines += [",".join("" if isinstance(v, float) and math.isnan(v) else csv_cell(v)
                        for v in row) for row in performance_rows(cal)]
     return "\n".join(lines) + "\n"
+
+
+def _table(head_doc: list[str], columns: Sequence[tuple[str, str, str]],
+           rows: Callable[[CalibrationResult], Iterable[list[object]]]
+           ) -> Callable[[CalibrationResult, str], str]:
+    """A renderer of a commented CSV: the common head, `head_doc`, `columns` and `rows`."""
+    return lambda cal, created: csv_text(_csv_head(cal, created) + head_doc,
+                                         _units(columns, cal), rows(cal))
+
+
+# Every file of a calibration folder, in the order written: the one declaration that
+# write_artefacts, calibration.json `files`, the docs and the goldens read.
+CALIBRATION_FILES: tuple[CalibrationFile, ...] = (
+    CalibrationFile("calibration", "calibration.json", _always,
+                    lambda cal, created: json_text(calibration_document(cal, created)),
+                    "every coefficient with its 95 % interval, unit and fit quality; dead zones, "
+                    "saturated ranges, break-aways, branches; the analysis parameters; warnings"),
+    CalibrationFile("points", "points.csv", _always, _table(POINTS_DOC, POINT_COLUMNS, _point_rows),
+                    "one row per recorded point: steady-window statistics of thrust, speed, current"),
+    CalibrationFile("command_curve", "command_curve.csv", _always,
+                    _table(CURVE_DOC, CURVE_COLUMNS, curve_rows),
+                    "one row per distinct command: thrust vs command, state (dead / live / "
+                    "saturated), monotone fit"),
+    CalibrationFile("inverse_lut", "inverse_lut.csv", _always, lut_text,
+                    "inverse lookup table command(thrust) for vehicle controllers"),
+    CalibrationFile("performance", "performance.csv", _always,
+                    lambda cal, created: performance_text(cal),
+                    "manufacturer-style table, one row per command: speed, current, voltage, "
+                    "electrical power, thrust (N and kgf), efficiency (g/W)"),
+    CalibrationFile("voltage", "voltage.csv", lambda cal: bool(cal.voltage_laws),
+                    _table(VOLTAGE_DOC, VOLTAGE_COLUMNS, voltage_rows),
+                    "only for a run with a supply-voltage axis: the coefficients at each voltage "
+                    "and the fitted C_n(U)"),
+    CalibrationFile("captive", CAPTIVE_FILE, lambda cal: cal.captive is not None,
+                    _table(CAPTIVE_DOC, CAPTIVE_COLUMNS, lambda cal: captive_rows(cal.captive)),
+                    "only for a captive run: one row per point, the held vehicle's forces and "
+                    "moments at each flow speed and angle", listed=False),
+)
+FILES = {f.key: f.name for f in CALIBRATION_FILES}

@@ -24,6 +24,7 @@ from rigtool.analysis.dynamics import (
 from rigtool.analysis.results import CalibrationResult, DepthSection
 from rigtool.artefacts.write import csv_cell
 from rigtool.models.thrust_map import Table, ThrustMap, thrust_map
+from rigtool.sections import default_section
 from rigtool.version import __version__
 
 RAD_S_PER_RPM = 2.0 * math.pi / 60.0
@@ -235,13 +236,10 @@ class ExportInput:
 
 
 def deepest(cal: CalibrationResult) -> DepthSection:
-    """The section the vehicle artefacts describe: the deepest (or the only) depth and, in a
-    voltage sweep, the middle supply voltage (as the Python API's default)."""
-    known = [s.depth_m for s in cal.sections if s.depth_m is not None]
-    depth = max(known) if known else cal.sections[0].depth_m
-    here = sorted((s for s in cal.sections if s.depth_m == depth),
-                  key=lambda s: -math.inf if s.voltage_v is None else s.voltage_v)
-    return here[(len(here) - 1) // 2]
+    """The section the vehicle artefacts describe: the default section (rigtool.sections), as
+    the Python API's."""
+    return cal.sections[default_section([s.depth_m for s in cal.sections],
+                                        [s.voltage_v for s in cal.sections])]
 
 
 def branches(sec: DepthSection) -> list[tuple[str, np.ndarray, np.ndarray]]:

@@ -16,13 +16,14 @@ if TYPE_CHECKING:
     from rigtool.analysis.results import CalibrationResult
     from rigtool.artefacts.vehicle import ExportOptions
 
-VEHICLE_FORMATS = ("c-header", "ros2", "gazebo", "csv-lut", "ardupilot", "px4", "uuv",
-                   "stonefish", "thruster-manager", "auv-controllers")  # artefacts.formats
 DYNAMICS_HELP = ("calibrated step-response run of the same thruster whose time constants the "
                  "vehicle artefacts carry (default: the run's own, when it is one)")
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
+    from rigtool.artefacts.formats import MODULES
+
+    formats = tuple(MODULES)  # the format registry, read when the parser is built
     p = sub.add_parser("calibrate", help="fit a run; write calibrations/<run-id>/ artefacts",
                        parents=[RUN, CALIBRATIONS_OUT, DB])
     p.add_argument("--report", action="store_true", help="also write the HTML report")
@@ -35,15 +36,15 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
                    help="also train the quasi-cavitation model on this shallow run of the same "
                    "thruster (repeatable; two runs or more are recommended)")
     p.add_argument("--export", metavar="FORMAT", action="append", default=[],
-                   choices=VEHICLE_FORMATS, help="also write a vehicle artefact: "
-                   f"{', '.join(VEHICLE_FORMATS)} (repeatable; docs/artefacts.md)")
+                   choices=formats, help="also write a vehicle artefact: "
+                   f"{', '.join(formats)} (repeatable; docs/artefacts.md)")
     p.add_argument("--dynamics", metavar="RUN", help=DYNAMICS_HELP)
     _export_options(p)
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("export-cal", help="write vehicle and simulator artefacts of a "
                        "calibrated run (docs/artefacts.md)", parents=[RUN, CALIBRATIONS_OUT, DB])
-    p.add_argument("--format", action="append", required=True, choices=VEHICLE_FORMATS,
+    p.add_argument("--format", action="append", required=True, choices=formats,
                    help="artefact to write (repeatable)")
     p.add_argument("--dynamics", metavar="RUN", help=DYNAMICS_HELP)
     _export_options(p)

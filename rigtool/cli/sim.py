@@ -12,10 +12,13 @@ from rigtool.cli.console import err, out
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
+    from rigtool.sim.personalities import SENSORS
+    from rigtool.thruster_profiles import PROFILES
+
     p = sub.add_parser("sim", help="run the simulator twin on real transports and print its rig file")
-    p.add_argument("--profile", default="stm32-pwm", help="can-bldc | stm32-pwm | esc-1100-1900")
+    p.add_argument("--profile", default="stm32-pwm", help=" | ".join(PROFILES))
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--sensor", default="netft", help="netft | mark10 | hx711")
+    p.add_argument("--sensor", default="netft", help=" | ".join(SENSORS))
     p.add_argument("--bind", default="127.0.0.1", metavar="ADDRESS",
                    help="address the network personalities serve on (default 127.0.0.1: this "
                         "host only; e.g. 0.0.0.0 makes the simulator reachable from the LAN)")

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pyarrow as pa
 
 from rigtool.analysis.results import DEEP_DEPTH_M
-from rigtool.api import deepest_depth, middle_voltage
+from rigtool.sections import default_section
 from rigtool.store import Store
 
 _TEXT = pa.string()
@@ -66,9 +66,8 @@ def _main_section(depths: list[dict]) -> int | None:
     depth, the middle supply voltage there); None without sections."""
     if not depths:
         return None
-    depth = deepest_depth([d.get("depth_m") for d in depths])
-    here = [i for i, d in enumerate(depths) if d.get("depth_m") == depth]
-    return here[middle_voltage([depths[i].get("supply_voltage_v") for i in here])]
+    return default_section([d.get("depth_m") for d in depths],
+                           [d.get("supply_voltage_v") for d in depths])
 
 
 def _role(depth: float | None, deep_m: float) -> str:

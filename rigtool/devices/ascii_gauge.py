@@ -26,11 +26,12 @@ from collections.abc import Callable, Mapping
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
 from rigtool.bounds import Baudrate, PositiveSeconds, Scale
 from rigtool.devices.base import Device, ForceBlock
 from rigtool.devices.buffer import SampleBuffer
+from rigtool.devices.capabilities import SensorSection
 from rigtool.devices.framing import LineFramer
 from rigtool.errors import DeviceError
 from rigtool.units import FORCE_UNITS_N, FT_CHANNELS, unit_factor
@@ -51,8 +52,8 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
-class AsciiGaugeConfig(BaseModel):
-    """The `sensor:` section of a rig file for a serial ASCII force gauge."""
+class AsciiGaugeConfig(SensorSection):
+    """The `sensor:` section of a rig file for a serial ASCII force gauge (one force axis)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     driver: Literal["ascii-gauge"]
@@ -99,6 +100,10 @@ class AsciiGaugeConfig(BaseModel):
         if self.scale == 0 or not np.isfinite(self.scale) or not np.isfinite(self.offset):
             raise ValueError("scale must be finite and non-zero, offset finite")
         return self
+
+    def temperature_source(self) -> bool:
+        """A gauge reads a temperature when its pattern has a `temperature_c` group."""
+        return has_temperature(self)
 
 
 def has_temperature(config: AsciiGaugeConfig) -> bool:

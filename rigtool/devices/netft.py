@@ -57,10 +57,10 @@ import urllib.request
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from rigtool.bounds import (
     MAX_RATE_HZ,
@@ -72,6 +72,7 @@ from rigtool.bounds import (
 from rigtool.devices import mmsg
 from rigtool.devices.base import Device, ForceBlock
 from rigtool.devices.buffer import SampleBuffer
+from rigtool.devices.capabilities import SensorSection
 from rigtool.errors import DeviceError
 from rigtool.units import FORCE_UNITS_N, FT_CHANNELS, TORQUE_UNITS_NM, unit_factor
 
@@ -109,10 +110,12 @@ def pack_request(command: int, sample_count: int = 0) -> bytes:
     return REQUEST.pack(RDT_HEADER, command, sample_count)
 
 
-class NetFTConfig(BaseModel):
-    """The `sensor:` section of a rig file for an ATI Net F/T."""
+class NetFTConfig(SensorSection):
+    """The `sensor:` section of a rig file for an ATI Net F/T (six axes)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    axes: ClassVar[int] = 6
+    measures_torque: ClassVar[bool] = True
     driver: Literal["ati-netft"]
     host: str = Field(min_length=1)
     port: int = Field(RDT_PORT, ge=1, le=65535)
@@ -147,6 +150,10 @@ class NetFTConfig(BaseModel):
             raise ValueError("give both counts_per_force and counts_per_torque, or neither "
                              "(then they are read from the box's netftapi2.xml)")
         return self
+
+    def stated_rate(self) -> str | None:
+        """Without configured counts the box states its RDT rate in netftapi2.xml."""
+        return "the box's RDT rate (netftapi2.xml)" if self.counts_per_force is None else None
 
 
 @dataclass(frozen=True)

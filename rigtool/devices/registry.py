@@ -1,53 +1,81 @@
-"""Which class implements each `driver:` name of a rig file, for each device role.
+"""Which classes implement each `driver:` name of a rig file, for each device role: the one list.
 
-A table of name -> (module, class), as python-can keeps for its interfaces: a driver's class
-is looked up, and its module imported, only when a rig opens it. Each section's config model
-is part of the rig schema (rig.py); `tests/test_device_base.py` checks that both list the
-same names.
+A table of name -> (module, driver class, config model), as python-can keeps for its
+interfaces. The rig schema (rig.py) is built from it, so adding a driver is its module plus
+one line here; what the driver can measure is declared on its config model
+(devices/capabilities.py). Driver modules are imported when the rig schema is built; the
+transport libraries they use (pyserial, python-can, cantools, pyvisa) load only when a driver
+opens a port or a bus.
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
     from rigtool.devices.base import ActuatorInfo, Device
 
-# role -> driver name -> (module, class)
-DRIVERS: dict[str, dict[str, tuple[str, str]]] = {
+
+class Driver(NamedTuple):
+    """Where a driver lives: its module, its device class and its rig-section config model."""
+
+    module: str
+    cls: str
+    config: str
+
+
+# role -> driver name -> where it lives
+DRIVERS: dict[str, dict[str, Driver]] = {
     "actuator": {
-        "stm32-bridge": ("rigtool.devices.stm32_bridge", "Stm32Bridge"),
-        "vesc-can": ("rigtool.devices.vesc_can", "VescCanDriver"),
-        "dbc-can": ("rigtool.devices.dbc_can", "DbcCanDriver"),
+        "stm32-bridge": Driver("rigtool.devices.stm32_bridge", "Stm32Bridge", "Stm32BridgeConfig"),
+        "vesc-can": Driver("rigtool.devices.vesc_can", "VescCanDriver", "VescCanConfig"),
+        "dbc-can": Driver("rigtool.devices.dbc_can", "DbcCanDriver", "DbcCanConfig"),
     },
     "sensor": {
-        "ati-netft": ("rigtool.devices.netft", "NetFTSensor"),
-        "ascii-gauge": ("rigtool.devices.ascii_gauge", "AsciiGauge"),
+        "ati-netft": Driver("rigtool.devices.netft", "NetFTSensor", "NetFTConfig"),
+        "ascii-gauge": Driver("rigtool.devices.ascii_gauge", "AsciiGauge", "AsciiGaugeConfig"),
     },
     "depth_stage": {
-        "serial-stage": ("rigtool.devices.serial_stage", "SerialStage"),
+        "serial-stage": Driver("rigtool.devices.serial_stage", "SerialStage", "SerialStageConfig"),
     },
     "carriage": {
-        "serial-carriage": ("rigtool.devices.serial_carriage", "SerialCarriage"),
+        "serial-carriage": Driver("rigtool.devices.serial_carriage", "SerialCarriage",
+                                  "SerialCarriageConfig"),
     },
     "supply": {
-        "scpi-supply": ("rigtool.devices.scpi_supply", "ScpiSupply"),
+        "scpi-supply": Driver("rigtool.devices.scpi_supply", "ScpiSupply", "ScpiSupplyConfig"),
     },
 }
 
 
-def driver_class(role: str, name: str) -> type[Device]:
-    """The class of driver `name` in `role` (its module imported now); KeyError names the
-    drivers the role has."""
+def _entry(role: str, name: str) -> Driver:
+    """The table entry of driver `name` in `role`; KeyError names the drivers the role has."""
     try:
-        module, cls = DRIVERS[role][name]
+        return DRIVERS[role][name]
     except KeyError:
         known = ", ".join(DRIVERS.get(role, ()))
         raise KeyError(f"no {role} driver {name!r} (known: {known})") from None
-    return getattr(importlib.import_module(module), cls)
+
+
+def driver_class(role: str, name: str) -> type[Device]:
+    """The class of driver `name` in `role` (its module imported now)."""
+    entry = _entry(role, name)
+    return getattr(importlib.import_module(entry.module), entry.cls)
+
+
+def config_models(role: str) -> tuple[type[BaseModel], ...]:
+    """The rig-section config model of every driver of `role`, in table order (the schema's
+    discriminated union is built from them)."""
+    return tuple(getattr(importlib.import_module(e.module), e.config)
+                 for e in DRIVERS[role].values())
+
+
+def driver_modules() -> set[str]:
+    """Every registered driver's module (the layering test keeps them apart)."""
+    return {e.module for table in DRIVERS.values() for e in table.values()}
 
 
 def open_device(role: str, config: BaseModel) -> Device:

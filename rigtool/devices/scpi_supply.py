@@ -25,13 +25,14 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from rigtool.bounds import Baudrate, PositiveSeconds
 from rigtool.config import FieldError
 from rigtool.devices.base import Device
+from rigtool.devices.capabilities import SupplySection
 from rigtool.devices.framing import LineFramer
 from rigtool.devices.visa_link import VisaLink, check_library, check_resource, looks_like_resource
 from rigtool.errors import DeviceError, UsageError
@@ -45,10 +46,11 @@ Amps = Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]
 Protection = Literal["auto", "required", "off"]
 
 
-class ScpiSupplyConfig(BaseModel):
-    """Rig-file section for an SCPI supply (`driver: scpi-supply`)."""
+class ScpiSupplyConfig(SupplySection):
+    """Rig-file section for an SCPI supply (`driver: scpi-supply`); it measures its terminals."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    measures_supply: ClassVar[bool] = True
     driver: Literal["scpi-supply"]
     url: str | None = Field(None, min_length=1)  # pyserial URL: /dev/ttyUSB0, socket://host:5025
     # or a VISA resource string (needs the `visa` extra): TCPIP::host::5025::SOCKET, USB0::...::INSTR

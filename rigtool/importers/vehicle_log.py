@@ -27,6 +27,7 @@ ATTITUDE_COLUMNS = ("roll_rad", "pitch_rad", "yaw_rad")
 POSITION_COLUMNS = ("x_m", "y_m", "z_m")
 MIN_ROWS = 50
 MAX_ANGLE_RAD = 3.5  # beyond pi, an angle column is in degrees
+MAX_SPEED_MPS = 10.0  # faster than any thruster-driven vehicle: a log in cm/s or mm/s
 RATE_SLACK = 3.0  # how far the attitude's own slopes may disagree with the body rates
 GAP_STEPS = 5.0  # a time step this many times the median one is a gap: the log is cut there
 
@@ -119,6 +120,7 @@ def read_vehicle_log(path: str | Path, command_columns: list[str]) -> VehicleLog
     _check_angles(attitude, path)
     rest = data[:, 3 + k:]
     nu = rest if has_nu else _velocities_from_pose(t, rest, attitude)
+    _check_speeds(nu, path, has_nu)
     _check_rates(t, nu, attitude, path)
     notes = [] if has_nu else ["body velocities derived from the pose (local polynomial slopes)"]
     if skipped:
@@ -149,6 +151,16 @@ def _check_angles(attitude: np.ndarray, path: Path) -> None:
     if np.abs(attitude).max() > MAX_ANGLE_RAD:
         raise UsageError(f"{path}: roll_rad/pitch_rad reach {np.abs(attitude).max():.4g}: "
                          "angles must be in radians")
+
+
+def _check_speeds(nu: np.ndarray, path: Path, logged: bool) -> None:
+    """Refuse linear velocities no thruster-driven vehicle reaches: a log in cm/s or mm/s
+    (or positions in cm) would otherwise fit damping 100 times too small."""
+    top = float(np.abs(nu[:, :3]).max())
+    if top > MAX_SPEED_MPS:
+        what = "u_mps/v_mps/w_mps reach" if logged else "the positions give speeds of"
+        raise UsageError(f"{path}: {what} {top:.4g} m/s: velocities must be in m/s (and "
+                         "positions in m)")
 
 
 def _check_rates(t: np.ndarray, nu: np.ndarray, attitude: np.ndarray, path: Path) -> None:

@@ -22,6 +22,7 @@ from rigtool.artefacts.write import atomic_write
 from rigtool.ids import utc_now
 from rigtool.outpaths import REPORT_FILE
 from rigtool.report import figures as fg
+from rigtool.report import step_text
 from rigtool.run_warnings import run_warnings
 from rigtool.store import Store
 from rigtool.units import unit_label
@@ -124,6 +125,9 @@ def _template() -> jinja2.Template:
     env.filters["interval"] = fmt_interval
     env.filters["stat_interval"] = fmt_stat_interval
     env.filters["r2"] = fmt_r2
+    env.filters["settling_text"] = step_text.settling_text
+    env.filters["measured_text"] = step_text.measured_text
+    env.filters["end_text"] = step_text.end_text
     return env.get_template("report.html")
 
 

@@ -81,6 +81,13 @@ class GaugeTwin:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def rig_fields(self) -> dict:
+        """What the rig's `sensor:` section needs beyond the preset: a raw HX711's scale, offset
+        and unit."""
+        if self.preset != "hx711-csv":
+            return {}
+        return {"scale": self.scale, "offset": self.offset, "unit": "N"}
+
     def force_n(self) -> float:
         """The force the gauge sees now: the latest LiveTwin sample on its channel (N)."""
         block = self.live.latest()

@@ -16,10 +16,10 @@ import yaml
 from rigtool.devices import udp_loopback
 from rigtool.errors import UsageError
 from rigtool.sim.live import LiveTwin
+from rigtool.sim.personalities import SENSORS
 from rigtool.sim.physics import ThrusterTwin
 from rigtool.thruster_profiles import profile_with_overrides
 
-SENSORS = ("netft", "mark10", "hx711")
 LOOPBACK = "127.0.0.1"
 NETFT_PORT = 49152
 STAGE_ZERO_OFFSET_M = 0.1  # stage position (m) at which the propeller centre is at the surface
@@ -133,7 +133,8 @@ def start_sim(profile_name: str, seed: int = 1, sensor: str = "netft",
             rig["actuator"] = {"driver": "stm32-bridge", "url": bridge.url,
                                "command_unit": profile.command_unit,
                                "psc": bridge.psc, "arr": bridge.arr}
-        if sensor == "netft":
+        preset = SENSORS[sensor]
+        if preset is None:
             ft_host, port = parse_host_port(netft or str(NETFT_PORT), host)
             try:
                 ft = NetFTTwin(live, ft_host, port, seed=seed).start()
@@ -144,13 +145,10 @@ def start_sim(profile_name: str, seed: int = 1, sensor: str = "netft",
             h, p = ft.address
             rig["sensor"] = {"driver": "ati-netft", "host": h, "port": p, "http_port": ft.http_port}
         else:
-            preset = "mark10" if sensor == "mark10" else "hx711-csv"
             gauge = GaugeTwin(live, preset, seed=seed).start()
             server.parts["gauge"] = gauge
             rig["sensor"] = {"driver": "ascii-gauge", "url": gauge.port, "preset": preset,
-                             "channel": ("fx", "fy", "fz")[gauge.channel]}
-            if preset == "hx711-csv":
-                rig["sensor"].update(scale=gauge.scale, offset=gauge.offset, unit="N")
+                             "channel": ("fx", "fy", "fz")[gauge.channel], **gauge.rig_fields()}
         stage = StageTwin(live, zero_offset_m=STAGE_ZERO_OFFSET_M,
                           position_mm=(depth_m + STAGE_ZERO_OFFSET_M) * 1000).start()
         server.parts["stage"] = stage

@@ -1,7 +1,16 @@
 """ArduSub / ArduPilot `.param` file: MOT_PWM_MIN/MAX (the motor output range around the
 1500 us neutral), MOT_SPIN_MIN/MAX (where thrust starts and stops growing, as fractions of
-each half range) and MOT_THST_EXPO fitted as ArduPilot's WebTools ThrustExpo page fits it,
-here on |thrust| of both directions of a reversible thruster (docs/formats-controllers.md)."""
+each half range), MOT_SPIN_ARM (0: ArduPilot's metadata and arming check require it not above
+MOT_SPIN_MIN, and its default 0.10 is above the dead band edge of a typical ESC) and
+MOT_THST_EXPO fitted as ArduPilot's WebTools ThrustExpo page fits it, here on |thrust| of both
+directions of a reversible thruster (docs/formats-controllers.md).
+
+Read: libraries/AP_Motors/AP_MotorsMulticopter.cpp (master) metadata of MOT_SPIN_MIN ("Should be
+higher than MOT_SPIN_ARM", line 114) and MOT_SPIN_ARM (default 0.1, "Should be lower than
+MOT_SPIN_MIN", line 122) and AP_MotorsMulticopter::arming_checks (lines 967-968: refuses
+MOT_SPIN_ARM > MOT_SPIN_MIN); AP_Motors6DOF::calc_thrust_to_pwm returns int16_t from the float
+1500 + thrust x range, so the pulse is truncated to whole microseconds, which the stated error
+includes."""
 
 from __future__ import annotations
 
@@ -20,6 +29,8 @@ NEUTRAL_US = 1500.0  # AP_Motors6DOF writes 1500 us for zero thrust; it is not a
 EXPO_GRID = np.arange(-1.0, 1.0 + 1e-9, 0.005)  # WebTools: expo -1..1 in steps of 0.005
 THROTTLE_STEP = 0.001  # WebTools: actuator test values 0..1 in steps of 0.001
 THROTTLE = np.linspace(0.0, 1.0, 1001)
+SPIN_ARM = 0.0  # the neutral (1500 us): never above any thruster's MOT_SPIN_MIN
+SPIN_ARM_DEFAULT = 0.1  # AP_MOTORS_SPIN_ARM_DEFAULT, what a file without the line leaves
 
 
 def needs(x: ExportInput) -> list[str]:
@@ -62,6 +73,12 @@ def output_pwm(demand: np.ndarray, sign: float, p: dict[str, float]) -> np.ndarr
         np.abs(np.asarray(demand, dtype=float)), p["MOT_THST_EXPO"])
     half = p["MOT_PWM_MAX"] - NEUTRAL_US if sign > 0 else NEUTRAL_US - p["MOT_PWM_MIN"]
     return NEUTRAL_US + sign * act * half
+
+
+def whole_us(pwm: np.ndarray) -> np.ndarray:
+    """The pulse ArduSub writes: calc_thrust_to_pwm's float (single precision) converted to
+    int16_t, truncated toward zero (whole microseconds)."""
+    return np.trunc(np.asarray(pwm, dtype=np.float32)).astype(float)
 
 
 def _thrust(x: ExportInput, command: np.ndarray) -> np.ndarray:
@@ -114,13 +131,18 @@ def fit(x: ExportInput) -> dict[str, float]:
         if std < best[0]:
             best = (std, float(expo))
     p["MOT_THST_EXPO"] = round(best[1], 3)
-    err = 0.0
+    p["MOT_SPIN_ARM"] = SPIN_ARM
+    err, curve_err = 0.0, 0.0
     full = {}
     for s in signs:
-        f = s * _thrust(x, output_pwm(THROTTLE, s, p))
+        pwm = output_pwm(THROTTLE, s, p)
+        f = s * _thrust(x, pwm)
         full[s] = f[-1]
-        err = max(err, float(np.max(np.abs(f - THROTTLE * f[-1])) / f[-1]))
+        curve_err = max(curve_err, float(np.max(np.abs(f - THROTTLE * f[-1])) / f[-1]))
+        f_us = s * _thrust(x, whole_us(pwm))
+        err = max(err, float(np.max(np.abs(f_us - THROTTLE * f[-1])) / f[-1]))
     p["error_pct"] = 100.0 * err
+    p["curve_error_pct"] = 100.0 * curve_err
     p["reverse_ratio"] = full[-1.0] / full[1.0] if -1.0 in full else math.nan
     return p
 
@@ -133,7 +155,8 @@ def render(x: ExportInput) -> str:
     """The .param text: comment lines start with `#` (AP_Param::parse_param_line skips them),
     parameters are `NAME,value` lines; no stored text (its syntax has no quoting)."""
     p = fit(x)
-    names = ("MOT_PWM_MIN", "MOT_PWM_MAX", "MOT_SPIN_MIN", "MOT_SPIN_MAX", "MOT_THST_EXPO")
+    names = ("MOT_PWM_MIN", "MOT_PWM_MAX", "MOT_SPIN_ARM", "MOT_SPIN_MIN", "MOT_SPIN_MAX",
+             "MOT_THST_EXPO")
     first, _, units = x.head([])
     head = [first, "source run: the folder's name, calibrations/<run-id>/; run name, thruster, "
             "creation time and command unit are in its calibration.json (.param has no quoting "
@@ -146,7 +169,13 @@ def render(x: ExportInput) -> str:
              "# bidirectional linearisation of ArduPilot PR #32409 (not in a release yet).",
              f"# Linearised thrust off a straight line in the demand by at most "
              f"{p['error_pct']:.2f} % of full thrust",
-             "# (expo fitted as WebTools ThrustExpo does, on |thrust| of each direction).",
+             "# (expo fitted as WebTools ThrustExpo does, on |thrust| of each direction), the",
+             "# pulse truncated to whole us as ArduSub writes it (int16); the curve alone",
+             f"# {p['curve_error_pct']:.2f} %.",
+             "# MOT_SPIN_ARM 0: ArduPilot requires MOT_SPIN_ARM <= MOT_SPIN_MIN (its",
+             f"# metadata; the arming check refuses more), its default {SPIN_ARM_DEFAULT:g} is "
+             f"{'above' if p['MOT_SPIN_MIN'] < SPIN_ARM_DEFAULT else 'not above'}",
+             "# this MOT_SPIN_MIN; 0 (1500 us, no thrust) is never above a thruster's.",
              *(f"{name},{_value(name, p[name])}" for name in names)]
     if math.isfinite(p["reverse_ratio"]):
         lines += ["# Reverse / forward thrust at full demand, for the thrust asymmetry parameter",

@@ -2,6 +2,10 @@
 the measured thrust range and zeroed below the smallest thrust the thruster makes (<deadband>,
 N); the propeller turns at w with C_T rho D^4 w|w| = thrust, C_T = C_p / (rho D^4 (2 pi /
 60)^2) from C_p_fwd in N/(r/min)^2 (the system takes one coefficient; docs/formats-simulators.md).
+Beside the clamps, the speed clamps (rad/s) angular-velocity mode needs: Thruster.cc clamps an
+angular-velocity command with the same two elements (OnCmdAngVel, lines 549-558 at
+gz-sim8_8.9.0; OnCmdThrust 517-526, ApplyDeadband 624-631 on the thrust in both modes, the
+clamps read at 430-451, cmdMin/cmdMax -1000/1000 at 115-119).
 """
 
 from __future__ import annotations
@@ -56,6 +60,36 @@ def thrust_limits(x: ExportInput) -> tuple[float, float, float] | None:
     return lo, hi, band
 
 
+def angvel_limits(x: ExportInput) -> tuple[float, float] | None:
+    """(min, max) angular-velocity command in rad/s for use_angvel_cmd true: the speeds at
+    which the block's one coefficient gives the measured thrust range (thrust = C_T rho D^4
+    w|w|, AngularVelToThrust), so that mode clamps to the same thrusts force mode does."""
+    limits = thrust_limits(x)
+    k = x.coef("C_p_fwd") / RAD_S_PER_RPM**2  # C_T rho D^4, N/(rad/s)^2
+    if limits is None or not k > 0:
+        return None
+    lo, hi, _ = limits
+    return -math.sqrt(-lo / k), math.sqrt(hi / k)
+
+
+def _angvel(x: ExportInput) -> tuple[str, str]:
+    """The rigtool_angvel_* elements and the comment saying what changes with the mode."""
+    speeds = angvel_limits(x)
+    if speeds is None:
+        return "", ""
+    w_lo, w_hi = speeds
+    return (f"  <rigtool_angvel_min_cmd>{w_lo:.9g}</rigtool_angvel_min_cmd>\n"
+            f"  <rigtool_angvel_max_cmd>{w_hi:.9g}</rigtool_angvel_max_cmd>\n",
+            " Angular-velocity mode: gz-sim clamps that command (rad/s) with the same "
+            "max_thrust_cmd and min_thrust_cmd, so change three elements together: "
+            "use_angvel_cmd true, max_thrust_cmd to rigtool_angvel_max_cmd "
+            f"({w_hi:.6g}) and min_thrust_cmd to rigtool_angvel_min_cmd ({w_lo:.6g}), the "
+            "speeds (rad/s) at which C_T gives the measured thrust range; keeping the "
+            "thrusts (N) there clamps the speed to their square root and loses most of the "
+            "thrust. thrust_coefficient, fluid_density, propeller_diameter and deadband (N, "
+            "applied to the thrust in both modes) stay.")
+
+
 def render(x: ExportInput) -> str:
     """The <plugin> block's text."""
     cp, rev = x.coef("C_p_fwd"), x.coef("C_p_rev")
@@ -77,6 +111,7 @@ def render(x: ExportInput) -> str:
         clamp_note = (" Thrust commands (N) are clamped to the measured range; deadband: a "
                       "command of smaller magnitude gives no thrust (N; the smaller of the "
                       "two directions' smallest thrusts).")
+    angvel, angvel_note = _angvel(x)
     dp = x.dynamics_params()
     lag, lag_note = "", " No time constant identified."
     if dp is not None:
@@ -90,7 +125,7 @@ def render(x: ExportInput) -> str:
     return (f"<!-- {comment} -->\n"
             f"<!-- Force mode (use_angvel_cmd false): the thrust command in N is the force "
             "applied. The joint turns at w with C_T rho D^4 w|w| = thrust, w in rad/s, C_T "
-            f"from C_p_fwd = {cp:.6g} N/(r/min)^2.{rev_note}{clamp_note}{lag_note} -->\n"
+            f"from C_p_fwd = {cp:.6g} N/(r/min)^2.{rev_note}{clamp_note}{angvel_note}{lag_note} -->\n"
             '<plugin filename="gz-sim-thruster-system" name="gz::sim::systems::Thruster">\n'
             f"  <namespace>{xml_text(x.options.namespace or '')}</namespace>\n"
             f"  <joint_name>{xml_text(x.options.joint or '')}</joint_name>\n"
@@ -98,6 +133,6 @@ def render(x: ExportInput) -> str:
             f"  <thrust_coefficient>{c_t:.9g}</thrust_coefficient>\n"
             f"  <fluid_density>{rho:.9g}</fluid_density>\n"
             f"  <propeller_diameter>{d:.9g}</propeller_diameter>\n"
-            f"{clamp}{lag}"
+            f"{clamp}{angvel}{lag}"
             + "".join(f"  <{tag}>{xml_text(text)}</{tag}>\n" for tag, text in texts.items())
             + "</plugin>\n")

@@ -1,7 +1,14 @@
 """PX4 parameter file as QGroundControl loads it (Parameters > Tools > Load from file):
 THR_MDL_FAC and the rotor's CA_ROTOR{n}_CT (and CA_ROTOR{n}_KM when torque was measured),
 fitted to PX4's thrust model over the output range it maps the motor to
-(docs/formats-controllers.md)."""
+(docs/formats-controllers.md).
+
+The output range is advised in the driver's units PX4 takes: MixingOutput::
+output_limit_calc_single (src/lib/mixer_module/mixer_module.cpp, main) interpolates -1..1 onto
+the output's minimum..maximum and returns lroundf of it constrained to 0..65535, so a limit is
+an unsigned driver value (PWM_MAIN_MINn/MAXn in us); the DroneCAN ESC driver
+(src/drivers/uavcan/actuators/esc.cpp update_outputs) sends those uint16 values as the raw
+command, never a negative one."""
 
 from __future__ import annotations
 
@@ -24,6 +31,7 @@ MAV_PARAM_TYPE_REAL32 = 9
 MAX_ROTORS = 12  # control_allocator module.yaml: max_num_mc_motors
 CT_MAX_N = 100.0  # control_allocator module.yaml: CA_ROTOR{n}_CT max
 MAX_ERROR_PCT = 50.0  # a fit missing by more is no thrust model of this thruster
+EXAMPLE_US = (1100.0, 1900.0)  # a PWM-input ESC taking -100..100 percent over this pulse range
 U = np.linspace(0.0, 1.0, 1001)  # normalised output magnitude
 
 
@@ -109,6 +117,31 @@ def rotor(x: ExportInput) -> int:
     return (x.options.index or 1) - 1
 
 
+def range_advice(x: ExportInput, lo: float, hi: float) -> list[str]:
+    """Comment lines with the output's minimum and maximum in units PX4 takes: whole us for a
+    pulse-width run; otherwise the fractions of the driver's span for the run's range (a
+    percent run's -100..100 % being the driver's full span) and what that is on a PWM ESC."""
+    unit = x.cal.command_unit
+    if unit == "pulse_us":
+        return [f"# Output range: PWM_MAIN_MIN<ch> {round(lo)}, PWM_MAIN_MAX<ch> {round(hi)} "
+                "(us, whole as PX4 stores them; <ch> the motor's output channel, the",
+                "# PWM_AUX_ or driver's own prefix on another output)."]
+    name = unit if unit in COMMAND_UNITS else "the command unit"
+    lines = [f"# Output range: the run's {lo:g} .. {hi:g} {name} cannot be typed: PX4's output "
+             "limits are the output driver's units, never negative (0..65535).",
+             f"# Set the minimum to the driver value that commands {lo:g} {name} of this "
+             f"thruster and the maximum to the one for {hi:g} {name}."]
+    if unit == "percent":
+        a, b = ((v + 100.0) / 200.0 for v in (lo, hi))
+        us = [EXAMPLE_US[0] + v * (EXAMPLE_US[1] - EXAMPLE_US[0]) for v in (a, b)]
+        lines += [f"# Those are {a:.4g} and {b:.4g} of the way from the driver's -100 % value to "
+                  f"its 100 % value; a PWM-input ESC taking {EXAMPLE_US[0]:g}..{EXAMPLE_US[1]:g} "
+                  f"us for -100..100 %: PWM_MAIN_MIN<ch> {round(us[0])}, PWM_MAIN_MAX<ch> "
+                  f"{round(us[1])}."]
+    return lines + ["# PX4 sends a DroneCAN ESC (UAVCAN_EC_MIN/MAX) raw 0..8191 only, so it "
+                    "cannot run one that reverses on negative commands in reverse."]
+
+
 def _line(name: str, value: float) -> str:
     return f"{SYSTEM_ID}\t{COMPONENT_ID}\t{name}\t{value:.6g}\t{MAV_PARAM_TYPE_REAL32}"
 
@@ -118,7 +151,6 @@ def render(x: ExportInput) -> str:
     id, name, value, MAV_PARAM_TYPE lines; no stored text (the format has no quoting)."""
     p = fit(x)
     n = rotor(x)
-    unit = x.cal.command_unit if x.cal.command_unit in COMMAND_UNITS else "the command unit"
     first, _, units = x.head([])
     kind = ("reversible (set its CA_R_REV bit): -1..1 maps linearly onto the range, 0 to "
             "its middle" if p["reversible"] else "forward only: 0..1 maps onto the range")
@@ -127,7 +159,7 @@ def render(x: ExportInput) -> str:
              "creation time and command unit are in its calibration.json (no quoting here).",
              f"# {units}",
              f"# Rotor CA_ROTOR{n} (--index {n + 1}). Motor {kind}.",
-             f"# Set that output's minimum to {p['lo']:g} and maximum to {p['hi']:g} ({unit}).",
+             *range_advice(x, p["lo"], p["hi"]),
              "# PX4 model: thrust = CT (THR_MDL_FAC u^2 + (1 - THR_MDL_FAC) u), u the output",
              "# magnitude 0..1; CT in N (thrust at full output). Largest error over the range",
              f"# {p['error_pct']:.2f} % (RMS {p['rms_pct']:.2f} %) of the largest thrust.",
