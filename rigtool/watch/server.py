@@ -80,6 +80,10 @@ class _Handler(BaseHTTPRequestHandler):
     server_version = "rigtool-watch"
     sys_version = ""
     timeout = REQUEST_TIMEOUT_S  # a client that stops sending mid-request frees its thread
+    # The base answers a request line without a version it can read as HTTP/0.9: the body
+    # alone, with no status line and no headers. Answered as HTTP/1.0, even the error page
+    # for an unparsable version carries HEADERS.
+    default_request_version = "HTTP/1.0"
 
     def end_headers(self) -> None:
         """Every response, the server's own error pages included, carries HEADERS."""
