@@ -8,7 +8,6 @@ exists: never an empty or partly merged database."""
 from __future__ import annotations
 
 import argparse
-import sqlite3
 from pathlib import Path
 
 from rigtool.cli.console import err, out
@@ -47,7 +46,9 @@ def cmd_merge(args: argparse.Namespace) -> int:
             raise type(exc)(f"{exc}; nothing was merged into {target}") from None
         raise
     if created:
-        _fold_wal(building)
+        if building.with_name(building.name + "-wal").exists():  # closing folds the log in
+            raise DataError(f"{building}: the merged database's write-ahead log was not "
+                            f"folded in when it closed; it is left there, not at {target}")
         building.replace(target)
     for src, report in zip(sources, reports, strict=True):
         out.print(f"{src}: {len(report.added)} run(s) added, {len(report.updated)} updated, "
@@ -68,16 +69,3 @@ def _remove_database(path: Path) -> None:
     for part in (path, *(path.with_name(path.name + x) for x in ("-wal", "-shm"))):
         part.unlink(missing_ok=True)
 
-
-def _fold_wal(path: Path) -> None:
-    """Bring what a write-ahead log beside `path` still holds into the file itself, so the
-    file alone is the database when it is renamed (closing the store normally did)."""
-    wal = path.with_name(path.name + "-wal")
-    if wal.exists():
-        conn = sqlite3.connect(path)
-        try:
-            conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-        finally:
-            conn.close()
-        wal.unlink(missing_ok=True)
-        path.with_name(path.name + "-shm").unlink(missing_ok=True)
