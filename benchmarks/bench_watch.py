@@ -3,9 +3,10 @@
 Starts `rigtool sim` (STM32 bridge over TCP, Net F/T over UDP) at `--rate`, then runs the
 bench_realtime protocol as a `rigtool sweep --rig` process three ways, in one run: alone
 (the baseline), with `rigtool watch` in its own process polled for /data once a second the
-way the page polls, and with `--watch` (the server in a thread of the sweep process, polled
-the same way). Reports the sweep process's CPU (% of one core) in each, the rise over the
-baseline and the ratio, and samples lost (sequence gaps, lost packets). The target: a
+way the page polls, and with `--watch` (the server in a child process the sweep starts and
+waits for, so its CPU counts with the sweep's; polled the same way). Reports the sweep
+process's CPU (% of one core) in each, the rise over the baseline and the ratio, and samples
+lost (sequence gaps, lost packets). The target: a
 watcher raises the sweep's CPU by less than 1 % of a core and loses nothing.
 
     python benchmarks/bench_watch.py [--minutes 1] [--rate 7000] [--rounds 2]
@@ -67,7 +68,7 @@ def run(root: Path, rig: Path, rate: float, minutes: float, mode: str, tag: str
     protocol = root / f"p-{tag}.yaml"
     protocol.write_text(PROTOCOL.format(rate=rate, repeats=repeats))
     db = root / f"{tag}.sqlite"
-    extra = ["--watch", "0"] if mode == "in-process" else []
+    extra = ["--watch", "0"] if mode == "--watch" else []
     t0 = time.monotonic()
     proc = subprocess.Popen([sys.executable, "-m", "rigtool", "sweep", str(protocol), "--rig",
                              str(rig), "--db", str(db), *extra],
@@ -76,7 +77,7 @@ def run(root: Path, rig: Path, rate: float, minutes: float, mode: str, tag: str
     stop, counts, watch = threading.Event(), [0, 0], None
     poller = None
     if mode != "alone":
-        if mode == "in-process":
+        if mode == "--watch":
             url = _url(proc)
         else:
             while not _has_run(db):
@@ -106,7 +107,7 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=7000.0)
     parser.add_argument("--rounds", type=int, default=2, help="alternations of the three modes")
     args = parser.parse_args()
-    modes = ("alone", "watch process", "in-process")
+    modes = ("alone", "watch process", "--watch")
     results: dict[str, list[float]] = {m: [] for m in modes}
     print(f"{'mode':>14} {'wall':>6} {'CPU':>6} {'% core':>7} {'points':>6} {'samples':>9} "
           f"{'gaps':>5} {'lost':>5} {'polls':>5} exit")

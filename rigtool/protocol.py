@@ -54,7 +54,7 @@ from rigtool.bounds import (
 )
 from rigtool.config import FieldError, load_model
 from rigtool.errors import UsageError
-from rigtool.ids import label_problem
+from rigtool.ids import folder_problem, label_problem
 from rigtool.thruster_profiles import PROFILES, profile_with_overrides
 from rigtool.units import COMMAND_UNITS
 
@@ -74,6 +74,17 @@ def _label(text: str) -> str:
 
 
 Label = Annotated[str, AfterValidator(_label)]
+
+
+def _thruster_id(text: str) -> str:
+    """A thruster id the lab dataset can file its runs under (a partition folder name)."""
+    problem = folder_problem("thruster_id", text)
+    if problem:
+        raise ValueError(f"{problem}, so `rigtool export --all` could not file this run")
+    return text
+
+
+ThrusterId = Annotated[Label, AfterValidator(_thruster_id)]
 
 
 class _Strict(BaseModel):
@@ -355,7 +366,7 @@ def _drop_defaults(data: dict, model: type[BaseModel], names: tuple[str, ...]) -
 class Metadata(_Strict):
     """Stored with the run; diameter and density enable K_T in calibrations."""
 
-    thruster_id: Label | None = None
+    thruster_id: ThrusterId | None = None
     propeller: Label | None = None
     operator: Label | None = None
     notes: str | None = None

@@ -1,7 +1,9 @@
 """The force sensor's real sample rate, found before a sweep starts, and the timing it allows.
 
 A driver that samples at the rate asked (`follows_rate`, the twin) needs nothing; any other
-is measured from the times of about `PROBE_S` of its samples.
+is measured from the times of about `PROBE_S` of its samples. A driver whose `seq` numbers
+every sample the device sent (`numbers_samples`, the Net F/T's rdt_sequence) is counted by
+those numbers, so samples lost while the reader was held up do not lower the rate.
 A driver that knows its rate (`rate_hz`, e.g. the Net F/T box's RDT rate from its XML) is
 measured too: when the two disagree by more than RATE_MATCH_FRAC the measured rate is used,
 with a note the run records. Every rate must be finite and within MIN_RATE_HZ..MAX_RATE_HZ.
@@ -55,26 +57,42 @@ def _check_rate(name: str, how: str, rate_hz: float) -> float:
 
 
 def measured_rate_hz(sensor: ForceSensor, asked_hz: float) -> float:
-    """The rate of `sensor`'s samples over about `PROBE_S` of them."""
+    """The rate of `sensor`'s samples over about `PROBE_S` of them, counted by the device's
+    own sample numbers where it has them (`numbers_samples`), else by arrival."""
+    numbered = bool(getattr(sensor, "numbers_samples", False))
     times: list = []
+    seqs: list = []
     for _ in range(MAX_PROBE_READS):
-        times.extend(sensor.read(PROBE_BLOCK, asked_hz).t_s.tolist())
+        block = sensor.read(PROBE_BLOCK, asked_hz)
+        times.extend(block.t_s.tolist())
+        if numbered and block.seq is not None:
+            seqs.extend(block.seq.tolist())
         if len(times) > 2 and times[-1] - times[0] >= PROBE_S:
-            return fitted_rate_hz(np.asarray(times))
+            counts = sample_counts(np.asarray(seqs)) if len(seqs) == len(times) else None
+            return fitted_rate_hz(np.asarray(times), counts)
     span = times[-1] - times[0] if times else 0.0
     raise DeviceError(f"could not measure the sensor's sample rate: {len(times)} samples in "
                       f"{span:.3g} s")
 
 
-def fitted_rate_hz(t_s: np.ndarray) -> float:
+def sample_counts(seq: np.ndarray) -> np.ndarray:
+    """How many samples the device had sent at each of its sample numbers `seq`: a skip is
+    samples lost, and a step back (a new stream, a wrap) counts as the next sample."""
+    steps = np.diff(np.asarray(seq, dtype=np.int64))
+    steps[steps <= 0] = 1
+    return np.r_[0, np.cumsum(steps)].astype(float)
+
+
+def fitted_rate_hz(t_s: np.ndarray, counts: np.ndarray | None = None) -> float:
     """Samples per second from their arrival times: the slope of the upper envelope of the
-    sample count against time, on its edge at the middle of the time span. A sample can
-    only arrive late, never early, so late ones (a busy sender catching up, a backlog read
-    at once, a USB frame's batch) fall below that envelope and do not pull it, as they
-    pulled a least-squares line."""
-    order = np.argsort(t_s, kind="stable")
-    t = np.asarray(t_s, dtype=float)[order]
-    count = order.astype(float)
+    sample count (`counts`, default the order of arrival) against time, on its edge at the
+    middle of the time span. A sample can only arrive late, never early, so late ones (a
+    busy sender catching up, a backlog read at once, a USB frame's batch) fall below that
+    envelope and do not pull it, as they pulled a least-squares line."""
+    t = np.asarray(t_s, dtype=float)
+    count = np.arange(len(t), dtype=float) if counts is None else np.asarray(counts, dtype=float)
+    order = np.lexsort((count, t))
+    t, count = t[order], count[order]
     last = np.r_[t[1:] != t[:-1], True]  # the highest count at each stamp
     hull = _upper_hull(t[last], count[last])
     if len(hull) < 2:

@@ -5,7 +5,11 @@ CAN_* environment variables, named sections via `context:`) for what they leave 
 from __future__ import annotations
 
 import os
+import pwd
+import subprocess
+import sys
 import uuid
+from pathlib import Path
 
 import can
 import pytest
@@ -14,6 +18,7 @@ from rigtool.cli import main
 from rigtool.devices.canbus import CanLink, bus_settings
 from rigtool.devices.vesc_can import VescCanConfig, VescCanDriver
 from rigtool.errors import ConfigError, UsageError
+from rigtool.files import MAX_CONFIG_BYTES
 from rigtool.rig import load_rig
 from rigtool.sim.vesc_twin import VescTwin
 
@@ -115,7 +120,7 @@ def test_no_channel_anywhere_is_a_usage_error_through_the_cli(can_home, tmp_path
 
 def test_a_configuration_python_can_refuses_is_a_usage_error(can_home):
     can_home("[default]\ninterface = no-such-can\nchannel = x\n")
-    with pytest.raises(UsageError, match="python-can configuration refused.*no-such-can"):
+    with pytest.raises(UsageError, match="python-can configuration.*no-such-can"):
         bus_settings(_vesc())
 
 
@@ -255,3 +260,47 @@ def test_rig_file_bus_args_reach_the_settings(tmp_path, can_home):
     settings = bus_settings(load_rig(path)[0].actuator)
     assert settings.kwargs == {"bitrate": 500000, "fd": True, "data_bitrate": 2000000,
                                "poll_interval": 0.01}
+
+
+def test_an_unknown_interface_in_the_rig_file_exits_2_at_check_with_file_and_line(tmp_path,
+                                                                                   capsys):
+    """Issue 49: it exited 1 when the bus was opened, though the same name in ~/.canrc
+    exited 2; python-can's interface names (and rigtool's udp_loopback) are checked now."""
+    path = tmp_path / "rig.yaml"
+    path.write_text(RIG.format(extra="  interface: no-such-can\n"))
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}:7: actuator.interface" in err and "unknown CAN interface" in err, err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("target", ["/dev/zero", "dir"], ids=["dev-zero", "directory"])
+def test_a_canrc_that_is_no_regular_file_exits_2_naming_it(can_home, tmp_path, target):
+    """Issue 49: a ~/.canrc linked to /dev/zero hung python-can's config reader; the config
+    files are checked as rigtool's own (regular file, bounded size) before it reads them."""
+    home = tmp_path / "home"
+    canrc = home / ".canrc"
+    if target == "dir":
+        canrc.mkdir()
+    else:
+        canrc.symlink_to(target)
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("rigtool_rig: 1\nname: r\nactuator: {driver: vesc-can, interface: virtual}\n"
+                   "sensor: {driver: ati-netft, host: 127.0.0.1}\n")
+    env = {**os.environ, "HOME": str(home), "MPLCONFIGDIR": str(_real_home() / ".cache" / "matplotlib")}
+    proc = subprocess.run([sys.executable, "-m", "rigtool.cli", "check", str(rig)], env=env,
+                          capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    assert proc.returncode == 2, proc.stderr
+    assert f"{canrc}: not a regular file" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def _real_home() -> Path:
+    """The account's home (HOME is the test's): its matplotlib cache spares the `rigtool`
+    process a font scan."""
+    return Path(pwd.getpwuid(os.getuid()).pw_dir)
+
+
+def test_a_canrc_too_large_is_refused(can_home, tmp_path):
+    (tmp_path / "home" / ".canrc").write_bytes(b"#" * (MAX_CONFIG_BYTES + 1))
+    with pytest.raises(ConfigError, match="file too large"):
+        bus_settings(_vesc())

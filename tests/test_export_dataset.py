@@ -203,22 +203,40 @@ def test_hostile_ids_round_trip_as_partition_values(tmp_path):
     assert _duckdb_counts(out) == counts
 
 
-def test_an_id_too_long_for_a_folder_is_refused_before_anything_is_written(tmp_path, capsys):
+def test_an_id_too_long_for_a_folder_is_refused_by_the_protocol(tmp_path, capsys):
+    """Issue 49: a 300-byte thruster id was swept, then blocked every `export --all`. The
+    protocol now refuses what the dataset cannot file, by the dataset's own rule."""
     db = tmp_path / "long.sqlite"
-    _sweep(tmp_path, db, 5, "bow-1", SMALL_PROTOCOL)
-    _sweep(tmp_path, db, 6, "x" * 300, SMALL_PROTOCOL)
-    out = tmp_path / "ds"
-    assert _export(out, db) == 2
+    path = tmp_path / "long.yaml"
+    path.write_text(NINE.replace("command:\n", 'metadata: {thruster_id: "' + "x" * 300
+                                 + '"}\ncommand:\n'))
+    assert main(["sweep", str(path), "--sim", "--db", str(db)]) == 2
     err = capsys.readouterr().err
-    assert "thruster_id is 300 bytes as a folder name" in err and "Traceback" not in err
-    assert not out.exists()
-    con = sqlite3.connect(db)  # a crafted thruster id that is no text: a lone surrogate
-    con.execute("""UPDATE runs SET metadata_json = '{"thruster_id": "\\ud800"}'""")
+    assert re.search(rf"{re.escape(str(path))}:\d+: metadata\.thruster_id: .*300 bytes", err), err
+    assert "Traceback" not in err and not db.exists()
+
+
+@pytest.mark.parametrize("bad", ["x" * 300, "\ud800"], ids=["too-long", "lone-surrogate"])
+def test_export_leaves_out_a_stored_run_whose_id_no_folder_takes(tmp_path, capsys, bad):
+    """An older database holding such an id (written directly in the store): the export
+    writes every other run and names the one it leaves out."""
+    db = tmp_path / "old.sqlite"
+    good = _sweep(tmp_path, db, 5, "bow-1", SMALL_PROTOCOL)
+    victim = _sweep(tmp_path, db, 6, "stern-1", SMALL_PROTOCOL)
+    con = sqlite3.connect(db)
+    con.execute("UPDATE runs SET metadata_json = ? WHERE id = ?",
+                (json.dumps({"thruster_id": bad}), victim))
     con.commit()
     con.close()
-    assert _export(out, db) == 2
-    err = capsys.readouterr().err
-    assert "is not valid text" in err and "Traceback" not in err and not out.exists()
+    capsys.readouterr()
+    out = tmp_path / "ds"
+    assert _export(out, db) == 0
+    captured = capsys.readouterr()
+    assert f"warning: run {victim!r}: its thruster_id" in captured.err, captured.err
+    assert "left out of the dataset" in captured.err and "Traceback" not in captured.err
+    assert "1 left out" in captured.out
+    assert set(_duckdb_counts(out)) == {good}
+    assert _export(out, db) == 0  # and again: the dataset is not blocked
 
 
 def _export_process(out: Path, db: Path, fsize: int, crash: bool) -> subprocess.CompletedProcess:

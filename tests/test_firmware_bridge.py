@@ -472,3 +472,54 @@ def test_the_arduino_servo_glue_answers_only_what_its_pins_carry(tmp_path):
         "OK rigtool-bridge 1.0", refused, "OK 1500", "OK 2000", refused, "OK 2400", "OK 2000",
         "OK 2400", "pin 9 2000", "pin 10 2400", "pin 11 1500", "pin 12 1500"]
     build_arduino_sketch(tmp_path, "-DBRIDGE_ARDUINO_ANALOG")  # the analogWrite glue compiles
+
+
+DEAF_WATCHDOG_MS = 300
+DEAF_MARGIN_S = 0.3  # scheduling slack on a loaded machine
+SIGTERM_DEADLINE_S = 1.0
+
+
+def _write_unread(fd: int, data: bytes, deadline_s: float) -> float | None:
+    """Write `data` to a non-blocking fd, reading nothing back: the time the last byte went
+    in, or None if the other end stopped taking bytes for `deadline_s`."""
+    os.set_blocking(fd, False)
+    view = memoryview(data)
+    while view:
+        if not select.select([], [fd], [], deadline_s)[1]:
+            return None
+        try:
+            view = view[os.write(fd, view):]
+        except BlockingIOError:
+            continue
+    return time.monotonic()
+
+
+def test_a_peer_that_does_not_read_cannot_stop_the_watchdog_or_sigterm(host_binary, tmp_path):
+    """Issue 49: after `SET 1 700`, a peer wrote 50,000 `GET 1` lines and read nothing. The
+    host build blocked in write() of a reply: the watchdog never tripped, channel 1 stayed at
+    700, and only SIGKILL ended it. Now what nobody reads is lost, as on a UART."""
+    served = serve_host(host_binary, tmp_path, "--watchdog-ms", str(DEAF_WATCHDOG_MS))
+    try:
+        fd = os.open(served.pty_path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            tty.setraw(fd)
+            assert exchange(fd, b"SET 1 700\n") == b"OK 700\n"
+            last_line = _write_unread(fd, b"GET 1\n" * 50_000, deadline_s=5.0)
+            assert last_line is not None, "the firmware stopped reading its input"
+            deadline = last_line + DEAF_WATCHDOG_MS / 1000 + DEAF_MARGIN_S
+            while time.monotonic() < deadline and not any(
+                    r[2:] == ["1", "0", "watchdog"] for r in served.trace_lines()):
+                time.sleep(0.01)
+            trips = [r for r in served.trace_lines() if r[2:] == ["1", "0", "watchdog"]]
+            assert trips, served.trace_lines()
+            # the trace is stamped on CLOCK_MONOTONIC in ms, as time.monotonic() on Linux
+            assert int(trips[0][0]) / 1000 <= deadline
+            sent = time.monotonic()
+            served.proc.terminate()
+            assert served.proc.wait(timeout=SIGTERM_DEADLINE_S) == 0
+            assert time.monotonic() - sent <= SIGTERM_DEADLINE_S
+            assert ["1", "0", "exit"] in [r[2:] for r in served.trace_lines()]
+        finally:
+            os.close(fd)
+    finally:
+        served.stop()

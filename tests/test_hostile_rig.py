@@ -118,3 +118,33 @@ def test_seed_option_out_of_range_is_a_usage_error(tmp_path, capsys):
     (tmp_path / "p.yaml").write_text(SMALL_PROTOCOL)
     assert main(["sweep", str(tmp_path / "p.yaml"), "--sim", "--dry-run", "--seed", "-1"]) == 2
     assert "--seed -1" in capsys.readouterr().err
+
+
+HOSTILE_FORMATS = {  # issue 49: a format string from a file was checked by trying it once
+    "globals": "{value.__class__.__init__.__globals__}",  # was a traceback, exit 1
+    "attribute": "SET {value.__class__.__name__}",  # was accepted
+    "huge-width": "SET {channel} {value:>99999999}",  # was accepted: 153 MB to check
+    "index": "SET {channel[0]} {value}",
+    "conversion": "SET {channel!r} {value}",
+    "positional": "SET {} {value}",
+    "nested-spec": "SET {channel} {value:{channel}}",
+    "unknown": "SET {motor} {value}",
+    "lone-brace": "SET {channel} {value",
+}
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE_FORMATS))
+def test_a_hostile_command_format_exits_2_with_file_and_line(tmp_path, case):
+    path = _rig(tmp_path, BENCH, ("actuator", "set_format"), HOSTILE_FORMATS[case])
+    proc = run_cli("check", path, "--seconds", "0.2", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    _assert_located(proc.stderr, path, "actuator.set_format")
+
+
+def test_allowed_command_formats_are_kept():
+    """Literal text, {channel} and {value}, and an integer spec up to width 99 all pass."""
+    from rigtool.devices.stm32_bridge import command_format
+
+    for text in ("SET {channel} {value}", "PWM{channel:02d}={value:>99}", "{{HB}}", "T{value:04X}"):
+        assert command_format(text) == text

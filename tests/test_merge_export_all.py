@@ -3,6 +3,12 @@ point by point and sample by sample."""
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
@@ -111,3 +117,43 @@ def test_export_columns_carry_run_thruster_and_rig(two_rigs, capsys):
     samples = pq.read_table(tmp / "x" / f"{ids[0]}-samples.parquet")
     assert samples.schema.field("seq").type == "int64" and samples.num_rows == 9 * 200
     assert np.all(np.asarray(samples.column("run_id").to_pylist()) == ids[0])
+
+
+def _merge_process(sources: list[str], out: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "rigtool.cli", "merge", *sources, "-o",
+                             str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def _kill_when(proc: subprocess.Popen, seen: Path) -> bool:
+    """SIGKILL `proc` the moment `seen` exists; whether it was still running then."""
+    while not seen.exists():
+        if proc.poll() is not None:
+            return False
+        time.sleep(0.0005)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    return proc.returncode == -signal.SIGKILL
+
+
+def test_a_new_merged_database_is_never_seen_half_done(two_rigs):
+    """Issue 49: the audit's checker saw one kill -9 in 100 during `merge` leave a partial
+    output. The merge into an existing database is one transaction, but a new output was
+    created (its schema, no runs) before the merge transaction: a reader, or a kill -9 then,
+    saw a database of none of the runs. Now it is built under a hidden name and renamed into
+    place whole: a reader sees no file, or all of it, and a kill -9 leaves nothing."""
+    tmp, a, b, ids = two_rigs
+    want = {**_counts(a), **_counts(b)}
+    out = tmp / "lab.sqlite"
+    proc = _merge_process([a, b], out)
+    _kill_when(proc, out)  # the first moment a reader can see the output
+    assert out.exists(), proc.stderr.read()
+    assert _counts(str(out)) == want  # whole, at that first moment
+    out.unlink()
+    building = tmp / ".lab.sqlite.merging"
+    proc = _merge_process([a, b], out)
+    if _kill_when(proc, building):  # killed mid-merge: nothing under the output's name
+        assert not out.exists()
+    proc = _merge_process([a, b], out)
+    assert proc.wait(timeout=120) == 0, proc.stderr.read()
+    assert _counts(str(out)) == want
+    assert sorted(p.name for p in tmp.glob(".lab.sqlite*")) == []

@@ -284,3 +284,30 @@ def test_dry_run_shows_the_timing_used_on_the_twin(write_yaml, capsys):
     assert main(["sweep", str(write_yaml(SMALL_PROTOCOL)), "--sim", "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert "sensor timing: 200 samples at 500 Hz (0.4 s) per point (the twin samples" in out
+
+
+@pytest.mark.parametrize("counts", [False, True], ids=["rate-from-xml", "rate-measured"])
+def test_records_lost_while_the_reader_is_held_up_do_not_lower_the_measured_rate(live, counts):
+    """Issue 49: an attacked in-process watch server held the probe's reader up, records
+    were lost, and a 7 kHz box was measured at 4.3-5.7 kHz. The probe now counts the box's
+    own rdt_sequence numbers: a third of the records lost (seeded) still reads the box's rate."""
+    from rigtool.sensor_rate import native_rate_hz
+    from rigtool.sim.netft_twin import NetFTFaults
+
+    box = NetFTTwin(live, faults=NetFTFaults(drop=0.3), seed=49).start()
+    try:
+        host, port = box.address
+        config = {"driver": "ati-netft", "host": host, "port": port, "http_port": box.http_port}
+        if counts:
+            config.update(counts_per_force=1_000_000, counts_per_torque=1_000_000)
+        sensor = NetFTSensor(config)
+        try:
+            rate, note = native_rate_hz(sensor, 500.0)
+            lost = sensor.stats["lost_packets"]
+        finally:
+            sensor.close()
+    finally:
+        box.stop()
+    assert lost > 100  # the records really were lost
+    assert note is None
+    assert rate == pytest.approx(live.rate_hz, rel=0.01)

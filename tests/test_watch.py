@@ -23,6 +23,7 @@ from rigtool.cli import main
 from rigtool.store import Store
 from rigtool.watch import Watcher, WatchServer
 from rigtool.watch.data import MAX_TRACE, decimate, detail_text, fit_cp
+from rigtool.watch.server import HEADERS
 
 from .conftest import PROTOCOLS
 from .helpers import sim_process, stop_processes
@@ -240,6 +241,29 @@ def test_routes_headers_and_refusals(served, tmp_path):
     for _ in range(3):
         _get(url + "data")
     assert (tmp_path / "w.sqlite").stat().st_mtime_ns == before
+
+
+def _raw(url: str, request: bytes) -> bytes:
+    """Send `request` as it is on a raw socket; everything the server answers."""
+    host, port = url.split("//")[1].rstrip("/").rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=10) as sock:
+        sock.sendall(request)
+        answer = b""
+        while chunk := sock.recv(65536):
+            answer += chunk
+    return answer
+
+
+@pytest.mark.parametrize("request_line", [b"GET / HTTP/9x", b"GET / FTP/1.0", b"GET /",
+                                          b"GET / HTTP/1.1.1", b"GET / HTTP/"])
+def test_every_error_page_carries_the_security_headers(served, request_line):
+    """Issue 49: a request with an unparsable HTTP version was answered as HTTP/0.9, an
+    error page with no status line and none of the headers docs/watch.md promises."""
+    answer = _raw(served.url, request_line + b"\r\nHost: localhost\r\n\r\n")
+    head = answer.split(b"\r\n\r\n", 1)[0].decode("latin-1")
+    assert re.match(r"HTTP/1\.[01] (200|400|404|505) ", head), answer[:200]
+    for name, value in HEADERS.items():
+        assert f"\r\n{name}: {value}\r\n" in head + "\r\n", (name, head)
 
 
 def test_a_port_in_use_is_named(tmp_path, capsys):

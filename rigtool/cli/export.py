@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rigtool.cli.console import out
+from rigtool.cli.console import err, out
 from rigtool.cli.options import DB, RUN_HELP, out_folder
 from rigtool.dbpath import resolve_db_path
 from rigtool.errors import UsageError
@@ -40,7 +40,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 
             with stage(f"exporting every run of {store.path} to {args.all}") as progress:
                 done = export_dataset(store, Path(args.all), progress)
+            for why in done.skipped:
+                err.print(f"warning: {why}: left out of the dataset")
             kept = f", {len(done.kept)} kept (not in this database)" if done.kept else ""
+            kept += f", {len(done.skipped)} left out" if done.skipped else ""
             out.print(f"{args.all}: {len(done.written)} run(s) written, {done.unchanged} "
                       f"unchanged{kept}; {done.runs} run(s), {done.rows:,} sample rows "
                       "(docs/sql.md shows how to query them)")

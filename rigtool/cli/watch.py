@@ -52,18 +52,17 @@ def cmd_watch(args: argparse.Namespace) -> int:
 
 @contextlib.contextmanager
 def watching(port: int | None, db: Path, bind: str):
-    """With `--watch`: the watch server in a daemon thread beside the sweep, reading the
-    latest run through its own read-only connection; a server that cannot start is a
-    warning, never a reason to stop the sweep."""
+    """With `--watch`: the watch server in a separate process beside the sweep, reading the
+    latest run read-only, so that no client of the page reaches acquisition; a server that
+    cannot start is a warning, never a reason to stop the sweep."""
     if port is None:
         yield
         return
     server = None
     try:
-        from rigtool.watch import Watcher, WatchServer
+        from rigtool.watch.process import WatchProcess
 
-        server = WatchServer(Watcher(db, follow=True), port, bind)
-        server.serve_in_thread()
+        server = WatchProcess(db, port, bind)
         announce_watch(server.url, bind)
     except (OSError, RigtoolError) as exc:
         err.print(f"warning: rigtool watch could not start ({exc}); the sweep goes on without it")

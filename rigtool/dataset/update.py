@@ -2,7 +2,9 @@
 database. A run is rewritten only when its fingerprint (points, status, calibrations, events,
 the dataset layout) differs from the one the manifest recorded, or its file is missing or of
 another size; every other partition is left untouched. Runs the database does not hold are
-kept (a lab exports each rig's database into one DIR), marked in the manifest."""
+kept (a lab exports each rig's database into one DIR), marked in the manifest. A run whose
+thruster id cannot name a folder (stored before the protocol refused such ids) is left out
+and named in `Summary.skipped`; the other runs are exported."""
 
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ from rigtool.dataset.hive import segment
 from rigtool.dataset.manifest import MANIFEST, Entry, read_manifest, write_manifest
 from rigtool.dataset.partition import DATA_FILE, DATASET_VERSION, SCHEMA, write_partition
 from rigtool.dataset.tables import CALIBRATIONS_FILE, RUNS_FILE, write_tables
-from rigtool.errors import RigtoolError, UsageError
+from rigtool.errors import DataError, RigtoolError, UsageError
 from rigtool.ids import utc_now
 from rigtool.progress_hook import ProgressHook, counted, no_progress
 from rigtool.store import RunRecord, Store
@@ -38,6 +40,7 @@ class Summary:
     written: list[str] = field(default_factory=list)  # runs whose partition was (re)written
     unchanged: int = 0
     kept: list[str] = field(default_factory=list)  # in the dataset, not in this database
+    skipped: list[str] = field(default_factory=list)  # why each run it cannot file was left out
     runs: int = 0  # runs the dataset holds now
     rows: int = 0  # sample rows it holds now
 
@@ -146,8 +149,12 @@ class _Update:
                 continue
             if intact:  # listed as it is on disk until its new file replaces it
                 self.runs[run_id] = entry
-            partition_file(self.folder, run_id, record.thruster_id)  # an id no folder takes:
-            todo.append((record, fingerprint))  # refused before anything is written
+            try:  # an id no folder takes (an older database's): the run is left out
+                partition_file(self.folder, run_id, record.thruster_id)
+            except DataError as exc:
+                self.summary.skipped.append(str(exc))
+                continue
+            todo.append((record, fingerprint))
         for run_id, entry in self.old.items():
             if run_id not in here and _intact(
                     partition_file(self.folder, run_id, entry.thruster_id), entry):

@@ -29,12 +29,21 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictInt,
+    field_validator,
+    model_validator,
+)
 
 from rigtool.bounds import Baudrate, Scale
 from rigtool.config import FieldError
 from rigtool.devices.base import ActuatorInfo, Device, FeedbackBlock
 from rigtool.errors import DeviceError, UsageError
+from rigtool.files import MAX_CONFIG_BYTES, check_regular_file
 
 if TYPE_CHECKING:  # the drivers import them when they open a bus
     import can
@@ -116,6 +125,20 @@ class CanBusFields(BaseModel):
     context: str | None = Field(None, pattern=r"^[A-Za-z0-9_.-]{1,64}$")
     bus_args: BusArgs = BusArgs()  # passed to python-can's Bus: fd, data_bitrate, can_filters...
 
+    @field_validator("interface")
+    @classmethod
+    def _known_interface(cls, name: str | None) -> str | None:
+        """An interface python-can has (or rigtool's own UDP loopback bus)."""
+        from can.interfaces import VALID_INTERFACES
+
+        from rigtool.devices import udp_loopback
+
+        if name is not None and name not in VALID_INTERFACES | {udp_loopback.INTERFACE}:
+            raise ValueError(f"unknown CAN interface {name[:64]!r}; python-can has "
+                             f"{', '.join(sorted(VALID_INTERFACES))} (and rigtool "
+                             f"{udp_loopback.INTERFACE})")
+        return name
+
 
 @dataclass(frozen=True)
 class BusSettings:
@@ -164,6 +187,7 @@ def _python_can_config(given: dict[str, Any], context: str | None) -> dict[str, 
 
     import can
 
+    _check_config_files()
     try:
         sources = _config_sources(context)
         typed = _typed_config(given, sources)
@@ -175,6 +199,18 @@ def _python_can_config(given: dict[str, Any], context: str | None) -> dict[str, 
         raise UsageError(f"python-can configuration{ctx} refused: {exc}") from None
     resolved.update(typed)
     return resolved
+
+
+def _check_config_files() -> None:
+    """Refuse (UnreadableFile, exit 2) a python-can config file that is there but is not a
+    regular file of at most MAX_CONFIG_BYTES, before python-can's configparser reads it:
+    a ~/.canrc linked to /dev/zero would be read forever."""
+    import can
+
+    for name in can.util.CONFIG_FILES:
+        path = os.path.expanduser(name)
+        if os.path.exists(path):  # follows links; python-can skips what is not there too
+            check_regular_file(path, MAX_CONFIG_BYTES)
 
 
 def _config_sources(context: str | None) -> list[tuple[str, dict[str, Any]]]:

@@ -479,6 +479,8 @@ class NetFTSensor(Device):
             self.close()
             raise
 
+    numbers_samples = True  # `seq` is rdt_sequence: one number per record the box sent
+
     @property
     def rate_hz(self) -> float | None:
         """The box's RDT rate from its netftapi2.xml (None: not read; the sweep measures it)."""

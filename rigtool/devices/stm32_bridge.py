@@ -13,12 +13,13 @@ import logging
 import math
 import queue
 import re
+import string
 import threading
 import time
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from rigtool.bounds import MAX_CLOCK_HZ, MAX_DURATION_S, Baudrate, Command, PositiveSeconds, Seconds
 from rigtool.devices.base import ActuatorInfo, Device, FeedbackBlock
@@ -31,6 +32,10 @@ log = logging.getLogger(__name__)
 FEEDBACK_GROUPS = ("speed_rpm", "current_a", "voltage_v", "temperature_c")
 THERMISTOR_GROUP = "thermistor_counts"  # ADC counts, converted by the `thermistor:` section
 _MAX_LINE = 256  # bytes; a longer run without a line end is garbage
+FORMAT_FIELDS = ("channel", "value")  # the only fields a command format may name
+MAX_FORMAT_WIDTH = 99  # widest field a command format may ask for
+# An integer's format spec: [[fill]align][sign][#][0][width][,_][type], width of 1-2 digits.
+FORMAT_SPEC = re.compile(r"(?:[^{}]?[<>=^])?[+\- ]?#?0?\d{0,2}[,_]?[bdoxX]?")
 _READ_TIMEOUT_S = 0.02  # reader thread poll period
 
 
@@ -66,14 +71,14 @@ class Stm32BridgeConfig(BaseModel):
     telemetry_regex: str = ""  # unsolicited feedback lines; groups named speed_rpm etc.
     thermistor: Thermistor | None = None  # converts a `thermistor_counts` telemetry group
 
+    @field_validator("set_format", "pulse_format", "get_format", "stop_format",
+                     "heartbeat_format", "ping_format")
+    @classmethod
+    def _format(cls, text: str) -> str:
+        return command_format(text)
+
     @model_validator(mode="after")
     def _consistent(self) -> Stm32BridgeConfig:
-        for name in ("set_format", "pulse_format", "get_format", "stop_format",
-                     "heartbeat_format", "ping_format"):  # fmt: skip
-            try:
-                getattr(self, name).format(channel=1, value=0)
-            except (KeyError, IndexError, ValueError) as exc:
-                raise ValueError(f"{name}: only {{channel}} and {{value}} may appear ({exc})") from None
         for name in ("reply_regex", "error_regex", "telemetry_regex"):
             try:
                 re.compile(getattr(self, name))
@@ -103,6 +108,31 @@ class Stm32BridgeConfig(BaseModel):
             raise ValueError(f"heartbeat_s {self.heartbeat_s:g} must be at most half the "
                              f"firmware watchdog ({self.watchdog_ms} ms)")
         return self
+
+
+def command_format(text: str) -> str:
+    """`text` if it is a command format rigtool can fill: literal text and the fields
+    {channel} and {value}, each with at most an integer format spec of width up to
+    MAX_FORMAT_WIDTH; a ValueError saying what else it holds. A format string from a file
+    is parsed, never tried: attributes, indexes and conversions are refused unread."""
+    try:
+        parts = list(string.Formatter().parse(text))
+    except ValueError as exc:
+        raise ValueError(f"not a format string ({exc}); write {{{{ and }}}} for braces") from None
+    for _, field, spec, conversion in parts:
+        if field is None:
+            continue
+        if field not in FORMAT_FIELDS or conversion is not None:
+            shown = (field + (f"!{conversion}" if conversion is not None else ""))[:40]
+            raise ValueError(f"{{{shown}}}: only {{channel}} and {{value}} may appear")
+        if spec and not FORMAT_SPEC.fullmatch(spec):
+            raise ValueError(f"{{{field}:{spec[:40]}}}: only an integer format (fill, align, sign, "
+                             f"width up to {MAX_FORMAT_WIDTH}, type b/d/o/x/X) may follow a field")
+    try:
+        text.format(channel=1, value=0)
+    except ValueError as exc:
+        raise ValueError(f"{text!r}: {exc}") from None
+    return text
 
 
 def tick_s(config: Stm32BridgeConfig) -> float:

@@ -5,7 +5,8 @@ few browsers and adds no dependency. Routes: `/` (the page), its static files, a
 `/data` (JSON); everything else is 404, and only GET and HEAD are served. Every response
 carries a Content-Security-Policy of `default-src 'self'` (no inline script), nosniff and
 no-referrer; on a loopback address, requests naming another host are refused (DNS
-rebinding).
+rebinding). At most MAX_CLIENTS connections are served at once (more are closed unread),
+each given REQUEST_TIMEOUT_S to send its request.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ HEADERS = {
 }
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "[::1]")
 REQUEST_TIMEOUT_S = 10.0
+MAX_CLIENTS = 32  # connections served at once; a browser polls /data once a second
 
 
 def is_loopback(address: str) -> bool:
@@ -52,6 +54,18 @@ def is_loopback(address: str) -> bool:
         return ipaddress.ip_address(address).is_loopback
     except ValueError:
         return False
+
+
+def listening_socket(bind: str, port: int) -> socket.socket:
+    """A TCP socket listening on bind:port (0: any free port); a RigtoolError naming the
+    address when it is taken or refused."""
+    family = socket.AF_INET6 if ":" in bind else socket.AF_INET
+    try:
+        return socket.create_server((bind, port), family=family, backlog=MAX_CLIENTS)
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+        raise RigtoolError(f"cannot serve the watch page on {bind}:{port} ({why}): choose "
+                           "another --port, or 0 for any free one") from exc
 
 
 def _json_bytes(doc: Any) -> bytes:
@@ -66,6 +80,10 @@ class _Handler(BaseHTTPRequestHandler):
     server_version = "rigtool-watch"
     sys_version = ""
     timeout = REQUEST_TIMEOUT_S  # a client that stops sending mid-request frees its thread
+    # The base answers a request line without a version it can read as HTTP/0.9: the body
+    # alone, with no status line and no headers. Answered as HTTP/1.0, even the error page
+    # for an unparsable version carries HEADERS.
+    default_request_version = "HTTP/1.0"
 
     def end_headers(self) -> None:
         """Every response, the server's own error pages included, carries HEADERS."""
@@ -131,21 +149,38 @@ class WatchServer(ThreadingHTTPServer):
     daemon_threads = True
 
     def __init__(self, watcher: Watcher, port: int = DEFAULT_PORT,
-                 bind: str = "127.0.0.1") -> None:
-        """Bind now (RigtoolError naming the address when it is taken or refused); nothing is
-        read until a request."""
+                 bind: str = "127.0.0.1", listener: socket.socket | None = None) -> None:
+        """Serve on `listener` (one handed over by another process) or bind now
+        (RigtoolError naming the address when it is taken or refused); nothing is read until
+        a request."""
         self.watcher = watcher
         self.loopback = is_loopback(bind)
-        if ":" in bind:
-            self.address_family = socket.AF_INET6
-        try:
-            super().__init__((bind, port), _Handler)
-        except OSError as exc:
-            why = exc.strerror or str(exc)
-            raise RigtoolError(f"cannot serve the watch page on {bind}:{port} ({why}): choose "
-                               "another --port, or 0 for any free one") from exc
+        listener = listener if listener is not None else listening_socket(bind, port)
+        super().__init__(listener.getsockname()[:2], _Handler, bind_and_activate=False)
+        self.socket.close()  # the unbound socket the base made; `listener` serves instead
+        self.socket = listener
+        self._slots = threading.BoundedSemaphore(MAX_CLIENTS)
         self._static: dict[str, bytes] = {}
         self._thread: threading.Thread | None = None
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        """Serve a connection in its own thread, or close it unread when MAX_CLIENTS are
+        being served: a flood of clients costs the server no more than MAX_CLIENTS threads."""
+        if not self._slots.acquire(blocking=False):
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        """One connection's thread; its slot is freed when it ends."""
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
 
     @property
     def url(self) -> str:

@@ -4,7 +4,11 @@
  * The timer is not real: every compare value the core sets is written to the trace file
  * (--trace FILE) as "<t_ms> ccr <ch> <value> <cause>", the cause being boot, command,
  * watchdog or exit.
- * SIGTERM, SIGINT and end of input put every channel at neutral before exiting. */
+ * SIGTERM, SIGINT and end of input put every channel at neutral before exiting.
+ *
+ * Output never blocks: the output descriptor is non-blocking, and a reply the peer has no
+ * room for is dropped (like a UART: what nobody reads is lost). A peer that stops reading
+ * therefore cannot stop the loop, so the watchdog and the signals keep working. */
 #define _XOPEN_SOURCE 600
 
 #include <errno.h>
@@ -55,17 +59,28 @@ static void set_compare(void *ctx, uint8_t ch, uint32_t ccr)
 static void write_bytes(void *ctx, const char *bytes, size_t n)
 {
     host_io *io = ctx;
-    while (n > 0u) {
+    while (n > 0u && !quit) {
         ssize_t done = write(io->out_fd, bytes, n);
         if (done < 0) {
-            if (errno == EINTR || errno == EAGAIN) {
+            if (errno == EINTR) {
                 continue;
             }
-            return;  /* like a UART: what nobody reads is lost */
+            return;  /* EAGAIN (the peer does not read) or gone: like a UART, what nobody
+                        reads is lost */
         }
         bytes += done;
         n -= (size_t)done;
     }
+}
+
+/* Make `fd` non-blocking; its flags before, or -1. */
+static int nonblocking(int fd)
+{
+    int flags = fcntl(fd, F_GETFL);
+    if (flags < 0 || fcntl(fd, F_SETFL, flags | O_NONBLOCK) != 0) {
+        return -1;
+    }
+    return flags;
 }
 
 /* A stand-in sample (no motor here), so the TEL line format can be exercised. */
@@ -138,7 +153,7 @@ int main(int argc, char **argv)
     bridge_hooks hooks = {set_compare, write_bytes, read_telemetry, NULL};
     uint32_t channels = cfg.channels, ccr_max = UINT32_MAX, arr_given = 0;
     struct sigaction sa;
-    int use_pty = 0, in_fd = 0, slave = -1, i;
+    int use_pty = 0, in_fd = 0, slave = -1, out_flags, i;
 
     for (i = 1; i < argc; i++) {
         const char *opt = argv[i];
@@ -193,9 +208,15 @@ int main(int argc, char **argv)
         printf("%s\n", ptsname(in_fd));
         fflush(stdout);
     }
+    out_flags = nonblocking(io.out_fd);
+    if (out_flags < 0) {
+        fprintf(stderr, "bridge_host: cannot make the output non-blocking: %s\n", strerror(errno));
+        return 1;
+    }
     if (bridge_init(&b, &cfg, &hooks, now_ms()) != 0) {
         fprintf(stderr, "bridge_host: inconsistent timer settings (need arr >= 1, "
                         "ccr-min <= neutral <= ccr-max <= arr, channels 1..%u)\n", BRIDGE_MAX_CHANNELS);
+        fcntl(io.out_fd, F_SETFL, out_flags);
         return 2;
     }
     memset(&sa, 0, sizeof sa);
@@ -225,6 +246,7 @@ int main(int argc, char **argv)
     }
     io.cause = "exit";
     bridge_all_neutral(&b);
+    fcntl(io.out_fd, F_SETFL, out_flags);  /* stdout may be shared: give it back as it was */
     if (slave >= 0) {
         close(slave);
     }
