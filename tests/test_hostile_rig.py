@@ -130,6 +130,13 @@ HOSTILE_FORMATS = {  # issue 49: a format string from a file was checked by tryi
     "nested-spec": "SET {channel} {value:{channel}}",
     "unknown": "SET {motor} {value}",
     "lone-brace": "SET {channel} {value",
+    # attack report: a second command line, control and non-ASCII text, a line too long for
+    # the firmware's 64 bytes
+    "newline": "SET {channel} {value}\nSTOP",
+    "nul-fill": "PING {value:\x00>5}",
+    "line-separator": "SET {channel} {value}\u2028",
+    "emoji-fill": "SET {value:\U0001F600^9}",
+    "too-long": "SET {channel} {value:>99}",
 }
 
 
@@ -143,8 +150,9 @@ def test_a_hostile_command_format_exits_2_with_file_and_line(tmp_path, case):
 
 
 def test_allowed_command_formats_are_kept():
-    """Literal text, {channel} and {value}, and an integer spec up to width 99 all pass."""
+    """Literal text, {channel} and {value}, and an integer spec whose line fits the
+    firmware's 64 bytes all pass."""
     from rigtool.devices.stm32_bridge import command_format
 
-    for text in ("SET {channel} {value}", "PWM{channel:02d}={value:>99}", "{{HB}}", "T{value:04X}"):
+    for text in ("SET {channel} {value}", "PWM{channel:02d}={value:>50}", "{{HB}}", "T{value:04X}"):
         assert command_format(text) == text

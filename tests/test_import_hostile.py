@@ -50,6 +50,9 @@ def _n_runs(db: Path) -> int:
     ("--col", "thrust=²", "no column"),
     ("--col", "thrust=" + "9" * 5000, "--col"),
     ("--thruster-id", "t200\x1b[2J", "U+001B"),
+    # issue 49's attack report: ids the dataset cannot file as a folder were stored
+    ("--thruster-id", "t" * 244, "could not file the run"),
+    ("--thruster-id", "é" * 122, "could not file the run"),
     ("--name", "run\u2066one", "U+2066"),
 ])
 def test_bad_option_is_a_usage_error(tmp_path: Path, option: str, value: str, words: str) -> None:

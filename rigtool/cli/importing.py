@@ -9,7 +9,7 @@ from rigtool.cli.console import err, out
 from rigtool.cli.options import DB
 from rigtool.dbpath import resolve_db_path
 from rigtool.errors import UsageError
-from rigtool.ids import label_problem
+from rigtool.ids import folder_problem, label_problem
 from rigtool.progress import stage
 from rigtool.store import Store
 
@@ -65,6 +65,10 @@ def cmd_import(args: argparse.Namespace) -> int:
         problem = label_problem(text) if text is not None else None
         if problem:
             raise UsageError(f"{option}: {problem}")
+    problem = folder_problem("thruster_id", args.thruster_id) if args.thruster_id else None
+    if problem:
+        raise UsageError(f"--thruster-id: {problem}, so `rigtool export --all` could not file "
+                         "the run")
     base = load_mapping(args.mapping) if args.mapping else Mapping()
     mapping = with_overrides(
         base, cols=args.col, units=args.unit, command_unit=args.command_unit,

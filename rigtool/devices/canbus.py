@@ -43,7 +43,7 @@ from rigtool.bounds import Baudrate, Scale
 from rigtool.config import FieldError
 from rigtool.devices.base import ActuatorInfo, Device, FeedbackBlock
 from rigtool.errors import DeviceError, UsageError
-from rigtool.files import MAX_CONFIG_BYTES, check_regular_file
+from rigtool.files import MAX_CONFIG_BYTES, read_regular_bytes
 
 if TYPE_CHECKING:  # the drivers import them when they open a bus
     import can
@@ -204,13 +204,15 @@ def _python_can_config(given: dict[str, Any], context: str | None) -> dict[str, 
 def _check_config_files() -> None:
     """Refuse (UnreadableFile, exit 2) a python-can config file that is there but is not a
     regular file of at most MAX_CONFIG_BYTES, before python-can's configparser reads it:
-    a ~/.canrc linked to /dev/zero would be read forever."""
+    a ~/.canrc linked to /dev/zero would be read forever, and one linked to /proc/self/pagemap
+    (a regular file of size 0 to stat) without bound: the file is read, at most the cap."""
     import can
 
     for name in can.util.CONFIG_FILES:
         path = os.path.expanduser(name)
         if os.path.exists(path):  # follows links; python-can skips what is not there too
-            check_regular_file(path, MAX_CONFIG_BYTES)
+            # Read, not only stat: a /proc file is "regular" with size 0 yet reads without end.
+            read_regular_bytes(path, MAX_CONFIG_BYTES)
 
 
 def _config_sources(context: str | None) -> list[tuple[str, dict[str, Any]]]:

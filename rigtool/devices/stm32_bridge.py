@@ -34,6 +34,8 @@ THERMISTOR_GROUP = "thermistor_counts"  # ADC counts, converted by the `thermist
 _MAX_LINE = 256  # bytes; a longer run without a line end is garbage
 FORMAT_FIELDS = ("channel", "value")  # the only fields a command format may name
 MAX_FORMAT_WIDTH = 99  # widest field a command format may ask for
+FIRMWARE_LINE = 64  # bytes of one line the bridge firmware takes (BRIDGE_MAX_LINE); longer is refused
+WIDEST_FIELDS = {"channel": 99, "value": 65535}  # the widest channel and counts a line carries
 # An integer's format spec: [[fill]align][sign][#][0][width][,_][type], width of 1-2 digits.
 FORMAT_SPEC = re.compile(r"(?:[^{}]?[<>=^])?[+\- ]?#?0?\d{0,2}[,_]?[bdoxX]?")
 _READ_TIMEOUT_S = 0.02  # reader thread poll period
@@ -128,10 +130,17 @@ def command_format(text: str) -> str:
         if spec and not FORMAT_SPEC.fullmatch(spec):
             raise ValueError(f"{{{field}:{spec[:40]}}}: only an integer format (fill, align, sign, "
                              f"width up to {MAX_FORMAT_WIDTH}, type b/d/o/x/X) may follow a field")
+    if not all(" " <= c <= "~" for c in text):
+        bad = next(c for c in text if not " " <= c <= "~")
+        raise ValueError(f"holds {bad!r}: a command is one line of printable ASCII (a line end "
+                         "or control character would send another command)")
     try:
-        text.format(channel=1, value=0)
+        widest = max(len(text.format(channel=1, value=0)), len(text.format(**WIDEST_FIELDS)))
     except ValueError as exc:
         raise ValueError(f"{text!r}: {exc}") from None
+    if widest > FIRMWARE_LINE:
+        raise ValueError(f"its lines reach {widest} bytes; the bridge firmware takes at most "
+                         f"{FIRMWARE_LINE}")
     return text
 
 
