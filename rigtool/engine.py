@@ -39,6 +39,8 @@ from rigtool.units import FT_CHANNELS
 
 CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this often
 RAMP_DT_S = 0.05  # command update period while slewing
+CATCH_UP_SLACK = 2.0  # sample periods a settled point's newest sample may fall short by
+MAX_CATCH_UP_READS = 200  # CHUNK_S blocks read at most to catch a lagging reader up
 # After the final neutral, an actuator's speed feedback must fall within NEUTRAL_CONFIRM_S:
 # to NEUTRAL_SPEED_RPM or below, or to NEUTRAL_FALL_FRAC of its first reading; else exit 3.
 NEUTRAL_CONFIRM_S = 2.0
@@ -174,6 +176,7 @@ class Engine:
         self._power_limited = "power_w" in self.limits.checks
         self._torque_idx = torque_channel(protocol.limits.torque_channel, rig.thrust_channel)
         self._command = rig.actuator.info.neutral
+        self._newest_t = -math.inf  # clock time of the newest sample read
         self._t0 = 0.0
         self._depth: float | None = None
         self._voltage: float | None = None
@@ -538,6 +541,8 @@ class Engine:
         feedback = self.rig.actuator.read_feedback()
         if feedback.fault:
             raise SafetyTrip(f"driver fault: {feedback.fault}")
+        if len(block):
+            self._newest_t = float(block.t_s[-1])
         staleness = self.clock.now() - float(block.t_s[-1]) if len(block) else float("inf")
         if staleness > self.protocol.limits.max_staleness_s:
             raise SafetyTrip(f"sensor stale: newest sample is {staleness:.2f} s old "
@@ -632,9 +637,11 @@ class Engine:
     def _settle(self, step: PlanStep, rate: float) -> tuple[float, bool]:
         """Wait for the point to settle; return (seconds waited, whether the criterion was met)."""
         settle = self.protocol.timing.settle
+        sent = self.clock.now()
         if settle.seconds is not None:
             if settle.seconds > 0:
                 self._read_for(settle.seconds, rate, step)
+                self._catch_up(sent + settle.seconds, rate, step)
             return settle.seconds, True
         crit = settle.until_steady
         t0 = self._now()
@@ -645,12 +652,31 @@ class Engine:
             current = self._read_for(crit.window_s, rate, step)
             waited = self._now() - t0
             if abs(current - previous) < crit.tolerance_n:
+                self._catch_up(sent + waited, rate, step)
                 return waited, True
             if waited >= crit.timeout_s:
                 self._event("warning", {"message": f"point {step.idx} did not settle within "
                                         f"{crit.timeout_s:g} s; acquiring anyway"}, step.idx)
                 return waited, False
             previous = current
+
+    def _catch_up(self, until: float, rate: float, step: PlanStep) -> None:
+        """Read on, discarding, until the newest sample is stamped at `until` (clock time):
+        settling counts samples, and a reader that fell behind (a busy machine) hands over
+        samples taken before the command was sent, which must not be the point's."""
+        behind = until - self._newest_t - CATCH_UP_SLACK / rate
+        if not behind > 0:
+            return
+        chunk = max(1, round(CHUNK_S * rate))
+        for _ in range(MAX_CATCH_UP_READS):
+            if self._newest_t >= until - CATCH_UP_SLACK / rate:
+                break
+            n = min(chunk, max(1, math.ceil((until - self._newest_t) * rate)))
+            self._read(n, rate, step)
+        self._event("warning", {"message": f"point {step.idx}: the sensor's samples lagged "
+                                f"the clock by {behind:.3g} s as it settled (a busy machine?); "
+                                "samples stamped before the settling time ended were "
+                                "discarded"}, step.idx)
 
     def _acquire(self, step: PlanStep, n_total: int, rate: float) -> SampleSpool:
         """Read the point's samples into a spool: memory stays bounded by the block size.
