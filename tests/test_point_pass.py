@@ -63,7 +63,7 @@ def test_blocks_are_whole_points_covering_the_run_once(can_run):
 def test_results_do_not_depend_on_the_block_size(can_run):
     store, run_id = can_run
     docs = [calibration_document(_calibrate(store, run_id, batch), CREATED)
-            for batch in (1, 4000, 10**9)]  # a point a block, several points, the whole run
+            for batch in (250, 4000, 10**9)]  # pieces of every point, several points, the whole run
     leaves = [dict(_numbers(json.loads(json.dumps(d, default=str)))) for d in docs]
     assert leaves[0].keys() == leaves[1].keys() == leaves[2].keys()
     fits = docs[0]["sections"][0]["fits"] if "sections" in docs[0] else None
