@@ -9,10 +9,13 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from rigtool.analysis.blocks import block_means
 from rigtool.analysis.calibrate import calibrate
 from rigtool.analysis.dataset import SAMPLE_FIELDS, load_run
+from rigtool.analysis.point_pass import point_pass
+from rigtool.analysis.steady import SettlingCriterion
 from rigtool.artefacts.calibration import calibration_document
-from rigtool.store import Store
+from rigtool.store import StepRecord, Store
 
 from .test_analysis_calibrate import CREATED, can_samples, sweep, write_run
 
@@ -107,3 +110,68 @@ def test_memory_follows_the_block_not_the_run(tmp_path):
     # One point a block holds a 42nd of the samples; what is left is per point, or a
     # constant (the at most 200 000 values a channel's printed step is looked for in).
     assert by_point < 0.35 * whole, (by_point, whole)
+
+
+def _long_point_run(store):
+    """Points of 900-1500 samples with voltage and torque recorded: held commands, ramps
+    (the command moves within the point) and one with a NaN gap in its current."""
+    rng = np.random.default_rng(11)
+    rig = {"thrust": {"channel": "fx", "sign": -1}}
+    run_id = store.create_run(name="long", protocol={"command": {"unit": "percent"}},
+                              protocol_path=None, rig=rig, plan=[], metadata={}, seed=11,
+                              command_unit="percent", tool_version="test")
+    t = 0.0
+    for i, cmd in enumerate(np.linspace(-80, 80, 9)):
+        n_samples = 900 + 75 * i
+        tt = np.arange(n_samples) / 1000.0
+        moving = i % 3 == 1
+        command = cmd + (np.linspace(0, 10, n_samples) if moving else 0.0 * tt)
+        speed = 18 * command * (1 - np.exp(-(tt + 0.01) / 0.05)) + rng.normal(0, 2, n_samples)
+        thrust = 2e-5 * np.abs(speed) * speed + rng.normal(0, 0.2, n_samples)
+        current = 1e-9 * np.abs(speed) ** 3 + 0.3 + rng.normal(0, 0.05, n_samples)
+        if i == 4:
+            current[100:400] = np.nan
+        samples = {"t_s": t + tt, "fx": -thrust, "tx": 0.01 * thrust + rng.normal(0, 1e-3, n_samples),
+                   "thrust_n": thrust, "speed_rpm": speed, "current_a": current,
+                   "voltage_v": 48 + rng.normal(0, 0.1, n_samples), "command": command}
+        step = StepRecord(i, float(cmd), "percent", None, 0, "up", t, t, t + tt[-1], 0.0,
+                          True, 1000.0)
+        store.add_step(run_id, step, samples)
+        t += tt[-1] + 0.5
+    store.finish_run(run_id, "completed")
+    return run_id
+
+
+def _same(a, b, where):
+    assert np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True), where
+
+
+def test_a_point_longer_than_a_block_is_streamed_in_pieces_bit_for_bit(tmp_path):
+    """A point longer than the block comes in pieces and gets its own passes: its window,
+    statistics (held, ramp, NaN gaps, power, torque) and block means are those of the whole
+    point to the last bit, whatever the piece size."""
+    store = Store(tmp_path / "long.sqlite")
+    run_id = _long_point_run(store)
+    results = []
+    for batch in (10**9, 1000, 333):
+        run = load_run(store, run_id)
+        run.source.batch = batch
+        assert run.source.has_torque
+        pieces = [b for b in run.source.blocks() if b.piece]
+        assert bool(pieces) == (batch < 10**9)
+        assert all(b.samples.t_s.size <= batch for b in pieces)
+        windows, table = point_pass(run, SettlingCriterion())
+        results.append((windows, table, block_means(run, 0.05)))
+    ref_w, ref_t, ref_b = results[0]
+    assert np.isfinite(ref_w.speed_sq_rate).sum() == 3  # the ramps are seen as moving
+    assert np.isfinite(ref_t.torque.mean).all() and np.isfinite(ref_t.power.mean).all()
+    for windows, table, blocks in results[1:]:
+        for name in ("first", "window_start_s", "t_mid_s", "n_window", "unsteady",
+                     "speed_sq_rate"):
+            _same(getattr(windows, name), getattr(ref_w, name), name)
+        for name, stats in windows.channels.items():
+            for k in ("mean", "std", "se", "min", "max"):
+                _same(getattr(stats, k), getattr(ref_w.channels[name], k), (name, k))
+        _same(table.n_samples, ref_t.n_samples, "n_samples")
+        for k in ("t_s", "t0_s", "t1_s", "thrust_n", "speed_rpm", "current_a", "point"):
+            _same(getattr(blocks, k), getattr(ref_b, k), k)
