@@ -340,13 +340,15 @@ def smooth_rates(rate: np.ndarray, t_s: np.ndarray, speed: np.ndarray) -> np.nda
 
 
 def _trend(x: np.ndarray, t: np.ndarray, pid: np.ndarray, moving: np.ndarray,
-           n_points: int) -> np.ndarray:
+           n_points: int) -> np.ndarray | None:
     """Per sample, its point's least-squares line in time less the point's mean, for the
     `moving` points (a ramp's bins: the command moves within the window), 0 elsewhere: the
-    trend the command makes is not noise."""
+    trend the command makes is not noise. None: 0 everywhere."""
+    if not moving.any():
+        return None
     ok = np.isfinite(x) & moving[pid]
     if not ok.any():
-        return np.zeros(x.size)
+        return None
     w = ok.astype(float)
     with np.errstate(invalid="ignore", divide="ignore"):
         count = np.bincount(pid, w, n_points)
@@ -382,6 +384,8 @@ def _ramp_rates(samples: Samples, in_window: np.ndarray, n_points: int) -> np.nd
     cmd, speed = samples.command, samples.speed_rpm
     if cmd is None or speed is None or not in_window.any():
         return out
+    if not _command_moves(cmd[in_window], samples.point[in_window], n_points):
+        return out
     pid, t = samples.point[in_window], samples.t_s[in_window]
     c, x = cmd[in_window], speed[in_window] * np.abs(speed[in_window])
     ok = np.isfinite(c) & np.isfinite(x) & np.isfinite(t)
@@ -400,6 +404,19 @@ def _ramp_rates(samples: Samples, in_window: np.ndarray, n_points: int) -> np.nd
     moving = (count >= 2) & (hi > lo) & np.isfinite(slope)
     out[moving] = slope[moving]
     return out
+
+
+def _command_moves(c: np.ndarray, pid: np.ndarray, n_points: int) -> bool:
+    """Whether the command `c` (window samples of points `pid`, ascending) takes two values
+    within any one point: a quick test before the ramp slopes, which need one."""
+    count = np.bincount(pid, minlength=n_points)
+    has = np.flatnonzero(count)
+    if not has.size:
+        return False
+    starts = (np.cumsum(count) - count)[has]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return bool((np.fmax.reduceat(c, starts) > np.fmin.reduceat(c, starts)).any())
 
 
 def point_channel_stats(x: np.ndarray, offsets: np.ndarray, unit: str,
@@ -427,12 +444,16 @@ def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
     nb = crit.n_blocks
     size = n_points * nb
     ok = np.isfinite(x)
-    xv = np.where(ok, x, 0.0)
-    cnt = np.bincount(key, weights=ok, minlength=size).reshape(n_points, nb)
+    every = bool(ok.all())
+    xv = x if every else np.where(ok, x, 0.0)
+    cnt = np.bincount(key, weights=None if every else ok, minlength=size).astype(float)
+    cnt = cnt.reshape(n_points, nb)
     with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         means = np.bincount(key, weights=xv, minlength=size).reshape(n_points, nb) / cnt
-        dev = np.where(ok, xv - means.ravel()[key], 0.0)
+        dev = xv - means.ravel()[key]
+        if not every:
+            dev[~ok] = 0.0
         ss = np.bincount(key, weights=dev * dev, minlength=size).reshape(n_points, nb)
     return means, screen_blocks(cnt, means, ss, crit)
 
@@ -481,16 +502,24 @@ def batch_means_se(means: np.ndarray | None, mask: np.ndarray) -> np.ndarray:
 
 
 def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points: int,
-                  unit: str, batch_se: np.ndarray, trend: np.ndarray) -> ChannelStats:
+                  unit: str, batch_se: np.ndarray, trend: np.ndarray | None) -> ChannelStats:
     """Mean, std, standard error, min and max per point; std and error about `trend` (a ramp
-    bin's line in time, see `_trend`; one degree of freedom fewer where it is not 0)."""
+    bin's line in time, see `_trend`; one degree of freedom fewer where it is not 0; None:
+    0 everywhere). Where every value is finite the masks are left out (the same sums)."""
     ok = np.isfinite(x)
-    xv = np.where(ok, x, 0.0)
-    cnt = np.bincount(pid, weights=ok, minlength=n_points)
-    sloped = np.bincount(pid, weights=trend != 0, minlength=n_points) > 0
+    every = bool(ok.all())
+    xv = x if every else np.where(ok, x, 0.0)
+    cnt = (np.diff(offsets).astype(float) if every
+           else np.bincount(pid, weights=ok, minlength=n_points))
+    sloped = (np.zeros(n_points, bool) if trend is None
+              else np.bincount(pid, weights=trend != 0, minlength=n_points) > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.bincount(pid, weights=xv, minlength=n_points) / cnt
-        dev = np.where(ok, xv - mean[pid] - trend, 0.0)
+        dev = xv - mean[pid]
+        if trend is not None:
+            dev -= trend
+        if not every:
+            dev[~ok] = 0.0
         c0 = np.bincount(pid, weights=dev * dev, minlength=n_points)
         # Lag-1 products within each point: one across a point boundary counts 0 (sums of
         # the same terms as over the pairs within points).
