@@ -140,6 +140,7 @@ class FrameTap:
         self.listener = socket.create_server(("127.0.0.1", 0))
         self.url = f"socket://127.0.0.1:{self.listener.getsockname()[1]}"
         self.frames: list[tuple[float, bytes]] = []
+        self.replies: list[float] = []  # when each reply line from the bridge reached the relay
         threading.Thread(target=self._accept, daemon=True).start()
 
     def _accept(self) -> None:
@@ -161,10 +162,12 @@ class FrameTap:
                 break
             if not data:
                 break
+            t = time.monotonic()
+            *lines, pending = (pending + data).split(b"\n")
             if stamp:
-                t = time.monotonic()
-                *lines, pending = (pending + data).split(b"\n")
                 self.frames.extend((t, line.strip()) for line in lines)
+            else:
+                self.replies.extend(t for _ in lines)
             try:
                 dst.sendall(data)
             except OSError:
@@ -209,6 +212,15 @@ def frame_report(tap: FrameTap, actuator: dict) -> bool:
     print(f"  keep-alive lateness (interval - {1e3 * period:g} ms): "
           f"{_ms(np.diff(t[beat]) - period)}")
     print(f"  silence before a command frame: {_ms(silence[~beat[1:]])}")
+    replies = np.sort(np.array(tap.replies))
+    after = np.searchsorted(replies, t)
+    answered = after < replies.size
+    print("  the bridge's reply after each frame (round trip through the relay): "
+          f"{_ms(replies[after[answered]] - t[answered])}")
+    if silence.size:
+        i = int(np.argmax(silence))
+        print(f"  the longest silence ends {t[i + 1] - t[0]:.1f} s into the run, before "
+              f"{frames[i + 1][1][:20]!r} (after {frames[i][1][:20]!r})")
     worst = float(silence.max()) if silence.size else 0.0
     ok = worst <= watchdog / 2
     print(f"  {'PASS' if ok else 'FAIL'}: longest silence before any frame {1e3 * worst:.1f} ms "

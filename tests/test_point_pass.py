@@ -175,3 +175,36 @@ def test_a_point_longer_than_a_block_is_streamed_in_pieces_bit_for_bit(tmp_path)
         _same(table.n_samples, ref_t.n_samples, "n_samples")
         for k in ("t_s", "t0_s", "t1_s", "thrust_n", "speed_rpm", "current_a", "point"):
             _same(getattr(blocks, k), getattr(ref_b, k), k)
+
+
+def _dwell_run(store, n):
+    """A short sweep, then a dwell of `n` samples at 60 %."""
+    plan = sweep(np.arange(-100.0, 100.1, 20.0))
+    run_id = write_run(store, can_samples, "percent", plan, n_samples=400, seed=6)
+    rng = np.random.default_rng(6)
+    t0 = 1000.0
+    tt = np.arange(n) / 1000.0
+    speed = 1080 + rng.normal(0, 2, n)
+    samples = {"t_s": t0 + tt, "thrust_n": 2e-5 * speed * speed + rng.normal(0, 0.2, n),
+               "speed_rpm": speed, "current_a": 1.2e-9 * speed**3 + 0.3 + rng.normal(0, 0.05, n),
+               "command": np.full(n, 60.0)}
+    store.add_step(run_id, StepRecord(len(plan), 60.0, "percent", None, 0, "up", t0, t0,
+                                      t0 + tt[-1], 0.0, True, 1000.0), samples)
+    return run_id
+
+
+def test_memory_of_one_long_point_does_not_grow_with_it(tmp_path):
+    """Calibrated in pieces of 20 000 samples, a run whose dwell is 3 times longer peaks at
+    about the same memory (both past the constants: a block of a point for the thrust
+    axis, 200 000 values a channel for the printed step); the shorter dwell read whole
+    needs more than both."""
+    peaks = {}
+    for n in (300_000, 900_000):
+        store = Store(tmp_path / f"dwell{n}.sqlite")
+        run_id = _dwell_run(store, n)
+        if n == 300_000:
+            _calibrate(store, run_id, 20_000)  # warm: imports and caches outside the count
+            peaks["whole"] = _peak_bytes(store, run_id, 10**9)
+        peaks[n] = _peak_bytes(store, run_id, 20_000)
+    assert peaks[900_000] < 1.1 * peaks[300_000], peaks
+    assert peaks["whole"] > 2 * peaks[900_000], peaks

@@ -380,20 +380,21 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
     """Weights w with thrust_n ~ w . (fx..tz) + c, by least squares on a few spread-out points.
 
     The rig file's axis convention is not needed: the stored thrust and F/T channels define it.
-    The points are read one block at a time (twice: which channels hold data, then the fit),
-    and the least squares problem is reduced to its triangular factor block by block, so
-    memory is bounded by a block (a point up to BLOCK_SAMPLES samples is one block).
+    The points are read one at a time (twice: which channels hold data, then the fit), a
+    point longer than BLOCK_SAMPLES one stored block at a time, and the least squares problem
+    is reduced to its triangular factor as they come, so memory is bounded by a block.
     """
     rows = sorted((r for r in step_rows if r["thrust_n_mean"] is not None),
                   key=lambda r: r["thrust_n_mean"])
     if not rows or not usable.any():
         return None
     pick = np.unique(np.linspace(0, len(rows) - 1, min(_AXIS_FIT_STEPS, len(rows))).astype(int))
-    ids = [int(rows[i]["id"]) for i in pick]
+    ids = [(int(rows[i]["id"]), int(rows[i]["n"] or 0)) for i in pick]
 
     def points() -> Iterator[np.ndarray]:
-        for i in ids:
-            for part in store.iter_step_samples(i, (*FT_CHANNELS, "thrust_n"), BLOCK_SAMPLES):
+        for i, n in ids:  # a point up to a block at once, a longer one a stored block at a time
+            batch = BLOCK_SAMPLES if n <= BLOCK_SAMPLES else 1
+            for part in store.iter_step_samples(i, (*FT_CHANNELS, "thrust_n"), batch):
                 yield np.column_stack(list(part.values())).reshape(-1, 7)
 
     finite, n_rows = np.ones(6, bool), 0
