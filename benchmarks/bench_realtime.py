@@ -106,9 +106,10 @@ def sweep(root: Path, rig: Path, rate: float, minutes: float) -> tuple[float, fl
     protocol = root / f"p-{rate:g}.yaml"
     protocol.write_text(PROTOCOL.format(rate=rate, repeats=repeats))
     t0 = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-m", "rigtool", "sweep", str(protocol), "--rig",
-                             str(rig), "--db", str(root / f"{rate:g}.sqlite")],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with open(root / f"sweep-{rate:g}.log", "wb") as log:  # its messages, for a failed sweep
+        proc = subprocess.Popen([sys.executable, "-m", "rigtool", "sweep", str(protocol),
+                                 "--rig", str(rig), "--db", str(root / f"{rate:g}.sqlite")],
+                                stdout=subprocess.DEVNULL, stderr=log)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.monotonic() - t0
     proc.returncode = os.waitstatus_to_exitcode(status)
@@ -288,6 +289,9 @@ def run_rate(root: Path, rate: float, args: argparse.Namespace) -> tuple[float, 
           f"{percent / bare:5.2f} {points:6d} {stored:10,d} {gaps:8d} {lost:9d} {code}",
           flush=True)
     print(f"  {load_text}")
+    if code:
+        tail = (root / f"sweep-{rate:g}.log").read_text(errors="replace").strip().splitlines()
+        print("  the sweep's last messages: " + " | ".join(tail[-4:]))
     ok = gaps == 0 and lost == 0 and code == 0
     if tap is not None:
         ok = frame_report(tap, actuator) and ok
