@@ -12,7 +12,8 @@ from pydantic import Field
 
 MAX_RATE_HZ = 100_000.0  # sample rate
 MIN_RATE_HZ = 0.1
-MAX_SAMPLES_PER_POINT = 10_000_000  # samples acquired (and stored) per point
+MAX_SAMPLES_PER_POINT = 100_000_000  # samples acquired (and stored) per point: 4 h at 7 kHz
+MAX_BUFFER_SAMPLES = 10_000_000  # a driver's receive buffer (held in memory)
 MAX_COMMAND_VALUES = 100_000  # commands in one sweep direction
 MAX_POINTS = 100_000  # points in the whole plan (the plan is stored with the run)
 MAX_DURATION_S = 86_400.0  # any single duration in a file: one day

@@ -1,6 +1,6 @@
 """Hold one point's samples until the store commits them, in bounded memory.
 
-A point may have up to MAX_SAMPLES_PER_POINT samples (about 1 GiB as arrays). The spool
+A point may have up to MAX_SAMPLES_PER_POINT samples (about 10 GiB as rows). The spool
 keeps the first IN_MEMORY_SAMPLES in memory; beyond that it appends rows to an unlinked
 temporary file and keeps running statistics, so memory stays bounded by the block size
 whatever the point's length. The store takes the samples back as column chunks.

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rigtool.analysis.dataset import RunData, Samples
+from rigtool.analysis.dataset import RunData, Samples, SampleSource
 
 
 @dataclass
@@ -41,15 +41,28 @@ class Blocks:
 
 def block_means(run: RunData, block_s: float = 0.2) -> Blocks:
     """Means over consecutive `block_s` blocks inside each point (a partial last block is
-    dropped), read one block of points at a time."""
+    dropped), read one block of points at a time (a point longer than a block in pieces)."""
     rows: dict[str, list[np.ndarray]] = {k: [] for k in (
         "t_s", "t0_s", "t1_s", "thrust_n", "speed_rpm", "current_a", "point", "t_in_point_s")}
-    for chunk in run.source.blocks(("t_s", "thrust_n", "speed_rpm", "current_a")):
+    for chunk in run.source.blocks(_FIELDS):
+        if chunk.piece:
+            if chunk.start == 0:
+                _long_point_blocks(run.source, chunk.first_row, block_s, rows)
+            continue
         _point_blocks(chunk.samples, chunk.first_row, block_s, rows)
     cat = {k: (np.concatenate(v) if v else np.empty(0)) for k, v in rows.items()}
     point = cat.pop("point").astype(int)
     return Blocks(**cat, point=point, depth_m=run.steps.depth_m[point],
                   command=run.steps.command[point], block_s=block_s)
+
+
+_FIELDS = ("t_s", "thrust_n", "speed_rpm", "current_a")
+
+
+def _block_size(n: int, t_first: float, t_last: float, block_s: float) -> int:
+    """Samples per block of a point of `n` samples from `t_first` to `t_last`."""
+    rate = (n - 1) / max(t_last - t_first, 1e-12)
+    return max(int(round(block_s * rate)), 1)
 
 
 def _point_blocks(s: Samples, first_row: int, block_s: float,
@@ -60,26 +73,51 @@ def _point_blocks(s: Samples, first_row: int, block_s: float,
         a, b = int(off[p]), int(off[p + 1])
         if b - a < 2:
             continue
-        t = s.t_s[a:b]
-        rate = (b - a - 1) / max(t[-1] - t[0], 1e-12)
-        size = max(int(round(block_s * rate)), 1)
-        nb = (b - a) // size
-        if nb == 0:
-            continue
-        end = a + nb * size
+        size = _block_size(b - a, s.t_s[a], s.t_s[b - 1], block_s)
+        end = a + (b - a) // size * size
+        if end > a:
+            _append(s, a, end, size, first_row + p, s.t_s[a], rows)
 
-        def mean(x: np.ndarray, a: int = a, end: int = end, size: int = size) -> np.ndarray:
-            return np.nanmean(x[a:end].reshape(-1, size), axis=1)
 
-        tb = s.t_s[a:end].reshape(-1, size)
-        rows["t_s"].append(tb.mean(axis=1))
-        rows["t0_s"].append(tb[:, 0])
-        rows["t1_s"].append(tb[:, -1])
-        rows["thrust_n"].append(mean(s.thrust_n))
-        rows["speed_rpm"].append(mean(s.speed_rpm))
-        rows["current_a"].append(mean(s.current_a))
-        rows["point"].append(np.full(nb, first_row + p))
-        rows["t_in_point_s"].append(tb.mean(axis=1) - t[0])
+def _long_point_blocks(source: SampleSource, row: int, block_s: float,
+                       rows: dict[str, list[np.ndarray]]) -> None:
+    """`_point_blocks` of one point longer than a block, read in pieces: the samples of a
+    block a piece cuts are carried into the next piece, so every block is the same."""
+    n = int(source.point_counts()[row])
+    times = [(p.samples.t_s[0], p.samples.t_s[-1]) for p in source.pieces(row, ("t_s",))]
+    if n < 2 or not times:
+        return
+    size = _block_size(n, times[0][0], times[-1][1], block_s)
+    left = n // size * size  # samples in whole blocks
+    carry: dict[str, np.ndarray] = {k: np.empty(0) for k in _FIELDS}
+    for piece in source.pieces(row, _FIELDS):
+        s = piece.samples
+        cols = {k: np.concatenate((carry[k], getattr(s, k))) for k in _FIELDS}
+        take = min(cols["t_s"].size // size * size, left)
+        if take:
+            whole = Samples(**{k: v[:take] for k, v in cols.items()}, point=np.empty(0, int),
+                            offsets=np.empty(0, int))
+            _append(whole, 0, take, size, row, times[0][0], rows)
+        left -= take
+        carry = {k: v[take:] for k, v in cols.items()}
+
+
+def _append(s: Samples, a: int, end: int, size: int, row: int, t_first: float,
+            rows: dict[str, list[np.ndarray]]) -> None:
+    """Append the means of blocks of `size` samples of `s`, samples a .. end - 1 (whole
+    blocks of steps row `row`, whose first sample is at `t_first`), to `rows`."""
+    def mean(x: np.ndarray) -> np.ndarray:
+        return np.nanmean(x[a:end].reshape(-1, size), axis=1)
+
+    tb = s.t_s[a:end].reshape(-1, size)
+    rows["t_s"].append(tb.mean(axis=1))
+    rows["t0_s"].append(tb[:, 0])
+    rows["t1_s"].append(tb[:, -1])
+    rows["thrust_n"].append(mean(s.thrust_n))
+    rows["speed_rpm"].append(mean(s.speed_rpm))
+    rows["current_a"].append(mean(s.current_a))
+    rows["point"].append(np.full(tb.shape[0], row))
+    rows["t_in_point_s"].append(tb.mean(axis=1) - t_first)
 
 
 def in_intervals(t: np.ndarray, intervals: list[tuple[float, float]]) -> np.ndarray:

@@ -208,17 +208,30 @@ def torque_channel(rig: dict, store: Store, step_rows: list[dict]) -> tuple[str,
     if channel not in FT_CHANNELS[:3] or sign not in (1, -1) or not step_rows:
         return None
     name = "t" + channel[1]
-    probe = store.step_samples(int(step_rows[-1]["id"]), (name,))[name]
-    return (name, int(sign)) if np.isfinite(probe).any() else None
+    probe = store.iter_step_samples(int(step_rows[-1]["id"]), (name,))
+    return (name, int(sign)) if any(np.isfinite(c[name]).any() for c in probe) else None
 
 
 @dataclass
 class PointBlock:
     """The samples of steps rows first_row .. first_row + n_points - 1 (`samples.point` counts
-    from 0 at first_row)."""
+    from 0 at first_row); or a piece of one point longer than a block (`point_n` > 0: the
+    point's samples in all, `start`: where in the point the piece begins)."""
 
     first_row: int
     samples: Samples
+    start: int = 0
+    point_n: int = 0
+
+    @property
+    def piece(self) -> bool:
+        """Whether the block is a piece of one long point, not whole points."""
+        return self.point_n > 0
+
+    @property
+    def last_piece(self) -> bool:
+        """Whether the block is the last piece of its long point."""
+        return self.piece and self.start + self.samples.t_s.size == self.point_n
 
     @property
     def rows(self) -> np.ndarray:
@@ -229,14 +242,16 @@ class PointBlock:
 class SampleSource:
     """A run's samples, read from the store block by block of whole points on demand.
 
-    Each block holds about BLOCK_SAMPLES samples (one long point makes a larger one), so a
-    pass over the run needs memory for one block only. Samples of points not in `steps`
-    (stored after the run was loaded) are skipped."""
+    Each block holds about BLOCK_SAMPLES samples, so a pass over the run needs memory for
+    one block only. A point longer than that comes as consecutive pieces of at most
+    BLOCK_SAMPLES samples (`PointBlock.piece`), which `pieces` reads again for a pass of its
+    own. Samples of points not in `steps` (stored after the run was loaded) are skipped."""
 
     def __init__(self, store: Store, run_id: str, steps: Steps,
                  torque: tuple[str, int] | None = None, batch: int = BLOCK_SAMPLES) -> None:
         self.store, self.run_id, self.steps = store, run_id, steps
         self.torque, self.batch = torque, batch
+        self._counts: np.ndarray | None = None
 
     @property
     def has_torque(self) -> bool:
@@ -247,16 +262,60 @@ class SampleSource:
         """How many samples the run's points hold in all."""
         return self.store.sample_count(self.run_id)
 
+    def point_counts(self) -> np.ndarray:
+        """How many samples each steps row holds (read once)."""
+        if self._counts is None:
+            stored = self.store.point_sample_counts(self.run_id)
+            self._counts = np.array([stored.get(int(i), 0) for i in self.steps.idx], np.int64)
+        return self._counts
+
     def blocks(self, fields: Sequence[str] = (*SAMPLE_FIELDS, "torque_nm")) -> Iterator[PointBlock]:
         """Consecutive blocks of points covering every steps row once, with `fields` read
-        (`torque_nm`: the torque channel, sign applied, when recorded)."""
+        (`torque_nm`: the torque channel, sign applied, when recorded); a point longer than
+        a block comes in pieces."""
+        long = np.flatnonzero(self.point_counts() > self.batch)
+        if not long.size:
+            yield from self._whole(fields, 0, len(self.steps), bounded=False)
+            return
+        row = 0
+        for at in long.tolist():
+            if at > row:
+                yield from self._whole(fields, row, at, bounded=True)
+            yield from self.pieces(at, fields)
+            row = at + 1
+        if row < len(self.steps):
+            yield from self._whole(fields, row, len(self.steps), bounded=True)
+
+    def pieces(self, row: int, fields: Sequence[str]) -> Iterator[PointBlock]:
+        """The samples of steps row `row` in pieces of at most `batch` samples, in order."""
+        stored = self._stored(fields)
+        n, start = int(self.point_counts()[row]), 0
+        for chunk in self.store.iter_samples(self.run_id, tuple(stored.values()),
+                                             steps=[int(self.steps.idx[row])],
+                                             batch=self.batch):
+            size = chunk["step_idx"].size
+            for a in range(0, size, self.batch):
+                part = {k: v[a:a + self.batch] for k, v in chunk.items()}
+                local = np.zeros(part["step_idx"].size, np.int64)
+                yield PointBlock(row, _block_samples(part, stored, local, 1, self.torque),
+                                 start, n)
+                start += local.size
+
+    def _stored(self, fields: Sequence[str]) -> dict[str, str]:
         stored = {f: f for f in fields if f != "torque_nm"}
         if "torque_nm" in fields and self.torque is not None:
             stored["torque_nm"] = self.torque[0]
+        return stored
+
+    def _whole(self, fields: Sequence[str], row: int, stop: int,
+               bounded: bool) -> Iterator[PointBlock]:
+        """Blocks of whole points of steps rows `row` .. `stop` - 1 (`bounded`: read only
+        those rows' plan indices; otherwise the whole run, which they are)."""
+        stored = self._stored(fields)
         idx = self.steps.idx
-        n_rows, row = len(idx), 0
+        span = (int(idx[row]), int(idx[stop - 1])) if bounded else None
         for chunk in self.store.iter_point_samples(self.run_id, tuple(stored.values()),
-                                                   self.batch):
+                                                   self.batch, span):
             at = _rows_of(idx, chunk["step_idx"])
             known = at >= 0
             if not known.all():
@@ -268,10 +327,10 @@ class SampleSource:
             yield PointBlock(row, _block_samples(chunk, stored, at - row, end - row,
                                                  self.torque))
             row = end
-        if row < n_rows or n_rows == 0:
+        if row < stop or stop == 0:
             empty = {k: np.empty(0) for k in stored.values()}
             yield PointBlock(row, _block_samples(empty, stored, np.empty(0, np.int64),
-                                                 n_rows - row, self.torque))
+                                                 stop - row, self.torque))
 
 
 def _rows_of(idx: np.ndarray, step_idx: np.ndarray) -> np.ndarray:
@@ -321,21 +380,22 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
     """Weights w with thrust_n ~ w . (fx..tz) + c, by least squares on a few spread-out points.
 
     The rig file's axis convention is not needed: the stored thrust and F/T channels define it.
-    The points are read one at a time (twice: which channels hold data, then the fit), and
-    the least squares problem is reduced to its triangular factor point by point, so memory
-    is bounded by one point.
+    The points are read one at a time (twice: which channels hold data, then the fit), a
+    point longer than BLOCK_SAMPLES one stored block at a time, and the least squares problem
+    is reduced to its triangular factor as they come, so memory is bounded by a block.
     """
     rows = sorted((r for r in step_rows if r["thrust_n_mean"] is not None),
                   key=lambda r: r["thrust_n_mean"])
     if not rows or not usable.any():
         return None
     pick = np.unique(np.linspace(0, len(rows) - 1, min(_AXIS_FIT_STEPS, len(rows))).astype(int))
-    ids = [int(rows[i]["id"]) for i in pick]
+    ids = [(int(rows[i]["id"]), int(rows[i]["n"] or 0)) for i in pick]
 
     def points() -> Iterator[np.ndarray]:
-        for i in ids:
-            part = store.step_samples(i, (*FT_CHANNELS, "thrust_n"))
-            yield np.column_stack(list(part.values())).reshape(-1, 7)
+        for i, n in ids:  # a point up to a block at once, a longer one a stored block at a time
+            batch = BLOCK_SAMPLES if n <= BLOCK_SAMPLES else 1
+            for part in store.iter_step_samples(i, (*FT_CHANNELS, "thrust_n"), batch):
+                yield np.column_stack(list(part.values())).reshape(-1, 7)
 
     finite, n_rows = np.ones(6, bool), 0
     for data in points():

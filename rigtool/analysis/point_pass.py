@@ -1,9 +1,11 @@
 """Calibrate's passes over a run's samples, block of points by block, never the whole run.
 
 The first pass chooses every point's steady window and reduces the window to the point
-table's statistics, and keeps the strided values the printed-step check looks at. The
+table's statistics, and keeps the strided values the printed-step check looks at; a point
+longer than a block is read in pieces and reduced by passes of its own (long_point.py). The
 second runs once the fits are known: the per-sample residual spreads (sigma_*_sample) the
-fits asked for, summed point block by point block. Memory is bounded by a block.
+fits asked for, summed point block by point block. Memory is bounded by a block,
+whatever the length of a point.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 
 from rigtool.analysis.dataset import SAMPLE_FIELDS, PointBlock, RunData
 from rigtool.analysis.fits import Coefficient, residual_spread
+from rigtool.analysis.long_point import long_point_windows
 from rigtool.analysis.steady import (
     RESOLUTION_CHANNELS,
     RESOLUTION_SAMPLES,
@@ -38,11 +41,16 @@ def point_pass(run: RunData, criterion: SettlingCriterion) -> tuple[SteadyWindow
     strides = _Strided(run.source.sample_count())
     parts, counts = [], []
     for block in run.source.blocks((*SAMPLE_FIELDS, "torque_nm", "command")):
+        strides.add(block.samples)
+        if block.piece:  # a long point: its own passes over its pieces, once all are seen
+            if block.last_piece:
+                parts.append(long_point_windows(run.source, block.first_row, criterion))
+                counts.append(np.array([block.point_n]))
+            continue
         windows = steady_windows(block.samples, criterion)
         windows.in_window = windows.in_window[:0]  # per sample: not kept past its block
         parts.append(windows)
         counts.append(np.diff(block.samples.offsets))
-        strides.add(block.samples)
     windows = concat_windows(parts)
     table = windows.point_table(run.steps, np.concatenate(counts),
                                 strides.resolutions(run))
@@ -166,7 +174,7 @@ class SpreadPass:
         if not s.point.size:
             return
         rows = block.first_row + s.point
-        pos = np.arange(s.point.size) - s.offsets[s.point]
+        pos = np.arange(s.point.size) - s.offsets[s.point] + block.start
         in_window = pos >= self.first[rows]
         point_section = self.section_of[block.rows]
         for k in np.unique(point_section):

@@ -255,21 +255,15 @@ def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None)
     blk = (pos * nb) // np.maximum(n[pid], 1)
     key = pid * nb + blk
 
-    start_blk = np.zeros(n_points, dtype=np.int64)
-    unsteady = np.zeros(n_points, dtype=bool)
     block_means: dict[str, np.ndarray] = {}
+    outside = []
     for name in crit.channels:
         x = samples.channel(name)
         if not np.isfinite(x).any():
             continue
-        means, out = _block_screen(x, key, n_points, crit)
-        block_means[name] = means
-        after_last = np.where(out.any(axis=1), nb - np.argmax(out[:, ::-1], axis=1), 0)
-        unsteady |= after_last > crit.max_start_block
-        start_blk = np.maximum(start_blk, np.minimum(after_last, crit.max_start_block))
-    short = n < crit.min_samples
-    start_blk[short] = 0
-    unsteady[short] = False
+        block_means[name], out = _block_screen(x, key, n_points, crit)
+        outside.append(out)
+    start_blk, unsteady, short = window_starts(outside, n, crit)
 
     first = (start_blk * n + nb - 1) // nb
     in_window = blk >= start_blk[pid]
@@ -281,7 +275,7 @@ def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None)
     n_window = n - first
     win_pid = pid[in_window]
     win_offsets = np.concatenate(([0], np.cumsum(n_window)))
-    block_mask = (np.arange(nb)[None, :] >= start_blk[:, None]) & ~short[:, None]
+    block_mask = window_blocks(start_blk, short, nb)
     with np.errstate(invalid="ignore", divide="ignore"):
         t_mid = np.bincount(win_pid, weights=t[in_window], minlength=n_points) / n_window
     stats = {}
@@ -292,11 +286,34 @@ def steady_windows(samples: Samples, criterion: SettlingCriterion | None = None)
             stats[name] = ChannelStats(unit, *(np.full(n_points, np.nan) for _ in range(5)))
             continue
         x = samples.channel(name)[in_window]
-        batch_se = np.where(moving, np.nan, _batch_se(block_means.get(name), block_mask))
+        batch_se = np.where(moving, np.nan, batch_means_se(block_means.get(name), block_mask))
         trend = _trend(x, t[in_window], win_pid, moving, n_points)
         stats[name] = _window_stats(x, win_pid, win_offsets, n_points, unit, batch_se, trend)
     return SteadyWindows(crit, first, window_start_s, t_mid, n_window, unsteady, stats, in_window,
                          rate)
+
+
+def window_starts(outside: list[np.ndarray], n: np.ndarray, crit: SettlingCriterion
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per point, the first block of the window (the latest over the channels' masks of
+    blocks `outside` the tolerance), whether it is unsteady, and whether it is too short to
+    screen (`n` samples below the criterion's minimum: the whole point)."""
+    nb = crit.n_blocks
+    start_blk = np.zeros(n.size, dtype=np.int64)
+    unsteady = np.zeros(n.size, dtype=bool)
+    for out in outside:
+        after_last = np.where(out.any(axis=1), nb - np.argmax(out[:, ::-1], axis=1), 0)
+        unsteady |= after_last > crit.max_start_block
+        start_blk = np.maximum(start_blk, np.minimum(after_last, crit.max_start_block))
+    short = n < crit.min_samples
+    start_blk[short] = 0
+    unsteady[short] = False
+    return start_blk, unsteady, short
+
+
+def window_blocks(start_blk: np.ndarray, short: np.ndarray, nb: int) -> np.ndarray:
+    """Mask (points x blocks) of the blocks inside each window, for batch means."""
+    return (np.arange(nb)[None, :] >= start_blk[:, None]) & ~short[:, None]
 
 
 def smooth_rates(rate: np.ndarray, t_s: np.ndarray, speed: np.ndarray) -> np.ndarray:
@@ -317,13 +334,15 @@ def smooth_rates(rate: np.ndarray, t_s: np.ndarray, speed: np.ndarray) -> np.nda
 
 
 def _trend(x: np.ndarray, t: np.ndarray, pid: np.ndarray, moving: np.ndarray,
-           n_points: int) -> np.ndarray:
+           n_points: int) -> np.ndarray | None:
     """Per sample, its point's least-squares line in time less the point's mean, for the
     `moving` points (a ramp's bins: the command moves within the window), 0 elsewhere: the
-    trend the command makes is not noise."""
+    trend the command makes is not noise. None: 0 everywhere."""
+    if not moving.any():
+        return None
     ok = np.isfinite(x) & moving[pid]
     if not ok.any():
-        return np.zeros(x.size)
+        return None
     w = ok.astype(float)
     with np.errstate(invalid="ignore", divide="ignore"):
         count = np.bincount(pid, w, n_points)
@@ -359,6 +378,8 @@ def _ramp_rates(samples: Samples, in_window: np.ndarray, n_points: int) -> np.nd
     cmd, speed = samples.command, samples.speed_rpm
     if cmd is None or speed is None or not in_window.any():
         return out
+    if not _command_moves(cmd[in_window], samples.point[in_window], n_points):
+        return out
     pid, t = samples.point[in_window], samples.t_s[in_window]
     c, x = cmd[in_window], speed[in_window] * np.abs(speed[in_window])
     ok = np.isfinite(c) & np.isfinite(x) & np.isfinite(t)
@@ -379,6 +400,19 @@ def _ramp_rates(samples: Samples, in_window: np.ndarray, n_points: int) -> np.nd
     return out
 
 
+def _command_moves(c: np.ndarray, pid: np.ndarray, n_points: int) -> bool:
+    """Whether the command `c` (window samples of points `pid`, ascending) takes two values
+    within any one point: a quick test before the ramp slopes, which need one."""
+    count = np.bincount(pid, minlength=n_points)
+    has = np.flatnonzero(count)
+    if not has.size:
+        return False
+    starts = (np.cumsum(count) - count)[has]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return bool((np.fmax.reduceat(c, starts) > np.fmin.reduceat(c, starts)).any())
+
+
 def point_channel_stats(x: np.ndarray, offsets: np.ndarray, unit: str,
                         n_blocks: int = SettlingCriterion.n_blocks) -> ChannelStats:
     """Per-point statistics of any channel (e.g. an F/T channel) over all of each point's
@@ -395,7 +429,7 @@ def point_channel_stats(x: np.ndarray, offsets: np.ndarray, unit: str,
     with np.errstate(invalid="ignore", divide="ignore"):
         means = total.reshape(n_points, n_blocks) / cnt
     return _window_stats(x, pid, offsets, n_points, unit,
-                         _batch_se(means, np.ones_like(means, dtype=bool)), np.zeros_like(x))
+                         batch_means_se(means, np.ones_like(means, dtype=bool)), np.zeros_like(x))
 
 
 def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
@@ -404,13 +438,27 @@ def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
     nb = crit.n_blocks
     size = n_points * nb
     ok = np.isfinite(x)
-    xv = np.where(ok, x, 0.0)
-    cnt = np.bincount(key, weights=ok, minlength=size).reshape(n_points, nb)
+    every = bool(ok.all())
+    xv = x if every else np.where(ok, x, 0.0)
+    cnt = np.bincount(key, weights=None if every else ok, minlength=size).astype(float)
+    cnt = cnt.reshape(n_points, nb)
     with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         means = np.bincount(key, weights=xv, minlength=size).reshape(n_points, nb) / cnt
-        dev = np.where(ok, xv - means.ravel()[key], 0.0)
+        dev = xv - means.ravel()[key]
+        if not every:
+            dev[~ok] = 0.0
         ss = np.bincount(key, weights=dev * dev, minlength=size).reshape(n_points, nb)
+    return means, screen_blocks(cnt, means, ss, crit)
+
+
+def screen_blocks(cnt: np.ndarray, means: np.ndarray, ss: np.ndarray,
+                  crit: SettlingCriterion) -> np.ndarray:
+    """The mask of blocks outside the settling tolerance, from each block's count, mean and
+    sum of squares about its mean (points x blocks)."""
+    nb = crit.n_blocks
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         tail = slice(nb // 2, nb)
         ref = _nanmedian(means[:, tail])
         scatter = _detrended_scatter(means[:, tail])
@@ -419,8 +467,7 @@ def _block_screen(x: np.ndarray, key: np.ndarray, n_points: int,
     tol = np.fmax(np.fmax(crit.z * scatter, crit.z * block_se), crit.rel_tol * np.abs(ref))
     tol = np.fmax(tol, 1e-12)
     with np.errstate(invalid="ignore"):
-        out = np.abs(means - ref[:, None]) > tol[:, None]
-    return means, out
+        return np.abs(means - ref[:, None]) > tol[:, None]
 
 
 def _detrended_scatter(means: np.ndarray) -> np.ndarray:
@@ -436,7 +483,7 @@ def _detrended_scatter(means: np.ndarray) -> np.ndarray:
     return np.sqrt((resid * resid).sum(axis=1) / (k - 2))
 
 
-def _batch_se(means: np.ndarray | None, mask: np.ndarray) -> np.ndarray:
+def batch_means_se(means: np.ndarray | None, mask: np.ndarray) -> np.ndarray:
     """Batch-means standard error of the blocks inside each window (NaN if unavailable)."""
     if means is None:
         return np.full(mask.shape[0], np.nan)
@@ -449,31 +496,30 @@ def _batch_se(means: np.ndarray | None, mask: np.ndarray) -> np.ndarray:
 
 
 def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points: int,
-                  unit: str, batch_se: np.ndarray, trend: np.ndarray) -> ChannelStats:
+                  unit: str, batch_se: np.ndarray, trend: np.ndarray | None) -> ChannelStats:
     """Mean, std, standard error, min and max per point; std and error about `trend` (a ramp
-    bin's line in time, see `_trend`; one degree of freedom fewer where it is not 0)."""
+    bin's line in time, see `_trend`; one degree of freedom fewer where it is not 0; None:
+    0 everywhere). Where every value is finite the masks are left out (the same sums)."""
     ok = np.isfinite(x)
-    xv = np.where(ok, x, 0.0)
-    cnt = np.bincount(pid, weights=ok, minlength=n_points)
-    sloped = np.bincount(pid, weights=trend != 0, minlength=n_points) > 0
+    every = bool(ok.all())
+    xv = x if every else np.where(ok, x, 0.0)
+    cnt = (np.diff(offsets).astype(float) if every
+           else np.bincount(pid, weights=ok, minlength=n_points))
+    sloped = (np.zeros(n_points, bool) if trend is None
+              else np.bincount(pid, weights=trend != 0, minlength=n_points) > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.bincount(pid, weights=xv, minlength=n_points) / cnt
-        dev = np.where(ok, xv - mean[pid] - trend, 0.0)
+        dev = xv - mean[pid]
+        if trend is not None:
+            dev -= trend
+        if not every:
+            dev[~ok] = 0.0
         c0 = np.bincount(pid, weights=dev * dev, minlength=n_points)
         # Lag-1 products within each point: one across a point boundary counts 0 (sums of
         # the same terms as over the pairs within points).
         lag = dev[1:] * dev[:-1]
         lag[pid[1:] != pid[:-1]] = 0.0
         c1 = np.bincount(pid[:-1], weights=lag, minlength=n_points)
-        dof = cnt - 1 - sloped
-        c0, c1, dof = _pooled(c0, c1, np.maximum(dof, 0), sloped)
-        var = np.where(dof > 0, c0 / dof, np.nan)
-        std = np.sqrt(var)
-        r1 = ar1_coefficient(c1 / c0, MAX_R1_SAMPLES)
-        n_eff = effective_sample_size(cnt, r1, 1.0)
-        se_ar1 = std / np.sqrt(n_eff)
-    se = np.fmax(se_ar1, batch_se)
-    mean = np.where(cnt > 0, mean, np.nan)
     lo = np.full(n_points, np.nan)
     hi = np.full(n_points, np.nan)
     nonempty = np.flatnonzero(np.diff(offsets) > 0)
@@ -483,6 +529,37 @@ def _window_stats(x: np.ndarray, pid: np.ndarray, offsets: np.ndarray, n_points:
             warnings.simplefilter("ignore", RuntimeWarning)
             lo[nonempty] = np.fmin.reduceat(x, starts)
             hi[nonempty] = np.fmax.reduceat(x, starts)
+    return channel_stats(unit, WindowSums(cnt, mean, c0, c1, sloped, lo, hi), batch_se)
+
+
+@dataclass
+class WindowSums:
+    """What a channel's window statistics are made of, per point: finite samples, mean,
+    sum of squares and of lag-1 products about the mean (less the trend), whether a trend was
+    taken out, and the extremes (NaN: none)."""
+
+    cnt: np.ndarray
+    mean: np.ndarray
+    c0: np.ndarray
+    c1: np.ndarray
+    sloped: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+
+def channel_stats(unit: str, sums: WindowSums, batch_se: np.ndarray) -> ChannelStats:
+    """A channel's ChannelStats from its window sums (see `_window_stats`)."""
+    cnt, mean, lo, hi = sums.cnt, sums.mean, sums.lo, sums.hi
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dof = cnt - 1 - sums.sloped
+        c0, c1, dof = _pooled(sums.c0, sums.c1, np.maximum(dof, 0), sums.sloped)
+        var = np.where(dof > 0, c0 / dof, np.nan)
+        std = np.sqrt(var)
+        r1 = ar1_coefficient(c1 / c0, MAX_R1_SAMPLES)
+        n_eff = effective_sample_size(cnt, r1, 1.0)
+        se_ar1 = std / np.sqrt(n_eff)
+    se = np.fmax(se_ar1, batch_se)
+    mean = np.where(cnt > 0, mean, np.nan)
     # A channel that never varies in the window (one reading repeated, as a table row is
     # stored) shows no error: its standard error is unknown, not zero (nor rounding noise).
     flat = lo == hi

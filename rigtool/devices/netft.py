@@ -63,8 +63,8 @@ import numpy as np
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from rigtool.bounds import (
+    MAX_BUFFER_SAMPLES,
     MAX_RATE_HZ,
-    MAX_SAMPLES_PER_POINT,
     MIN_RATE_HZ,
     PositiveScale,
     PositiveSeconds,
@@ -130,7 +130,7 @@ class NetFTConfig(SensorSection):
     bias: Literal["host", "device"] = "host"
     on_status: Literal["fault", "warn"] = "fault"
     max_gap_s: PositiveSeconds = 0.25
-    buffer_samples: int = Field(200_000, ge=1000, le=MAX_SAMPLES_PER_POINT)
+    buffer_samples: int = Field(200_000, ge=1000, le=MAX_BUFFER_SAMPLES)
 
     @field_validator("force_unit")
     @classmethod

@@ -226,19 +226,33 @@ class RunQueries:
             "SELECT COALESCE(SUM(b.n), 0) FROM sample_blocks b JOIN steps st "
             "ON st.id = b.step_id WHERE st.run_id = ?", (run_id,)).fetchone()[0])
 
-    def iter_point_samples(self, run_id: str, columns: Iterable[str], batch: int = READ_SAMPLES
+    def point_sample_counts(self, run_id: str) -> dict[int, int]:
+        """How many samples each point of the run holds, by plan index (blocks checked
+        first); points without samples are left out."""
+        self._read.check_blocks(run_id, "st.run_id = ?", (run_id,))
+        return {int(i): int(n) for i, n in self.conn.execute(
+            "SELECT st.idx, SUM(b.n) FROM sample_blocks b JOIN steps st ON st.id = b.step_id "
+            "WHERE st.run_id = ? GROUP BY st.idx", (run_id,))}
+
+    def iter_point_samples(self, run_id: str, columns: Iterable[str], batch: int = READ_SAMPLES,
+                           idx_range: tuple[int, int] | None = None
                            ) -> Iterator[dict[str, np.ndarray]]:
-        """A run's samples in plan order, in chunks of whole points of at most about `batch`
+        """A run's samples in plan order (of the points whose plan index lies in `idx_range`,
+        both ends included, when given), in chunks of whole points of at most about `batch`
         samples (a point longer than that is a chunk of its own): `step_idx` then `columns`,
         as `sample_arrays` gives them. A chunk ends before a point when one more point as
         long as the last would pass `batch`. Memory is bounded by the chunk, not the run."""
         cols = sample_names(columns)
         self._read.check_blocks(run_id, "st.run_id = ?", (run_id,))
+        where, args = "st.run_id = ?", [run_id]
+        if idx_range is not None:
+            where += " AND st.idx BETWEEN ? AND ?"
+            args += [int(idx_range[0]), int(idx_range[1])]
         sql = (f"SELECT st.idx, b.n{''.join(', b.' + c for c in cols[1:])} FROM sample_blocks b "
-               "JOIN steps st ON st.id = b.step_id WHERE st.run_id = ? ORDER BY st.idx, b.chunk")
+               f"JOIN steps st ON st.id = b.step_id WHERE {where} ORDER BY st.idx, b.chunk")
         pending: list[tuple] = []
         held = point = 0
-        for row in self.conn.execute(sql, (run_id,)):
+        for row in self.conn.execute(sql, args):
             if pending and row[0] != pending[-1][0]:
                 if held + point > batch:
                     yield decode_blocks(pending, cols, self.path)
@@ -358,8 +372,29 @@ class RunQueries:
         self._read.check_blocks(None, "b.step_id = ?", (step_id,))
         blocks = self.conn.execute(f"SELECT n, {', '.join(cols)} FROM sample_blocks WHERE "
                                    "step_id = ? ORDER BY chunk", (step_id,)).fetchall()
+        return self._decoded(blocks, cols) if blocks else {c: np.empty(0) for c in cols}
+
+    def iter_step_samples(self, step_id: int, columns: Iterable[str], batch: int = READ_SAMPLES
+                          ) -> Iterator[dict[str, np.ndarray]]:
+        """`step_samples` in chunks of whole stored blocks, each chunk ending once it holds
+        `batch` samples or more, so a point of any length is read in bounded memory."""
+        cols = checked_columns(columns)
+        self._read.check_blocks(None, "b.step_id = ?", (step_id,))
+        pending: list[tuple] = []
+        held = 0
+        for row in self.conn.execute(f"SELECT n, {', '.join(cols)} FROM sample_blocks WHERE "
+                                     "step_id = ? ORDER BY chunk", (step_id,)):
+            pending.append(row)
+            held += row[0]
+            if held >= batch:
+                yield self._decoded(pending, cols)
+                pending, held = [], 0
+        if pending:
+            yield self._decoded(pending, cols)
+
+    def _decoded(self, blocks: list[tuple], cols: list[str]) -> dict[str, np.ndarray]:
         return {c: np.concatenate([decode(b[i], b[0], c, self.path) for b in blocks])
-                if blocks else np.empty(0) for i, c in enumerate(cols, start=1)}
+                for i, c in enumerate(cols, start=1)}
 
     def samples(self, run_id: str, columns: Iterable[str] = SAMPLE_COLUMNS) -> dict[str, np.ndarray]:
         """All samples of a run as float arrays (missing -> NaN), in plan order, each point's
