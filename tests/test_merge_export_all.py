@@ -107,7 +107,7 @@ def test_export_columns_carry_run_thruster_and_rig(two_rigs, capsys):
     assert main(["export", ids[0], "--format", "parquet", "--out", str(tmp / "x"), "--db", a]) == 0
     table = pq.read_table(tmp / "x" / f"{ids[0]}-points.parquet")
     assert table.column_names[:3] == ["run_id", "thruster_id", "rig"]
-    assert "thrust_mean_n" in table.column_names and "speed_mean_rpm" in table.column_names
+    assert "thrust_all_mean_n" in table.column_names and "speed_all_mean_rpm" in table.column_names
     samples = pq.read_table(tmp / "x" / f"{ids[0]}-samples.parquet")
     assert samples.schema.field("seq").type == "int64" and samples.num_rows == 9 * 200
     assert np.all(np.asarray(samples.column("run_id").to_pylist()) == ids[0])

@@ -219,7 +219,7 @@ def test_scpi_supply_sets_each_voltage_and_is_off_at_the_end(tmp_path):
         assert twin.output is False  # on_exit: off
     volts = [e["detail"]["target_v"] for e in store.events(outcome.run_id, "voltage")]
     assert volts == [12.0, 16.0] and command == 1500.0
-    assert {s["voltage_v"] for s in store.steps(outcome.run_id)} == {12.0, 16.0}
+    assert {s["voltage_set_v"] for s in store.steps(outcome.run_id)} == {12.0, 16.0}
 
 
 def test_scpi_supply_that_stops_answering_aborts_at_neutral(tmp_path):
@@ -227,7 +227,7 @@ def test_scpi_supply_that_stops_answering_aborts_at_neutral(tmp_path):
         store, outcome, command = _scpi_run(tmp_path, twin, die_above_12v=True)
     assert outcome.status == "aborted" and "no reply from SCPI supply" in outcome.reason
     assert command == 1500.0  # the thruster is at neutral
-    assert {s["voltage_v"] for s in store.steps(outcome.run_id)} == {12.0}  # 12 V points kept
+    assert {s["voltage_set_v"] for s in store.steps(outcome.run_id)} == {12.0}  # 12 V points kept
     kinds = {e["kind"] for e in store.events(outcome.run_id)}
     assert {"device_fault", "supply_unsafe"} <= kinds
 

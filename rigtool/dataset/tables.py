@@ -1,8 +1,10 @@
 """The dataset's two small tables beside the samples, gathered from every partition file's
 footer (so they cover runs exported from every database) and rewritten when a run changed:
-`_runs.pq`, a row per run; `_calibrations.pq`, a row per coefficient of each run's latest
-calibration. Parquet under names that keep them out of the samples table: no `.parquet`
-ending (DuckDB's glob), a leading `_` (pyarrow, Spark)."""
+`runs.pq`, a row per run; `calibrations.pq`, a row per coefficient of each run's latest
+calibration. Parquet under names every reader opens (Spark drops a path that starts with `_`
+even when named) and no samples glob matches (no `.parquet` ending, outside the partition
+folders). Datasets written by earlier rigtools named them `_runs.pq` and `_calibrations.pq`; the next
+export replaces those."""
 
 from __future__ import annotations
 
@@ -18,8 +20,9 @@ from rigtool.dataset.files import replace_atomically
 from rigtool.dataset.manifest import Entry
 from rigtool.errors import DataError
 
-RUNS_FILE = "_runs.pq"
-CALIBRATIONS_FILE = "_calibrations.pq"
+RUNS_FILE = "runs.pq"
+CALIBRATIONS_FILE = "calibrations.pq"
+OLD_TABLE_FILES = ("_runs.pq", "_calibrations.pq")  # their names before Spark had to read them
 _TEXT = pa.string()
 RUNS_SCHEMA = pa.schema([
     ("run_id", _TEXT), ("thruster_id", _TEXT), ("rig", _TEXT), ("name", _TEXT),

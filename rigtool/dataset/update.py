@@ -21,7 +21,7 @@ from rigtool.dataset.files import (
 from rigtool.dataset.hive import segment
 from rigtool.dataset.manifest import MANIFEST, Entry, read_manifest, write_manifest
 from rigtool.dataset.partition import DATA_FILE, DATASET_VERSION, SCHEMA, write_partition
-from rigtool.dataset.tables import CALIBRATIONS_FILE, RUNS_FILE, write_tables
+from rigtool.dataset.tables import CALIBRATIONS_FILE, OLD_TABLE_FILES, RUNS_FILE, write_tables
 from rigtool.errors import RigtoolError, UsageError
 from rigtool.ids import utc_now
 from rigtool.store import RunRecord, Store
@@ -106,13 +106,15 @@ class _Update:
         self.saved_at = time.monotonic()
 
     def write(self, todo: list[tuple[RunRecord, dict]]) -> Summary:
-        """Write the planned runs, then the calibrations table and the manifest if anything
-        changed."""
+        """Write the planned runs, then the runs and calibrations tables and the manifest if
+        anything changed; tables under their old names are removed once the new ones are in."""
         for record, fingerprint in todo:
             self._write(record, fingerprint)
             if time.monotonic() - self.saved_at > CHECKPOINT_S:
                 self._save()
-        changed = (bool(todo) or self.runs != self.old
+        old_tables = [self.folder / name for name in OLD_TABLE_FILES
+                      if (self.folder / name).exists() or (self.folder / name).is_symlink()]
+        changed = (bool(todo) or self.runs != self.old or bool(old_tables)
                    or not (self.folder / CALIBRATIONS_FILE).is_file()
                    or not (self.folder / RUNS_FILE).is_file())
         if changed:
@@ -120,6 +122,8 @@ class _Update:
                 run_id: (partition_file(self.folder, run_id, e.thruster_id), e)
                 for run_id, e in self.runs.items()})
             self._save()
+        for path in old_tables:  # a dataset of the old names: its tables now have new ones
+            path.unlink()
         self.summary.runs = len(self.runs)
         self.summary.rows = sum(e.rows for e in self.runs.values())
         return self.summary
