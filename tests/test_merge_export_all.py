@@ -73,7 +73,7 @@ def test_merge_then_export_all_round_trips_every_point_and_sample(two_rigs, caps
         assert mine.step_idx.nunique() == n_points
         assert len(mine) == n_samples and round(mine.thrust_n.sum(), 6) == thrust
     assert sorted(set(samples.run_id)) == sorted(ids) and samples.rig.nunique() == 2  # two rigs
-    cals = pq.read_table(data / "_calibrations.pq").to_pandas()
+    cals = pq.read_table(data / "_tables/calibrations.pq").to_pandas()
     assert set(cals.run_id) == {ids[0]} and "C_p_fwd" in set(cals.coefficient)
     (part,) = data.glob(f"thruster_id=*/run_id={ids[0]}/samples.parquet")
     meta = pq.read_schema(part).metadata
