@@ -45,6 +45,8 @@ from rigtool.artefacts.captive import (
 from rigtool.artefacts.write import (
     MISSING,
     atomic_write,
+    columns_path,
+    columns_text,
     csv_cell,
     csv_text,
     json_clean,
@@ -79,26 +81,32 @@ def write_artefacts(cal: CalibrationResult, out_dir: str | Path,
     target.mkdir(parents=True, exist_ok=True)
     head = _csv_head(cal, created)
     texts = {
-        "calibration": json_text(calibration_document(cal, created)),
-        "points": csv_text(head + POINTS_DOC, _units(POINT_COLUMNS, cal), _point_rows(cal)),
-        "command_curve": csv_text(head + CURVE_DOC, _units(CURVE_COLUMNS, cal),
-                                  curve_rows(cal)),
-        "inverse_lut": lut_text(cal, created),
-        "performance": performance_text(cal),
+        target / FILES["calibration"]: json_text(calibration_document(cal, created)),
+        **_table(target / FILES["points"], head + POINTS_DOC, _units(POINT_COLUMNS, cal),
+                 _point_rows(cal)),
+        **_table(target / FILES["command_curve"], head + CURVE_DOC,
+                 _units(CURVE_COLUMNS, cal), curve_rows(cal)),
+        **_table(target / FILES["inverse_lut"], head + LUT_DOC, _units(LUT_COLUMNS, cal),
+                 lut_rows(cal)),
+        target / FILES["performance"]: performance_text(cal),
     }
-    captive = target / CAPTIVE_FILE
-    if cal.captive is not None:
-        paths = [atomic_write(captive, csv_text(head + CAPTIVE_DOC, CAPTIVE_COLUMNS,
-                                                captive_rows(cal.captive)))]
-    else:
-        paths = []
-        captive.unlink(missing_ok=True)  # from an earlier calibration
-    stale = target / FILES["voltage"]
-    if cal.voltage_laws:
-        texts["voltage"] = csv_text(head + VOLTAGE_DOC, VOLTAGE_COLUMNS, voltage_rows(cal))
-    elif stale.exists():
-        stale.unlink()  # from an earlier calibration of a run that no longer has voltages
-    return [atomic_write(target / FILES[key], text) for key, text in texts.items()] + paths
+    optional = ((target / CAPTIVE_FILE, cal.captive is not None,
+                 lambda: (head + CAPTIVE_DOC, CAPTIVE_COLUMNS, captive_rows(cal.captive))),
+                (target / FILES["voltage"], bool(cal.voltage_laws),
+                 lambda: (head + VOLTAGE_DOC, VOLTAGE_COLUMNS, voltage_rows(cal))))
+    for path, present, table in optional:
+        if present:
+            texts.update(_table(path, *table()))
+        else:  # from an earlier calibration that had this table
+            path.unlink(missing_ok=True)
+            columns_path(path).unlink(missing_ok=True)
+    return [atomic_write(path, text) for path, text in texts.items()]
+
+
+def _table(path: Path, notes: list[str], columns: Sequence[tuple[str, str, str]],
+           rows: Iterable[list[object]]) -> dict[Path, str]:
+    """A calibration table and its sidecar (docs/artefacts.md)."""
+    return {path: csv_text(columns, rows), columns_path(path): columns_text(notes, columns)}
 
 
 def _csv_head(cal: CalibrationResult, created: str) -> list[str]:
@@ -106,9 +114,10 @@ def _csv_head(cal: CalibrationResult, created: str) -> list[str]:
             f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
 
 
-def lut_text(cal: CalibrationResult, created: str) -> str:
-    """inverse_lut.csv: the inverse lookup table of every section."""
-    return csv_text(_csv_head(cal, created) + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal))
+def lut_text(cal: CalibrationResult) -> str:
+    """inverse_lut.csv: the inverse lookup table of every section (its columns are documented
+    in docs/artefacts.md and in the calibration folder's inverse_lut.columns.csv)."""
+    return csv_text(_units(LUT_COLUMNS, cal), lut_rows(cal))
 
 
 def calibration_document(cal: CalibrationResult, created_utc: str) -> dict:
