@@ -39,8 +39,9 @@ NEEDS = {"luo2020-cavitation": "luo2020-baseline"}  # a deep base run of the sam
 GOLDEN = Path(__file__).parent / "golden"
 EXPORT_OPTIONS = ExportOptions(joint="prop_joint", link="thruster_link", namespace="auv",
                                index=2, mesh="prop.obj", material="Steel")  # as OPTIONS
-COMPARED = ("calibration.json", "points.csv", "command_curve.csv", "inverse_lut.csv",
-            "performance.csv", "voltage.csv", "captive.csv", *FORMATS.values())
+TABLES = ("points.csv", "command_curve.csv", "inverse_lut.csv", "voltage.csv", "captive.csv")
+COMPARED = ("calibration.json", *TABLES, *(t.replace(".csv", ".columns.csv") for t in TABLES),
+            "performance.csv", *FORMATS.values())
 
 
 def test_the_list_is_the_shipped_protocols():
@@ -129,7 +130,7 @@ def _twin_drift(name: str, db) -> tuple[dict, bool]:
         steps, n_tares = store.steps(run_id), len(store.events(run_id, "tare"))
     groups: dict[tuple, list[dict]] = {}
     for s in steps:
-        groups.setdefault((s["depth_m"], s.get("voltage_v")), []).append(s)
+        groups.setdefault((s["depth_m"], s["voltage_set_v"]), []).append(s)
     spans = [_span_h(g) for g in groups.values()] + ([_span_h(steps)] if n_tares >= 3 else [])
     setting = {"profile": profile.name, "drift_n_per_h": profile.drift_n_per_h,
                "force_noise_n": profile.force_noise_n, "span_h": max(spans)}
