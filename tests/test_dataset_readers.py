@@ -7,7 +7,6 @@ by the next export, leaving no orphan and touching no partition."""
 from __future__ import annotations
 
 import importlib.util
-import json
 import re
 import shutil
 from pathlib import Path
@@ -19,29 +18,17 @@ import pytest
 from rigtool.cli import main
 from rigtool.store import Store
 
-from .conftest import SMALL_PROTOCOL
-
 duckdb = pytest.importorskip("duckdb")
 
+from .test_export_dataset import _sweep  # noqa: E402  (a calibratable run on the twin)
+
 ROOT = Path(__file__).resolve().parents[1]
-NINE = SMALL_PROTOCOL.replace("values: [-50, 0, 50, 100]",
-                              "values: [-100, -75, -50, -25, 0, 25, 50, 75, 100]")
 THRUSTERS = ("bow/1=a", "007", None)  # a `/` and `=` to encode, digits a reader would guess
 
 
 def _dataset_section() -> str:
     text = (ROOT / "docs" / "sql.md").read_text()
     return text[text.index("## The lab dataset"):]
-
-
-def _sweep(tmp: Path, db: Path, seed: int, thruster: str | None) -> str:
-    meta = "" if thruster is None else f"metadata: {{thruster_id: {json.dumps(thruster)}}}\n"
-    path = tmp / f"p{seed}.yaml"
-    path.write_text(NINE.replace("seed: 3", f"seed: {seed}").replace("command:\n",
-                                                                    meta + "command:\n"))
-    assert main(["sweep", str(path), "--sim", "--db", str(db)]) == 0
-    with Store(db, read_only=True) as store:
-        return store.resolve_run_id("last")
 
 
 @pytest.fixture(scope="module")
@@ -161,7 +148,5 @@ def test_export_all_takes_out_like_a_runs_export_and_the_old_form_still_works(la
     captured = capsys.readouterr()
     assert "0 run(s) written, 3 unchanged" in captured.out
     assert f"`--all DIR` is deprecated; write `--all --out {out}`" in captured.err
-    assert main(["export", "--all", "--db", str(db)]) == 2
-    assert "--all needs the dataset's folder: --all --out DIR" in capsys.readouterr().err
     assert main(["export", "--all", str(out), "--out", str(out), "--db", str(db)]) == 2
     assert "give the dataset's folder once" in capsys.readouterr().err

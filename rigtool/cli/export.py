@@ -13,12 +13,14 @@ from rigtool.errors import UsageError
 from rigtool.progress import stage
 from rigtool.store import Store
 
+OUT = "exports"  # the default folder of a run's export and of the dataset
+
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="write a run's points, samples and events as CSV or "
                        "Parquet, or every run as a Parquet dataset (--all --out DIR)",
-                       parents=[out_folder(None, "output folder (default: ./exports; the "
-                                                 "dataset's folder with --all)"), DB])
+                       parents=[out_folder(OUT, f"output folder, also the dataset's with --all "
+                                                f"(default: ./{OUT})"), DB])
     p.add_argument("run", nargs="?", help=RUN_HELP)
     p.add_argument("--format", choices=("csv", "parquet"),
                    help="file format (default: csv; parquet with --all)")
@@ -50,8 +52,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             return 0
         run_id = store.resolve_run_id(args.run)
         with stage(f"exporting run {run_id}"):
-            paths = export_run(store, run_id, Path(args.out or "exports"),
-                               args.format or "csv")
+            paths = export_run(store, run_id, Path(args.out), args.format or "csv")
         for path in paths:
             out.print(str(path))
     return 0
@@ -60,10 +61,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 def _dataset_folder(args: argparse.Namespace) -> str:
     """The dataset folder of `--all --out DIR`, or of the older `--all DIR` (with a note)."""
     if args.all is True:
-        if args.out is None:
-            raise UsageError("--all needs the dataset's folder: --all --out DIR")
         return args.out
-    if args.out is not None:
+    if args.out != OUT:
         raise UsageError(f"give the dataset's folder once: --all --out {args.all}")
     err.print(f"note: `--all DIR` is deprecated; write `--all --out {args.all}` (the same "
               "--out as a run's export)")

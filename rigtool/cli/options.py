@@ -16,7 +16,7 @@ def _parent() -> argparse.ArgumentParser:
     return argparse.ArgumentParser(add_help=False)
 
 
-def out_folder(default: str | None, help: str) -> argparse.ArgumentParser:
+def out_folder(default: str, help: str) -> argparse.ArgumentParser:
     """`--out`: the folder a command writes its files in."""
     parent = _parent()
     parent.add_argument("--out", default=default, help=help)
