@@ -56,7 +56,7 @@ def dataset(tmp_path_factory):
     ids = {"volts": _sweep(tmp, db, "volts", "bow-1", 4242, DEPTHS, VOLTS),
            "shallow": _sweep(tmp, db, "shallow", "bow-1", 4243, [0.3]),
            "stern": _sweep(tmp, db, "stern", "stern-2", 4244, [0.9])}
-    assert main(["export", "--all", str(tmp / "ds"), "--db", str(db)]) == 0
+    assert main(["export", "--all", "--out", str(tmp / "ds"), "--db", str(db)]) == 0
     table = pq.read_table(tmp / "ds" / "_tables/calibrations.pq")
     return tmp, db, ids, table
 

@@ -233,7 +233,7 @@ def _export_process(out: Path, db: Path, fsize: int, crash: bool) -> subprocess.
 
         resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
 
-    return subprocess.run([sys.executable, "-c", code, "export", "--all", str(out), "--db",
+    return subprocess.run([sys.executable, "-c", code, "export", "--all", "--out", str(out), "--db",
                            str(db)], capture_output=True, text=True, preexec_fn=limit,
                           timeout=120)
 

@@ -141,7 +141,7 @@ def _cli(tmp_path: Path, *args: str | Path) -> tuple[str, float]:
 def _command(name: str, db: Path, ref: str, out: Path) -> list[str | Path]:
     """The arguments of one reading command on `db`."""
     if name == "export-all":
-        return ["export", "--all", out, "--db", db]
+        return ["export", "--all", "--out", out, "--db", db]
     extra = [] if name == "show" else ["--out", out]
     extra += ["--format", "c-header"] if name == "export-cal" else []
     return [name, ref, "--db", db, *extra]

@@ -62,7 +62,7 @@ def test_merge_then_export_all_round_trips_every_point_and_sample(two_rigs, caps
         assert sorted(store.run_ids()) == sorted(ids)
         assert store.latest_calibration(ids[0])["state"] is not None
 
-    assert main(["export", "--all", str(tmp / "dataset"), "--db", lab]) == 0
+    assert main(["export", "--all", "--out", str(tmp / "dataset"), "--db", lab]) == 0
     data = tmp / "dataset"
     ids_as_text = ds.partitioning(pa.schema([("thruster_id", pa.string()),
                                              ("run_id", pa.string())]), flavor="hive")
