@@ -249,8 +249,8 @@ def test_performance_table_of_a_voltage_sweep_round_trips_through_import(tmp_pat
     with rigtool.open(db) as lab:
         points = lab.run("last").points()
     for key, column in (("voltage_set_v", "Supply Voltage (V)"), ("command", "ESC (pulse_us)"),
-                        ("thrust_mean_n", "Thrust (N)"), ("current_mean_a", "Current (A)"),
-                        ("speed_mean_rpm", "Motor Optical Speed (RPM)")):
+                        ("thrust_all_mean_n", "Thrust (N)"), ("current_all_mean_a", "Current (A)"),
+                        ("speed_all_mean_rpm", "Motor Optical Speed (RPM)")):
         np.testing.assert_allclose(points[key], table[:, header.index(column)], rtol=1e-8)
     assert set(points["repeat"].tolist()) == {1}  # a voltage is not a repeat
     again = tmp_path / "again"
