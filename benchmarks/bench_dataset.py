@@ -29,7 +29,7 @@ RUNNER = ("import resource, sys; from rigtool.cli import main; rc = main(sys.arg
 def _export(db: Path, out: Path) -> tuple[float, float]:
     """(wall seconds, peak RSS in MB) of `rigtool export --all` in its own process."""
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", RUNNER, "export", "--all", str(out), "--db",
+    proc = subprocess.run([sys.executable, "-c", RUNNER, "export", "--all", "--out", str(out), "--db",
                            str(db)], capture_output=True, text=True, check=True)
     return time.perf_counter() - t0, int(proc.stderr.strip().splitlines()[-1]) / 1024.0
 

@@ -2,7 +2,7 @@
 
     lab = rigtool.open("rigtool.sqlite")
     run = lab.run("last")
-    run.points()["thrust_mean_n"]
+    run.points()["thrust_all_mean_n"]
     cal = rigtool.load_calibration("calibrations/<run-id>")
     cal.command(20.0)
 
@@ -224,7 +224,8 @@ class Run:
             ("points planned", r.n_planned), ("rig", r.rig_name or "-")])
 
     def points(self) -> Columns:
-        """One row per stored point: step_idx, command, depth_m, ..., thrust_mean_n, ...
+        """One row per stored point: step_idx, command, depth_m, voltage_set_v, ...,
+        thrust_all_mean_n, ...
         (statistics over all of the point's samples; points.csv has the steady window's)."""
         return Columns(self._store.points(self.id))
 

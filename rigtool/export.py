@@ -2,7 +2,9 @@
 lab's Parquet dataset, is rigtool.dataset).
 
 Every table starts with run_id, thruster_id and rig, so files from many runs and rigs stack;
-the other column names are the Python API's. Parquet is built from numpy columns, zstd
+the other column names are the Python API's. A CSV cell holds a float to FLOAT_DIGITS
+significant digits (what a sensor or the clock resolves, without float64's arithmetic noise:
+3.949, not 3.9489999999999963); Parquet keeps every float64 exactly. Parquet is built from numpy columns, zstd
 compressed, with missing values as nulls and the run record in the schema metadata. Samples
 are streamed in chunks, so memory does not grow with the run.
 """
@@ -30,6 +32,7 @@ TEXT_COLUMNS = frozenset({*KEY_COLUMNS, "command_unit", "direction", "status", "
                           "metadata_json", "protocol_json", "unit", "coefficient", "out_dir",
                           "role"})
 Chunk = dict[str, np.ndarray]
+FLOAT_DIGITS = 12  # significant digits of a float in an export CSV (docs/artefacts.md)
 
 
 def export_run(store: Store, run_id: str, out_dir: Path, fmt: str = "csv") -> list[Path]:
@@ -89,14 +92,18 @@ def _cells(values: np.ndarray) -> list:
     """A column as CSV cells: missing values (NaN, None, MISSING_INT in ints) empty; text
     that a spreadsheet would run as a formula behind a `'` (the writer quotes the rest)."""
     if values.dtype.kind == "f":
-        obj = values.astype(object)
-        obj[np.isnan(values)] = None
-        return obj.tolist()
+        return [None if x != x else _float_text(x) for x in values.tolist()]
     if values.dtype.kind == "i":
         obj = values.astype(object)
         obj[values == MISSING_INT] = None
         return obj.tolist()
     return [csv_safe_text(v) if isinstance(v, str) else v for v in values.tolist()]
+
+
+def _float_text(x: float) -> str:
+    """A float to FLOAT_DIGITS significant digits, in its shortest form (never `-0`)."""
+    text = f"{x:.{FLOAT_DIGITS}g}"
+    return "0" if text == "-0" else text
 
 
 def _write_csv(path: Path, chunks: Iterator[Chunk]) -> None:

@@ -412,10 +412,11 @@ STEP_COLUMNS: dict[str, Column] = {
     "t_start_s": _TIME, "t_acquire_s": _TIME, "t_end_s": _TIME, "settle_s": _TIME,
     "settled": Column("int", lo=0, hi=1), "rate_hz": Column("real", finite=True, lo=0),
     "status": _text(MAX_ID_TEXT), "n": Column("int", lo=0, hi=MAX_SAMPLES_PER_POINT),
-    **{f"{ch}_{stat}": _STAT for ch in ("thrust_n", "speed_rpm", "current_a")
-       for stat in ("mean", "std", "min", "max")},
+    **{f"{ch}_all_{stat}_{u}": _STAT for ch, u in (("thrust", "n"), ("speed", "rpm"),
+                                                    ("current", "a"))
+       for stat in ("mean", "std", "min", "max")},  # as rigtool.store.records.stat_column
     "counters_json": _json(COUNTERS, null=True, max_len=1 << 20),
-    "voltage_v": Column("real", null=True, finite=True),
+    "voltage_set_v": Column("real", null=True, finite=True),
 }
 EVENT_COLUMNS: dict[str, Column] = {
     "id": _ROWID, "run_id": _text(MAX_ID_TEXT), "t_s": Column("real", null=True, finite=True),

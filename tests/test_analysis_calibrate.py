@@ -182,19 +182,20 @@ def test_interrupted_run_warns(tmp_path):
 
 
 def _read_csv(path):
-    lines = path.read_text().splitlines()
-    comments = [ln for ln in lines if ln.startswith("#")]
-    body = [ln for ln in lines if not ln.startswith("#")]
-    assert lines[: len(comments)] == comments  # comments first, then header + rows
+    """The sidecar's rows (path.columns.csv), the header and the rows of a calibration CSV."""
+    body = path.read_text().splitlines()
+    assert not any(ln.startswith("#") for ln in body)  # a header row, then the rows
     rows = list(csv.DictReader(io.StringIO("\n".join(body))))
-    return comments, body[0].split(","), rows
+    with path.with_name(f"{path.stem}.columns.csv").open(newline="") as fh:
+        notes = list(csv.DictReader(fh))
+    return notes, body[0].split(","), rows
 
 
 def test_artefacts_formats(can_cal, tmp_path):
     paths = write_artefacts(can_cal, tmp_path, CREATED)
     written = [f for f in CALIBRATION_FILES if f.written(can_cal)]  # no voltage, no captive
     assert [p.name for p in paths] == [f.name for f in written]
-    assert len(written) == len(CALIBRATION_FILES) - 2
+    assert len(written) == len(CALIBRATION_FILES) - 4  # each with its sidecar
     assert all(p.parent == tmp_path / can_cal.run_id for p in paths)
     doc = json.loads(paths[0].read_text())
     assert doc["format"] == "rigtool-calibration" and doc["format_version"] == 1
@@ -224,6 +225,7 @@ def test_artefacts_formats(can_cal, tmp_path):
     assert {"f_0", "zero_drift"} <= set(doc["depths"][1]["coefficients"])  # fitted when deep
 
     comments, header, rows = _read_csv(paths[1])
+    assert [c["column"] for c in comments if c["column"]] == header
     assert header[:3] == ["depth_m", "step_idx", "command"]
     assert "thrust_mean_n" in header and "speed_se_rpm" in header and "current_max_a" in header
     assert header[header.index("thrust_peak_n"):][:3] == ["thrust_peak_n", "thrust_zero_n",
@@ -233,20 +235,21 @@ def test_artefacts_formats(can_cal, tmp_path):
                         "voltage_set_v", "torque_mean_nm"]
     assert tail[-4:] == ["mech_power_w", "mech_power_se_w", "overall_efficiency",
                          "overall_efficiency_se"]
-    assert "# thrust_mean_n [N]: thrust mean over the steady window" in comments
+    assert {"column": "thrust_mean_n", "unit": "N",
+            "description": "thrust mean over the steady window"} in comments
     assert len(rows) == sum(len(s.points) for s in can_cal.sections)
     assert float(rows[0]["thrust_mean_n"]) == pytest.approx(
         can_cal.sections[0].points.thrust.mean[0], rel=1e-8)
 
-    comments, header, rows = _read_csv(paths[2])
+    comments, header, rows = _read_csv(paths[3])
     assert header == ["depth_m", "command", "n_points", "state", "branch", "thrust_mean_n",
                       "thrust_se_n", "thrust_min_n", "thrust_max_n", "thrust_fit_n",
                       "speed_mean_rpm", "current_mean_a", "voltage_set_v"]
     assert {r["state"] for r in rows} == {"dead", "live"}
 
-    comments, header, rows = _read_csv(paths[3])
+    comments, header, rows = _read_csv(paths[5])
     assert header == ["depth_m", "branch", "direction", "thrust_n", "command", "voltage_set_v"]
-    assert any("[N]" in c for c in comments)
+    assert any(c["unit"] == "N" for c in comments)
     assert lut_command(rows, 0.5, 20.0) == pytest.approx(
         100 * math.sqrt(20.0 / CP_FWD) / 1800, abs=0.5)
     assert lut_command(rows, 1.0, -20.0) == pytest.approx(

@@ -53,8 +53,8 @@ def test_run_record_points_and_samples_agree(lab_run):
         mine = run.samples(steps=[i])
         assert set(np.unique(mine["step_idx"])) == {i} and mine["seq"].dtype == np.int64
         k = int(np.flatnonzero(p["step_idx"] == i)[0])
-        assert np.nanmean(mine["thrust_n"]) == pytest.approx(p["thrust_mean_n"][k], rel=1e-9)
-        assert np.nanmean(mine["speed_rpm"]) == pytest.approx(p["speed_mean_rpm"][k], rel=1e-9)
+        assert np.nanmean(mine["thrust_n"]) == pytest.approx(p["thrust_all_mean_n"][k], rel=1e-9)
+        assert np.nanmean(mine["speed_rpm"]) == pytest.approx(p["speed_all_mean_rpm"][k], rel=1e-9)
     assert run.samples(steps=[]).keys() and len(run.samples(steps=[])["t_s"]) == 0
 
 
@@ -63,7 +63,7 @@ def test_events_and_pandas(lab_run):
     tares = run.events("tare")
     assert tares and all(e["kind"] == "tare" for e in tares) and "detail" in tares[0]
     df = run.points().to_pandas()
-    assert len(df) == 22 and "thrust_mean_n" in df.columns
+    assert len(df) == 22 and "thrust_all_mean_n" in df.columns
     assert len(run.events().to_pandas()) == len(run.events())
 
 
@@ -90,13 +90,13 @@ def test_thrust_and_command_are_inverse_and_match_the_points(lab_run):
     cal = rigtool.load_calibration(_folder(lab_run))
     p = run.points()
     deep = (p["depth_m"] == 1.0) & (np.abs(p["command"]) >= 40)
-    np.testing.assert_allclose(cal.thrust(p["command"][deep]), p["thrust_mean_n"][deep],
+    np.testing.assert_allclose(cal.thrust(p["command"][deep]), p["thrust_all_mean_n"][deep],
                                rtol=0.03)
     assert cal.thrust(0.0) == 0.0 and isinstance(cal.thrust(0.0), float)
     f = cal.thrust(np.array([-80.0, -40.0, 40.0, 80.0]))
     np.testing.assert_allclose(cal.command(f), [-80, -40, 40, 80], atol=1e-6)
     assert cal.command(0.0) == 0.0
-    beyond = 10 * np.nanmax(p["thrust_mean_n"])
+    beyond = 10 * np.nanmax(p["thrust_all_mean_n"])
     assert cal.command(beyond) == 100.0 and cal.command_status(beyond) == "clamped"
     assert np.isnan(cal.command(beyond, strict=True))
     assert np.isnan(cal.thrust(150.0))
@@ -107,14 +107,14 @@ def test_thrust_from_speed_and_current_match_the_points(lab_run):
     cal = rigtool.load_calibration(_folder(lab_run))
     p = run.points()
     live = (p["depth_m"] == 1.0) & (np.abs(p["command"]) >= 40)
-    f = p["thrust_mean_n"][live]
-    np.testing.assert_allclose(cal.thrust_from_speed(p["speed_mean_rpm"][live]), f, rtol=0.05)
+    f = p["thrust_all_mean_n"][live]
+    np.testing.assert_allclose(cal.thrust_from_speed(p["speed_all_mean_rpm"][live]), f, rtol=0.05)
     fwd = live & (p["command"] > 0)
-    np.testing.assert_allclose(cal.thrust_from_current(p["current_mean_a"][fwd]),
-                               p["thrust_mean_n"][fwd], rtol=0.08)
+    np.testing.assert_allclose(cal.thrust_from_current(p["current_all_mean_a"][fwd]),
+                               p["thrust_all_mean_n"][fwd], rtol=0.08)
     rev = live & (p["command"] < 0)
-    np.testing.assert_allclose(cal.thrust_from_current(p["current_mean_a"][rev], "reverse"),
-                               p["thrust_mean_n"][rev], rtol=0.08)
+    np.testing.assert_allclose(cal.thrust_from_current(p["current_all_mean_a"][rev], "reverse"),
+                               p["thrust_all_mean_n"][rev], rtol=0.08)
     with pytest.raises(ValueError, match="direction"):
         cal.thrust_from_current(3.0, "up")
 

@@ -103,8 +103,9 @@ def test_artefacts_and_model_reload(twin):
     paths = write_cavitation_artefacts(res, tmp / "out", created_utc="2026-01-01T00:00:00+00:00")
     folder = tmp / "out" / train
     assert {p.name for p in paths} >= {TRAIN_CSV, TRAIN_PARQUET, "qctm_gp.json", "cavitation.json"}
-    head = [ln for ln in (folder / TRAIN_CSV).read_text().splitlines() if ln.startswith("#")]
-    assert any("decimation" in ln for ln in head) and any("y_n [N]" in ln for ln in head)
+    assert not (folder / TRAIN_CSV).read_text().startswith("#")  # a header row, then rows
+    head = (folder / "gp_training.columns.csv").read_text().splitlines()
+    assert any("decimation" in ln for ln in head) and any(ln.startswith("y_n,N,") for ln in head)
     import pyarrow.parquet as pq
 
     table = pq.read_table(folder / TRAIN_PARQUET)

@@ -8,7 +8,7 @@ import csv
 import sqlite3
 from pathlib import Path
 
-from rigtool.artefacts.write import csv_cell, csv_text
+from rigtool.artefacts.write import columns_text, csv_cell, csv_text
 from rigtool.cli import main
 
 from .conftest import ROOT
@@ -56,9 +56,12 @@ def test_hostile_texts_reach_every_csv_defused(tmp_path):
     assert "'" + FORMULA in points
 
 
-def test_cells_and_comments_hold_no_formula_line_break_or_bidi_mark():
+def test_cells_and_sidecar_notes_hold_no_formula_line_break_or_bidi_mark():
     assert csv_cell(FORMULA) == "'=cmd|' /C calc'!A0"
     assert csv_cell('"up\n,x') == "'up ;x"
-    text = csv_text(["run a\u202eb", "unit \u2028=1"], [("a", "N", "x\u2029=2")], [["+1"]])
+    assert csv_text([("a", "N", "x")], [["+1"]]) == "a\n'+1\n"
+    text = columns_text(["run a\u202eb", "=unit \u2028=1"], [("a", "N", "x\u2029=2, y")])
     assert "\u202e" not in text and "\\u202e" in text
-    assert [line for line in text.splitlines() if not line.startswith("# ")] == ["a", "'+1"]
+    rows = list(csv.reader(text.splitlines(), strict=True))  # one line each, the comma quoted
+    assert rows == [["column", "unit", "description"], ["", "", "run a\\u202eb"],
+                    ["", "", "'=unit  =1"], ["a", "N", "x =2, y"]]

@@ -127,7 +127,7 @@ def test_held_out_steps_are_predicted_within_two_percent(tmp_path):
         samples = run.samples(columns=["t_s", "thrust_n", "command"])
     predicted = dyn.simulate(samples["t_s"], samples["command"], steady=steady.thrust)
     zero = json.loads((held / "calibration.json").read_text())["dynamics"]["zero_n"]
-    full_scale = float(np.max(np.abs(points["thrust_mean_n"])))
+    full_scale = float(np.max(np.abs(points["thrust_all_mean_n"])))
     rms = float(np.sqrt(np.mean((predicted + zero - samples["thrust_n"]) ** 2)))
     assert rms < 0.02 * full_scale
 

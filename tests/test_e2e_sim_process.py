@@ -56,7 +56,7 @@ def test_sweep_against_sim_process(sim_rig, tmp_path, capsys):
     run_id = store.resolve_run_id("last")
     steps = store.steps(run_id)
     assert len(steps) == 8 and all(s["n"] == 200 for s in steps)
-    by = {(s["depth_m"], s["command"]): s["thrust_n_mean"] for s in steps}
+    by = {(s["depth_m"], s["command"]): s["thrust_all_mean_n"] for s in steps}
     for depth in (0.3, 0.35):
         assert abs(by[(depth, 0)]) < 0.1  # dead zone, after the tare
         assert 4.5 < by[(depth, 300)] < 5.5  # forward saturated, 5 N
@@ -101,12 +101,12 @@ def test_can_sweep_against_sim_process_records_feedback(tmp_path, capsys):
     assert proc.returncode == 0
     store = Store(db)
     steps = store.steps(store.resolve_run_id("last"))
-    speed = {s["command"]: s["speed_rpm_mean"] for s in steps}
+    speed = {s["command"]: s["speed_all_mean_rpm"] for s in steps}
     assert speed[60] == pytest.approx(1080, abs=60) and speed[-60] == pytest.approx(-1080, abs=60)
     assert abs(speed[0]) < 30
-    thrust = {s["command"]: s["thrust_n_mean"] for s in steps}
+    thrust = {s["command"]: s["thrust_all_mean_n"] for s in steps}
     assert 18 < thrust[60] < 27 and -22 < thrust[-60] < -14
-    assert all(s["current_a_mean"] is not None for s in steps)
+    assert all(s["current_all_mean_a"] is not None for s in steps)
 
 
 def test_sim_fault_switches(tmp_path):

@@ -93,9 +93,9 @@ def test_performance_table_round_trips_through_import(calibrated, capsys):
         points = lab.run("last").points()
         volts = lab.run("last").samples(columns=["voltage_v"])["voltage_v"]
     for key, column in (("command", "ESC (percent)"), ("depth_m", "Depth (m)"),
-                        ("thrust_mean_n", "Thrust (N)"),
-                        ("speed_mean_rpm", "Motor Optical Speed (RPM)"),
-                        ("current_mean_a", "Current (A)")):
+                        ("thrust_all_mean_n", "Thrust (N)"),
+                        ("speed_all_mean_rpm", "Motor Optical Speed (RPM)"),
+                        ("current_all_mean_a", "Current (A)")):
         np.testing.assert_allclose(points[key], [float(r[column]) for r in table], rtol=1e-8)
     np.testing.assert_allclose(volts, [float(r["Voltage (V)"]) for r in table], rtol=1e-8)
 

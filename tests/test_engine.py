@@ -92,14 +92,14 @@ def test_all_points_stored_and_stats_match_samples(write_yaml, db_path):
         mask = samples["step_id"] == s["id"]
         thrust = samples["thrust_n"][mask]
         assert s["n"] == 200 == mask.sum()
-        assert s["thrust_n_mean"] == pytest.approx(thrust.mean())
-        assert s["thrust_n_std"] == pytest.approx(thrust.std(ddof=1))
-        assert s["thrust_n_max"] == pytest.approx(thrust.max())
-        assert s["speed_rpm_mean"] == pytest.approx(samples["speed_rpm"][mask].mean())
+        assert s["thrust_all_mean_n"] == pytest.approx(thrust.mean())
+        assert s["thrust_all_std_n"] == pytest.approx(thrust.std(ddof=1))
+        assert s["thrust_all_max_n"] == pytest.approx(thrust.max())
+        assert s["speed_all_mean_rpm"] == pytest.approx(samples["speed_rpm"][mask].mean())
         assert np.all(samples["command"][mask] == s["command"])
         assert np.all(np.diff(samples["t_s"][mask]) > 0)
     # thrust follows the command through the physics: reverse negative, forward positive
-    means = [s["thrust_n_mean"] for s in steps]
+    means = [s["thrust_all_mean_n"] for s in steps]
     assert means[0] < -3 and abs(means[1]) < 0.5 and means[3] > means[2] > 3
     assert rigset.actuator.sent[-1] == 0.0
     assert [e["kind"] for e in store.events(outcome.run_id)][:3] == ["run_start", "tare", "depth"]

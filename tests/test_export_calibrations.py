@@ -1,5 +1,5 @@
-"""`export --all` keeps the axes of a calibration (issue item 10): _calibrations.pq has the
-supply voltage, the section's role (deep or shallow) and the API's main section, carries the
+"""`export --all` keeps the axes of a calibration (issue item 10): _tables/calibrations.pq has
+the supply voltage set, the section's role (deep or shallow) and the API's main section, carries the
 C_n(U) law of a voltage sweep with its intervals, and docs/sql.md's "C_p forward of every
 thruster" returns each thruster's own coefficient, one row per thruster. Through the CLI and
 the Python API, on twins and axes the export was not developed on."""
@@ -56,8 +56,8 @@ def dataset(tmp_path_factory):
     ids = {"volts": _sweep(tmp, db, "volts", "bow-1", 4242, DEPTHS, VOLTS),
            "shallow": _sweep(tmp, db, "shallow", "bow-1", 4243, [0.3]),
            "stern": _sweep(tmp, db, "stern", "stern-2", 4244, [0.9])}
-    assert main(["export", "--all", str(tmp / "ds"), "--db", str(db)]) == 0
-    table = pq.read_table(tmp / "ds" / "_calibrations.pq")
+    assert main(["export", "--all", "--out", str(tmp / "ds"), "--db", str(db)]) == 0
+    table = pq.read_table(tmp / "ds" / "_tables/calibrations.pq")
     return tmp, db, ids, table
 
 
@@ -68,25 +68,25 @@ def _api(db: Path, run_id: str) -> rigtool.api.Calibration:
 
 def test_every_voltage_and_depth_is_its_own_row_with_a_role(dataset):
     _, db, ids, table = dataset
-    assert {"supply_voltage_v", "role", "main_section"} <= set(table.column_names)
+    assert {"voltage_set_v", "role", "main_section"} <= set(table.column_names)
     assert str(table.schema.field("main_section").type) == "bool"
     cal = table.to_pandas()
     mine = cal[(cal.run_id == ids["volts"]) & (cal.coefficient == "C_p_fwd")]
-    pairs = zip(mine.depth_m, mine.supply_voltage_v, strict=True)
+    pairs = zip(mine.depth_m, mine.voltage_set_v, strict=True)
     assert sorted(pairs) == list(itertools.product(DEPTHS, VOLTS))
     assert dict(zip(mine.depth_m, mine.role, strict=True)) == {0.45: "shallow", 1.2: "deep"}
-    sections = cal[cal.supply_voltage_v.notna()]
-    assert not sections.duplicated(["run_id", "depth_m", "supply_voltage_v", "coefficient"]).any()
+    sections = cal[cal.voltage_set_v.notna()]
+    assert not sections.duplicated(["run_id", "depth_m", "voltage_set_v", "coefficient"]).any()
     api = _api(db, ids["volts"])
     for row in mine.itertuples():
-        expected = api.coefficients_at(row.depth_m, row.supply_voltage_v)["C_p_fwd"]
+        expected = api.coefficients_at(row.depth_m, row.voltage_set_v)["C_p_fwd"]
         assert (row.value, row.lo, row.hi) == pytest.approx(
             (expected.value, expected.lo, expected.hi), rel=1e-9)
     (main_row,) = mine[mine.main_section].itertuples()
-    assert (main_row.depth_m, main_row.supply_voltage_v) == (1.2, 15.5)  # the API's default
+    assert (main_row.depth_m, main_row.voltage_set_v) == (1.2, 15.5)  # the API's default
     assert main_row.value == pytest.approx(api.coefficients["C_p_fwd"].value, rel=1e-9)
     stern = cal[cal.run_id == ids["stern"]]
-    assert stern.supply_voltage_v.isna().all() and set(stern.role) == {"deep"}
+    assert stern.voltage_set_v.isna().all() and set(stern.role) == {"deep"}
     assert set(cal[cal.run_id == ids["shallow"]].role) == {"shallow"}
     assert stern.main_section.all()
 
@@ -95,7 +95,7 @@ def test_the_voltage_law_rows_carry_k_and_b_with_intervals(dataset):
     _, db, ids, table = dataset
     cal = table.to_pandas()
     laws = cal[cal.coefficient.str.startswith("C_n_law_")]
-    assert set(laws.run_id) == {ids["volts"]} and laws.supply_voltage_v.isna().all()
+    assert set(laws.run_id) == {ids["volts"]} and laws.voltage_set_v.isna().all()
     assert sorted(zip(laws.depth_m, laws.coefficient, strict=True)) == sorted(itertools.product(
         DEPTHS, ["C_n_law_b", "C_n_law_k", "C_n_law_k_inverse"]))
     assert ((laws.lo < laws.value) & (laws.value < laws.hi)).all()
@@ -121,7 +121,7 @@ def _own_coefficients(dataset) -> tuple[dict, int]:
     scope: dict = {}
     exec(compile(code.replace("DIR", str(tmp / "ds")), "docs/sql.md", "exec"), scope)
     own = scope["own"]
-    return {r.thruster_id: (r.run_id, r.value, r.depth_m, r.supply_voltage_v)
+    return {r.thruster_id: (r.run_id, r.value, r.depth_m, r.voltage_set_v)
             for r in own.itertuples()}, len(own)
 
 
@@ -159,5 +159,5 @@ def test_the_documented_duckdb_query_agrees(dataset):
     rows = [dict(zip(names, r, strict=True)) for r in cur.fetchall()]
     assert len(rows) == 2
     _same({r["thruster_id"]: (r["run_id"], r["c_p_fwd"], r["depth_m"],
-                              float("nan") if r["supply_voltage_v"] is None
-                              else r["supply_voltage_v"]) for r in rows}, _expected(dataset))
+                              float("nan") if r["voltage_set_v"] is None
+                              else r["voltage_set_v"]) for r in rows}, _expected(dataset))

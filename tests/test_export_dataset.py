@@ -48,7 +48,7 @@ def _sweep(tmp: Path, db: Path, seed: int, thruster: str | None = None, text: st
 
 
 def _export(out: Path, db: Path) -> int:
-    return main(["export", "--all", str(out), "--db", str(db)])
+    return main(["export", "--all", "--out", str(out), "--db", str(db)])
 
 
 def _files(root: Path) -> dict[str, tuple[int, int, int]]:
@@ -97,7 +97,7 @@ def test_a_second_export_rewrites_only_the_new_and_the_recalibrated_run(lab, cap
     partitions = {p for p in touched if "=" in p}
     assert partitions == {f"thruster_id=stern-2/run_id={ids[1]}/samples.parquet",
                           f"thruster_id=bow-1/run_id={new}/samples.parquet"}
-    assert touched - partitions == {"_rigtool_manifest.json", "_calibrations.pq", "_runs.pq"}
+    assert touched - partitions == {"_rigtool_manifest.json", "_tables/calibrations.pq", "_tables/runs.pq"}
     assert set(before) - set(after) == set()
     # nothing changed since: an export touches no file at all, not even the manifest
     assert _export(out, db) == 0
@@ -150,10 +150,10 @@ def test_duckdb_and_pyarrow_read_the_store_s_row_counts(lab):
     assert manifest["runs"][ids[0]]["calibrated_utc"] is not None
     assert manifest["runs"][ids[1]]["calibrated_utc"] is None
     cal = duckdb.sql(f"SELECT DISTINCT run_id, thruster_id FROM "
-                     f"read_parquet('{out}/_calibrations.pq')").fetchall()
+                     f"read_parquet('{out}/_tables/calibrations.pq')").fetchall()
     assert cal == [(ids[0], "bow-1")]
     runs = duckdb.sql(f"SELECT run_id, thruster_id, name, n_points, n_samples, calibrated_utc "
-                      f"IS NOT NULL FROM read_parquet('{out}/_runs.pq') ORDER BY run_id").fetchall()
+                      f"IS NOT NULL FROM read_parquet('{out}/_tables/runs.pq') ORDER BY run_id").fetchall()
     assert runs == [(ids[0], "bow-1", "small", 9, expected[ids[0]][0], True),
                     (ids[1], "stern-2", "small", 9, expected[ids[1]][0], False)]
 
@@ -251,7 +251,7 @@ def _export_process(out: Path, db: Path, fsize: int, crash: bool) -> subprocess.
 
         resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
 
-    return subprocess.run([sys.executable, "-c", code, "export", "--all", str(out), "--db",
+    return subprocess.run([sys.executable, "-c", code, "export", "--all", "--out", str(out), "--db",
                            str(db)], capture_output=True, text=True, preexec_fn=limit,
                           timeout=120)
 

@@ -174,5 +174,5 @@ def test_engine_dead_zone_points_after_full_speed_do_not_trip(write_yaml, db_pat
     assert outcome.status == "completed", outcome.reason
     steps = store.steps(outcome.run_id)
     assert len(steps) == 8
-    assert all(abs(s["speed_rpm_mean"]) < 20 for s in steps if s["command"] in (1490, 1510))
-    assert min(s["speed_rpm_mean"] for s in steps) < -3500 < 3500 < max(s["speed_rpm_mean"] for s in steps)
+    assert all(abs(s["speed_all_mean_rpm"]) < 20 for s in steps if s["command"] in (1490, 1510))
+    assert min(s["speed_all_mean_rpm"] for s in steps) < -3500 < 3500 < max(s["speed_all_mean_rpm"] for s in steps)

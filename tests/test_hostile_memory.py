@@ -72,8 +72,8 @@ def _long_point_peak(tmp_path, samples: int) -> tuple[int, dict]:
     (step,) = store.steps(run_id)
     thrust = store.samples(run_id, ["thrust_n"])["thrust_n"]
     assert step["n"] == samples == thrust.size
-    assert step["thrust_n_mean"] == pytest.approx(thrust.mean(), rel=1e-9)
-    assert step["thrust_n_std"] == pytest.approx(thrust.std(ddof=1), rel=1e-6)
+    assert step["thrust_all_mean_n"] == pytest.approx(thrust.mean(), rel=1e-9)
+    assert step["thrust_all_std_n"] == pytest.approx(thrust.std(ddof=1), rel=1e-6)
     store.close()
     return peak, step
 

@@ -141,7 +141,7 @@ def _cli(tmp_path: Path, *args: str | Path) -> tuple[str, float]:
 def _command(name: str, db: Path, ref: str, out: Path) -> list[str | Path]:
     """The arguments of one reading command on `db`."""
     if name == "export-all":
-        return ["export", "--all", out, "--db", db]
+        return ["export", "--all", "--out", out, "--db", db]
     extra = [] if name == "show" else ["--out", out]
     extra += ["--format", "c-header"] if name == "export-cal" else []
     return [name, ref, "--db", db, *extra]
@@ -177,8 +177,8 @@ FIELDS = {
                    "column t_s holds a sample of nan"),
     "text in a numeric column": ([_sql("UPDATE steps SET command = 'abc' WHERE idx = 2")],
                                  ("show", "export", "calibrate"), "point 2, steps.command"),
-    "an infinite point summary": ([_sql("UPDATE steps SET thrust_n_max = 9e999 WHERE idx = 1")],
-                                  ("show", "export"), "point 1, steps.thrust_n_max"),
+    "an infinite point summary": ([_sql("UPDATE steps SET thrust_all_max_n = 9e999 WHERE idx = 1")],
+                                  ("show", "export"), "point 1, steps.thrust_all_max_n"),
     "an infinite event time": ([_sql("UPDATE events SET t_s = 9e999")], ("show", "export"),
                                "events.t_s"),
     "Infinity in metadata_json": ([_sql(
@@ -302,8 +302,8 @@ SOURCES = {
     "blocks that do not add up": ([_sql("UPDATE steps SET n = 5 WHERE idx = 3")],
                                   "point 3, steps.n"),
     "text in a numeric column": ([_sql("UPDATE steps SET rate_hz = 'fast'")], "steps.rate_hz"),
-    "an infinite point summary": ([_sql("UPDATE steps SET current_a_mean = -9e999")],
-                                  "steps.current_a_mean"),
+    "an infinite point summary": ([_sql("UPDATE steps SET current_all_mean_a = -9e999")],
+                                  "steps.current_all_mean_a"),
     "an infinite event time": ([_sql("UPDATE events SET t_s = -9e999")], "events.t_s"),
     "Infinity in a plan": ([_sql("UPDATE runs SET plan_json = replace(plan_json, "
                                  "'\"command\": -100.0', '\"command\": Infinity')")],

@@ -122,7 +122,7 @@ def test_electrical_column_alone_is_divided_with_a_caveat(tmp_path, capsys):
     assert "7 x too low (C_p 49 x too large)" in err
     assert "optical tachometer" in err and "KV x voltage" in err
     top = Store(db).steps(Store(db).resolve_run_id("last"))[-1]
-    assert top["speed_rpm_mean"] == pytest.approx(TOP_RPM / POLE_PAIRS, rel=0.01)
+    assert top["speed_all_mean_rpm"] == pytest.approx(TOP_RPM / POLE_PAIRS, rel=0.01)
 
 
 # 2. a speed column of nothing but zeros or empty cells ------------------------------------------
@@ -162,7 +162,7 @@ def test_only_speed_column_unmeasured_is_ignored_with_a_warning(tmp_path, capsys
     store = Store(db)
     run_id = store.resolve_run_id("last")
     assert "speed" not in store.run(run_id)["rig"]["import"]["columns"]
-    assert store.steps(run_id)[-1]["speed_rpm_mean"] is None
+    assert store.steps(run_id)[-1]["speed_all_mean_rpm"] is None
     assert any("holds only zeros" in w for w in _stored_warnings(db))
 
 

@@ -35,8 +35,8 @@ def test_mapping_file_decimal_comma_per_point_table(tmp_path: Path, db_path: Pat
     assert (result.importer, result.fmt, result.n_skipped) == ("generic", "points", 0)
     steps = store.steps(result.run_id)
     assert len(steps) == COMMANDS.size and steps[0]["n"] == 500
-    assert steps[-1]["thrust_n_mean"] == pytest.approx(FWD_MAX_KGF * G0, rel=0.01)
-    assert steps[-1]["thrust_n_std"] == pytest.approx((0.004 + 0.04) * G0, rel=0.01)
+    assert steps[-1]["thrust_all_mean_n"] == pytest.approx(FWD_MAX_KGF * G0, rel=0.01)
+    assert steps[-1]["thrust_all_std_n"] == pytest.approx((0.004 + 0.04) * G0, rel=0.01)
     cal = calibrate_run(store, result.run_id)
     assert cal.sections[0].curve.dead_zones == [(1475.0, 1525.0)]
 
@@ -76,7 +76,7 @@ def test_units_override_and_thrust_sign(tmp_path: Path, db_path: Path) -> None:
     store = Store(db_path)
     result = import_file(store, data, m)
     assert result.fmt == "points"
-    assert store.steps(result.run_id)[0]["thrust_n_mean"] == pytest.approx(4.4482216, rel=1e-6)
+    assert store.steps(result.run_id)[0]["thrust_all_mean_n"] == pytest.approx(4.4482216, rel=1e-6)
 
 
 def test_comma_values_without_option_are_reported(tmp_path: Path, db_path: Path) -> None:

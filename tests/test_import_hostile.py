@@ -87,7 +87,7 @@ def test_overflow_is_a_bad_row_with_its_line(tmp_path: Path, cell: str) -> None:
     assert "data.csv:3: thrust:" in err
     assert "3 row(s) read, 1 skipped" in out
     with sqlite3.connect(db) as conn:
-        assert conn.execute("SELECT count(*) FROM steps WHERE thrust_n_mean IS NULL").fetchone() == (0,)
+        assert conn.execute("SELECT count(*) FROM steps WHERE thrust_all_mean_n IS NULL").fetchone() == (0,)
 
 
 def test_overflowing_std_is_a_bad_row(tmp_path: Path) -> None:
@@ -144,7 +144,7 @@ def test_many_points_are_written_in_few_transactions(tmp_path: Path, monkeypatch
     assert store.run(run_id)["status"] == "completed"
     steps = store.steps(run_id)
     assert len(steps) == n and steps[-1]["n"] == 1
-    assert steps[-1]["thrust_n_mean"] == pytest.approx((n - 1) / n)
+    assert steps[-1]["thrust_all_mean_n"] == pytest.approx((n - 1) / n)
 
 
 KILL_AFTER_COMMIT = """\

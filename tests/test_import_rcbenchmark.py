@@ -44,7 +44,7 @@ def test_import_calibrates_into_dead_zone_and_coefficients(log: Path, db_path: P
     assert len(run["rig"]["import"]["files"][0]["sha256"]) == 64
     steps = store.steps(result.run_id)
     top = steps[-1]
-    assert top["command"] == 1900 and top["thrust_n_mean"] == pytest.approx(FWD_MAX_KGF * G0,
+    assert top["command"] == 1900 and top["thrust_all_mean_n"] == pytest.approx(FWD_MAX_KGF * G0,
                                                                             rel=0.01)
     cal = calibrate_run(store, result.run_id)
     sec = cal.sections[0]
@@ -60,7 +60,7 @@ def test_settling_cut_removes_the_transient(log: Path, db_path: Path) -> None:
     top_cut = store.steps(cut.run_id)[-1]
     assert top_cut["n"] < top_raw["n"]
     target = FWD_MAX_KGF * G0
-    assert abs(top_cut["thrust_n_mean"] - target) < abs(top_raw["thrust_n_mean"] - target)
+    assert abs(top_cut["thrust_all_mean_n"] - target) < abs(top_raw["thrust_all_mean_n"] - target)
 
 
 def test_strict_refuses_bad_rows(log: Path, db_path: Path) -> None:
@@ -77,9 +77,9 @@ def test_electrical_speed_needs_pole_pairs(tmp_path: Path, db_path: Path) -> Non
     store = Store(db_path)
     no_pp = import_file(store, path, Mapping())
     assert any("--pole-pairs" in w for w in no_pp.warnings)
-    assert np.isnan(store.steps(no_pp.run_id)[-1]["speed_rpm_mean"] or np.nan)
+    assert np.isnan(store.steps(no_pp.run_id)[-1]["speed_all_mean_rpm"] or np.nan)
     with_pp = import_file(store, path, with_overrides(Mapping(), pole_pairs=7, settle_s=1.0))
-    assert store.steps(with_pp.run_id)[-1]["speed_rpm_mean"] == pytest.approx(3800, rel=0.02)
+    assert store.steps(with_pp.run_id)[-1]["speed_all_mean_rpm"] == pytest.approx(3800, rel=0.02)
 
 
 def test_cli_import_calibrate_report(log: Path, tmp_path: Path, capsys) -> None:

@@ -116,7 +116,7 @@ def test_workbook_imports_in_one_command_and_calibrates_per_voltage(
     sheets = store.run(run_id)["rig"]["import"]["sheets"]
     assert [s["supply_v"] for s in sheets] == [[v] for v in VOLTS]
     assert {s["supply_from"] for s in sheets} == {"sheet name"}
-    assert {s["voltage_v"] for s in store.steps(run_id)} == set(VOLTS)
+    assert {s["voltage_set_v"] for s in store.steps(run_id)} == set(VOLTS)
 
     assert _cli(capsys, "calibrate", "last", "--db", str(db), "--out", str(out_dir))[0] == 0
     doc = json.loads((out_dir / run_id / "calibration.json").read_text())
@@ -147,7 +147,7 @@ def test_thrust_in_kgf_becomes_newtons(tmp_path: Path, capsys) -> None:
     store = Store(db)
     steps = store.steps(store.resolve_run_id("last"))
     kgf = rows(th, 16.0, np.random.default_rng(th.seed))["force"]
-    assert [s["thrust_n_mean"] for s in steps] == pytest.approx((kgf * G0).tolist(), abs=1e-12)
+    assert [s["thrust_all_mean_n"] for s in steps] == pytest.approx((kgf * G0).tolist(), abs=1e-12)
     assert G0 == 9.80665
 
 
@@ -273,7 +273,7 @@ def test_a_supply_column_in_the_sheet_wins_over_its_name(tmp_path: Path, capsys)
     assert _cli(capsys, "import", str(book), "--db", str(db))[0] == 0
     store = Store(db)
     run_id = store.resolve_run_id("last")
-    assert {s["voltage_v"] for s in store.steps(run_id)} == {14.0}
+    assert {s["voltage_set_v"] for s in store.steps(run_id)} == {14.0}
     (sheet,) = store.run(run_id)["rig"]["import"]["sheets"]
     assert sheet["supply_from"] == "column 'Supply Voltage (V)'"
 

@@ -58,7 +58,7 @@ def test_last_live_line_pairs_the_command_with_its_own_reading(write_yaml, db_pa
     finally:
         rigset.close()
     command, thrust = (float(x) for x in LINE.findall(screen.getvalue())[-1])
-    means = {s["command"]: s["thrust_n_mean"] for s in store.steps(run_id)}
+    means = {s["command"]: s["thrust_all_mean_n"] for s in store.steps(run_id)}
     assert means[1900] > 20
     if command == 1500:  # the rest after the last point, at neutral
         assert abs(thrust) < 1.0

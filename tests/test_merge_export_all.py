@@ -68,7 +68,7 @@ def test_merge_then_export_all_round_trips_every_point_and_sample(two_rigs, caps
         assert sorted(store.run_ids()) == sorted(ids)
         assert store.latest_calibration(ids[0])["state"] is not None
 
-    assert main(["export", "--all", str(tmp / "dataset"), "--db", lab]) == 0
+    assert main(["export", "--all", "--out", str(tmp / "dataset"), "--db", lab]) == 0
     data = tmp / "dataset"
     ids_as_text = ds.partitioning(pa.schema([("thruster_id", pa.string()),
                                              ("run_id", pa.string())]), flavor="hive")
@@ -79,7 +79,7 @@ def test_merge_then_export_all_round_trips_every_point_and_sample(two_rigs, caps
         assert mine.step_idx.nunique() == n_points
         assert len(mine) == n_samples and round(mine.thrust_n.sum(), 6) == thrust
     assert sorted(set(samples.run_id)) == sorted(ids) and samples.rig.nunique() == 2  # two rigs
-    cals = pq.read_table(data / "_calibrations.pq").to_pandas()
+    cals = pq.read_table(data / "_tables/calibrations.pq").to_pandas()
     assert set(cals.run_id) == {ids[0]} and "C_p_fwd" in set(cals.coefficient)
     (part,) = data.glob(f"thruster_id=*/run_id={ids[0]}/samples.parquet")
     meta = pq.read_schema(part).metadata
@@ -113,7 +113,7 @@ def test_export_columns_carry_run_thruster_and_rig(two_rigs, capsys):
     assert main(["export", ids[0], "--format", "parquet", "--out", str(tmp / "x"), "--db", a]) == 0
     table = pq.read_table(tmp / "x" / f"{ids[0]}-points.parquet")
     assert table.column_names[:3] == ["run_id", "thruster_id", "rig"]
-    assert "thrust_mean_n" in table.column_names and "speed_mean_rpm" in table.column_names
+    assert "thrust_all_mean_n" in table.column_names and "speed_all_mean_rpm" in table.column_names
     samples = pq.read_table(tmp / "x" / f"{ids[0]}-samples.parquet")
     assert samples.schema.field("seq").type == "int64" and samples.num_rows == 9 * 200
     assert np.all(np.asarray(samples.column("run_id").to_pylist()) == ids[0])

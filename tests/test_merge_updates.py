@@ -144,7 +144,7 @@ def test_an_older_copy_of_the_rig_store_changes_nothing(rig, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("change, where", [
-    ("UPDATE steps SET thrust_n_mean = thrust_n_mean + 1e-9 WHERE idx = 2", "point 2, steps."),
+    ("UPDATE steps SET thrust_all_mean_n = thrust_all_mean_n + 1e-9 WHERE idx = 2", "point 2, steps."),
     ("UPDATE sample_blocks SET thrust_n = zeroblob(length(thrust_n)) WHERE step_id = "
      "(SELECT id FROM steps WHERE idx = 1)", "point 1, sample_blocks"),
     ("UPDATE runs SET plan_json = json_set(plan_json, '$[0].command', 999)", "runs.plan_json"),

@@ -500,8 +500,8 @@ def test_engine_sweeps_with_the_driver_on_a_real_clock(live, box, write_yaml, db
     assert outcome.status == "completed", outcome.reason
     steps = store.steps(run_id)
     assert [s["n"] for s in steps] == [300, 300]
-    assert abs(steps[0]["thrust_n_mean"]) < 0.1  # tared at neutral: the 3 N offset is gone
+    assert abs(steps[0]["thrust_all_mean_n"]) < 0.1  # tared at neutral: the 3 N offset is gone
     _, thrust_n, _ = live.twin.steady_state(50)
-    assert abs(steps[1]["thrust_n_mean"] - thrust_n) < 0.4
+    assert abs(steps[1]["thrust_all_mean_n"] - thrust_n) < 0.4
     t = store.samples(run_id, ["t_s"])["t_s"]
     assert np.all(np.diff(t) >= 0) and 0 < t[0] < t[-1] < 10  # run clock: monotonic arrival

@@ -86,7 +86,7 @@ def test_odrive_sweep_calibrate_report(odrive, live, rig, recorder, tmp_path, ca
     store = Store(tmp_path / "runs.sqlite")
     steps = store.steps(store.resolve_run_id("last"))
     assert len(steps) == 7 and all(s["n"] == 400 for s in steps)
-    thrust = {s["command"]: s["thrust_n_mean"] for s in steps}
+    thrust = {s["command"]: s["thrust_all_mean_n"] for s in steps}
     assert thrust[1500] > thrust[1000] > thrust[500] > 1.0 > abs(thrust[0])
     assert thrust[-1500] < thrust[-1000] < thrust[-500] < -1.0
 

@@ -156,7 +156,7 @@ def test_transport_counters_are_stored_per_point_and_shown(can_rig, vesc, write_
     assert sweep(write_yaml(protocol_text([-40, 0, 40])), rig, db_path) == 0
     store = Store(db_path)
     run_id = store.resolve_run_id("last")
-    speeds = [s["speed_rpm_mean"] for s in store.steps(run_id)]
+    speeds = [s["speed_all_mean_rpm"] for s in store.steps(run_id)]
     assert speeds[0] == pytest.approx(-720, abs=40) and speeds[2] == pytest.approx(720, abs=40)
     summary = store.transport_counters(run_id)
     assert summary["problem_points"] == [0, 1, 2]

@@ -278,7 +278,7 @@ def test_cli_sweep_through_pyvisa_py_against_the_twin(bench, tmp_path):
         assert max(v for what, v in twin.history if what == "VOLT") == 16.0
     store = Store(db)
     run_id = store.resolve_run_id("last")
-    assert {s["voltage_v"] for s in store.steps(run_id)} == {12.0, 16.0}
+    assert {s["voltage_set_v"] for s in store.steps(run_id)} == {12.0, 16.0}
     measured = [e["detail"]["measured_v"] for e in store.events(run_id, "voltage")]
     assert measured == pytest.approx([12.0, 16.0], abs=0.05)
 

@@ -129,7 +129,7 @@ def _twin_drift(name: str, db) -> tuple[dict, bool]:
         steps, n_tares = store.steps(run_id), len(store.events(run_id, "tare"))
     groups: dict[tuple, list[dict]] = {}
     for s in steps:
-        groups.setdefault((s["depth_m"], s.get("voltage_v")), []).append(s)
+        groups.setdefault((s["depth_m"], s["voltage_set_v"]), []).append(s)
     spans = [_span_h(g) for g in groups.values()] + ([_span_h(steps)] if n_tares >= 3 else [])
     setting = {"profile": profile.name, "drift_n_per_h": profile.drift_n_per_h,
                "force_noise_n": profile.force_noise_n, "span_h": max(spans)}

@@ -79,8 +79,8 @@ def test_step_and_samples_roundtrip_with_missing_channels(db_path):
                "speed_rpm": None, "current_a": np.full(n, 2.0), "command": np.full(n, 10.0)}
     store.add_step(run_id, _step(1), samples)
     (step,) = store.steps(run_id)
-    assert step["n"] == n and step["speed_rpm_mean"] is None
-    assert step["thrust_n_mean"] == pytest.approx(0.5)
+    assert step["n"] == n and step["speed_all_mean_rpm"] is None
+    assert step["thrust_all_mean_n"] == pytest.approx(0.5)
     back = store.samples(run_id)
     assert np.allclose(back["thrust_n"], samples["thrust_n"])
     assert np.isnan(back["speed_rpm"]).all() and np.isnan(back["fy"]).all()

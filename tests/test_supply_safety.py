@@ -95,7 +95,7 @@ def test_leftover_48v_setpoint_is_never_on_and_the_run_completes(bench, tmp_path
     assert ("VOLT:PROT", 24.0) in twin.history  # the protection held the rig's limit
     assert not twin.output and not twin.watchdog and twin.ovp_v == 60.0  # restored as found
     store = Store(tmp_path / "db.sqlite")
-    assert {s["voltage_v"] for s in store.steps(store.resolve_run_id("last"))} == {12.0, 16.0}
+    assert {s["voltage_set_v"] for s in store.steps(store.resolve_run_id("last"))} == {12.0, 16.0}
 
 
 @pytest.mark.slow
@@ -117,7 +117,7 @@ def test_current_limited_supply_trips_and_stores_no_point_under_its_label(bench,
     assert _sweep(protocol, rig, db) == 1
     store = Store(db)
     run_id = store.resolve_run_id("last")
-    assert {s["voltage_v"] for s in store.steps(run_id)} == {12.0}
+    assert {s["voltage_set_v"] for s in store.steps(run_id)} == {12.0}
     trip = store.events(run_id, "limit_trip")[0]["detail"]
     assert trip["check"] == "bus_voltage" and trip["set_v"] == 16.0
     assert trip["measured_v"] == pytest.approx(14.0) and trip["limit_a"] == 3.5

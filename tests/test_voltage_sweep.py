@@ -219,7 +219,7 @@ def test_scpi_supply_sets_each_voltage_and_is_off_at_the_end(tmp_path):
         assert twin.output is False  # on_exit: off
     volts = [e["detail"]["target_v"] for e in store.events(outcome.run_id, "voltage")]
     assert volts == [12.0, 16.0] and command == 1500.0
-    assert {s["voltage_v"] for s in store.steps(outcome.run_id)} == {12.0, 16.0}
+    assert {s["voltage_set_v"] for s in store.steps(outcome.run_id)} == {12.0, 16.0}
 
 
 def test_scpi_supply_that_stops_answering_aborts_at_neutral(tmp_path):
@@ -227,7 +227,7 @@ def test_scpi_supply_that_stops_answering_aborts_at_neutral(tmp_path):
         store, outcome, command = _scpi_run(tmp_path, twin, die_above_12v=True)
     assert outcome.status == "aborted" and "no reply from SCPI supply" in outcome.reason
     assert command == 1500.0  # the thruster is at neutral
-    assert {s["voltage_v"] for s in store.steps(outcome.run_id)} == {12.0}  # 12 V points kept
+    assert {s["voltage_set_v"] for s in store.steps(outcome.run_id)} == {12.0}  # 12 V points kept
     kinds = {e["kind"] for e in store.events(outcome.run_id)}
     assert {"device_fault", "supply_unsafe"} <= kinds
 
@@ -249,8 +249,8 @@ def test_performance_table_of_a_voltage_sweep_round_trips_through_import(tmp_pat
     with rigtool.open(db) as lab:
         points = lab.run("last").points()
     for key, column in (("voltage_set_v", "Supply Voltage (V)"), ("command", "ESC (pulse_us)"),
-                        ("thrust_mean_n", "Thrust (N)"), ("current_mean_a", "Current (A)"),
-                        ("speed_mean_rpm", "Motor Optical Speed (RPM)")):
+                        ("thrust_all_mean_n", "Thrust (N)"), ("current_all_mean_a", "Current (A)"),
+                        ("speed_all_mean_rpm", "Motor Optical Speed (RPM)")):
         np.testing.assert_allclose(points[key], table[:, header.index(column)], rtol=1e-8)
     assert set(points["repeat"].tolist()) == {1}  # a voltage is not a repeat
     again = tmp_path / "again"

@@ -14,7 +14,8 @@ from rigtool.analysis.results import DEEP_DEPTH_M
 from rigtool.errors import UsageError
 from rigtool.store import Store
 
-FEEDBACK_NEEDED = (("speed_rpm_mean", "speed"), ("current_a_mean", "current"))  # step column, name
+# steps column, name
+FEEDBACK_NEEDED = (("speed_all_mean_rpm", "speed"), ("current_all_mean_a", "current"))
 
 
 def is_shallow(store: Store, run_id: str) -> bool:

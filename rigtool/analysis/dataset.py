@@ -194,8 +194,8 @@ def _steps(rows: list[dict]) -> Steps:
         t_acquire_s=col("t_acquire_s"),
         settled=col("settled", bool),
         status=np.array([str(r["status"]) for r in rows]),
-        voltage_v=col("voltage_v") if rows and "voltage_v" in rows[0] else np.full(len(rows),
-                                                                                  np.nan),
+        voltage_v=col("voltage_set_v") if rows and "voltage_set_v" in rows[0] else np.full(
+            len(rows), np.nan),
     )
 
 
@@ -384,8 +384,8 @@ def _thrust_axis(store: Store, step_rows: list[dict], usable: np.ndarray) -> np.
     point longer than BLOCK_SAMPLES one stored block at a time, and the least squares problem
     is reduced to its triangular factor as they come, so memory is bounded by a block.
     """
-    rows = sorted((r for r in step_rows if r["thrust_n_mean"] is not None),
-                  key=lambda r: r["thrust_n_mean"])
+    rows = sorted((r for r in step_rows if r["thrust_all_mean_n"] is not None),
+                  key=lambda r: r["thrust_all_mean_n"])
     if not rows or not usable.any():
         return None
     pick = np.unique(np.linspace(0, len(rows) - 1, min(_AXIS_FIT_STEPS, len(rows))).astype(int))

@@ -46,6 +46,8 @@ from rigtool.artefacts.captive import (
 from rigtool.artefacts.write import (
     MISSING,
     atomic_write,
+    columns_path,
+    columns_text,
     csv_cell,
     csv_text,
     json_clean,
@@ -102,9 +104,10 @@ def _csv_head(cal: CalibrationResult, created: str) -> list[str]:
             f"command unit: {cal.command_unit}; missing values are written as {MISSING}"]
 
 
-def lut_text(cal: CalibrationResult, created: str) -> str:
-    """inverse_lut.csv: the inverse lookup table of every section."""
-    return csv_text(_csv_head(cal, created) + LUT_DOC, _units(LUT_COLUMNS, cal), lut_rows(cal))
+def lut_text(cal: CalibrationResult) -> str:
+    """inverse_lut.csv: the inverse lookup table of every section (its columns are documented
+    in docs/artefacts.md and in the calibration folder's inverse_lut.columns.csv)."""
+    return csv_text(_units(LUT_COLUMNS, cal), lut_rows(cal))
 
 
 def calibration_document(cal: CalibrationResult, created_utc: str) -> dict:
@@ -627,12 +630,27 @@ def performance_text(cal: CalibrationResult) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _table(head_doc: list[str], columns: Sequence[tuple[str, str, str]],
+def _table(columns: Sequence[tuple[str, str, str]],
            rows: Callable[[CalibrationResult], Iterable[list[object]]]
            ) -> Callable[[CalibrationResult, str], str]:
-    """A renderer of a commented CSV: the common head, `head_doc`, `columns` and `rows`."""
-    return lambda cal, created: csv_text(_csv_head(cal, created) + head_doc,
-                                         _units(columns, cal), rows(cal))
+    """A renderer of a plain CSV table: the header row, then `rows`."""
+    return lambda cal, created: csv_text(_units(columns, cal), rows(cal))
+
+
+def _tables(key: str, name: str, written: Callable[[CalibrationResult], bool],
+            head_doc: list[str], columns: Sequence[tuple[str, str, str]],
+            rows: Callable[[CalibrationResult], Iterable[list[object]]], doc: str,
+            listed: bool = True) -> tuple[CalibrationFile, CalibrationFile]:
+    """A CSV table and its sidecar (`<name>.columns.csv`: the notes and each column's unit
+    and meaning), written together."""
+    def sidecar(cal: CalibrationResult, created: str) -> str:
+        return columns_text(_csv_head(cal, created) + head_doc, _units(columns, cal))
+
+    side = columns_path(Path(name)).name
+    return (CalibrationFile(key, name, written, _table(columns, rows), doc, listed),
+            CalibrationFile(f"{key}_columns", side, written, sidecar,
+                            f"the notes and the columns' units and meanings of {name}",
+                            listed=False))
 
 
 # Every file of a calibration folder, in the order written: the one declaration that
@@ -642,25 +660,23 @@ CALIBRATION_FILES: tuple[CalibrationFile, ...] = (
                     lambda cal, created: json_text(calibration_document(cal, created)),
                     "every coefficient with its 95 % interval, unit and fit quality; dead zones, "
                     "saturated ranges, break-aways, branches; the analysis parameters; warnings"),
-    CalibrationFile("points", "points.csv", _always, _table(POINTS_DOC, POINT_COLUMNS, _point_rows),
-                    "one row per recorded point: steady-window statistics of thrust, speed, current"),
-    CalibrationFile("command_curve", "command_curve.csv", _always,
-                    _table(CURVE_DOC, CURVE_COLUMNS, curve_rows),
-                    "one row per distinct command: thrust vs command, state (dead / live / "
-                    "saturated), monotone fit"),
-    CalibrationFile("inverse_lut", "inverse_lut.csv", _always, lut_text,
-                    "inverse lookup table command(thrust) for vehicle controllers"),
+    *_tables("points", "points.csv", _always, POINTS_DOC, POINT_COLUMNS, _point_rows,
+             "one row per recorded point: steady-window statistics of thrust, speed, current"),
+    *_tables("command_curve", "command_curve.csv", _always, CURVE_DOC, CURVE_COLUMNS,
+             curve_rows, "one row per distinct command: thrust vs command, state (dead / live "
+             "/ saturated), monotone fit"),
+    *_tables("inverse_lut", "inverse_lut.csv", _always, LUT_DOC, LUT_COLUMNS, lut_rows,
+             "inverse lookup table command(thrust) for vehicle controllers"),
     CalibrationFile("performance", "performance.csv", _always,
                     lambda cal, created: performance_text(cal),
                     "manufacturer-style table, one row per command: speed, current, voltage, "
                     "electrical power, thrust (N and kgf), efficiency (g/W)"),
-    CalibrationFile("voltage", "voltage.csv", lambda cal: bool(cal.voltage_laws),
-                    _table(VOLTAGE_DOC, VOLTAGE_COLUMNS, voltage_rows),
-                    "only for a run with a supply-voltage axis: the coefficients at each voltage "
-                    "and the fitted C_n(U)"),
-    CalibrationFile("captive", CAPTIVE_FILE, lambda cal: cal.captive is not None,
-                    _table(CAPTIVE_DOC, CAPTIVE_COLUMNS, lambda cal: captive_rows(cal.captive)),
-                    "only for a captive run: one row per point, the held vehicle's forces and "
-                    "moments at each flow speed and angle", listed=False),
+    *_tables("voltage", "voltage.csv", lambda cal: bool(cal.voltage_laws), VOLTAGE_DOC,
+             VOLTAGE_COLUMNS, voltage_rows, "only for a run with a supply-voltage axis: the "
+             "coefficients at each voltage and the fitted C_n(U)"),
+    *_tables("captive", CAPTIVE_FILE, lambda cal: cal.captive is not None, CAPTIVE_DOC,
+             CAPTIVE_COLUMNS, lambda cal: captive_rows(cal.captive), "only for a captive run: "
+             "one row per point, the held vehicle's forces and moments at each flow speed and "
+             "angle", listed=False),
 )
 FILES = {f.key: f.name for f in CALIBRATION_FILES}

@@ -14,7 +14,13 @@ import pyarrow.parquet as pq
 from rigtool.analysis.cavitation import IN_SAMPLE_NOTE
 from rigtool.analysis.qctm_export import model_document
 from rigtool.analysis.results import CavitationResult
-from rigtool.artefacts.write import atomic_write, json_clean, json_text
+from rigtool.artefacts.write import (
+    atomic_write,
+    columns_path,
+    columns_text,
+    json_clean,
+    json_text,
+)
 from rigtool.ids import utc_now
 from rigtool.models import MODEL_FILE, VARIANCE_FILE
 from rigtool.models.qctm import VALIDATED_RUNS
@@ -88,7 +94,8 @@ def training_table(res: CavitationResult) -> dict[str, np.ndarray]:
             "run_id": t.run_id.astype(str)}
 
 
-def _header(res: CavitationResult, created: str) -> list[str]:
+def _notes(res: CavitationResult, created: str) -> list[str]:
+    """What the training set is, for its sidecar and its Parquet metadata."""
     prov = res.training.provenance
     lines = [f"rigtool {__version__} QCTM-GP training set of run {res.run_id}, "
              f"created {created}",
@@ -96,10 +103,14 @@ def _header(res: CavitationResult, created: str) -> list[str]:
              f"decimation: {prov.get('block_s')} s block means, {len(res.training)} of "
              f"{res.n_blocks_total} blocks selected, stratified over (depth, command, ventilated)",
              f"weights: Huber k = 1.345 on residuals against a 5-block running median, robust "
-             f"scale {prov.get('huber_scale_n', float('nan')):.4g} N",
-             "columns:"]
-    lines += [f"  {name} [{unit}]: {doc}" for name, unit, doc in TRAIN_COLUMNS]
+             f"scale {prov.get('huber_scale_n', float('nan')):.4g} N"]
     return lines
+
+
+def _header(res: CavitationResult, created: str) -> list[str]:
+    """The notes and the columns' documentation, for the Parquet file's metadata."""
+    return [*_notes(res, created), "columns:",
+            *(f"  {name} [{unit}]: {doc}" for name, unit, doc in TRAIN_COLUMNS)]
 
 
 def _npy_bytes(array: np.ndarray) -> bytes:
@@ -129,12 +140,13 @@ def write_cavitation_artefacts(res: CavitationResult, out_dir: str | Path,
     else:  # no GP signal: nothing uses the matrix, and a reader refuses an earlier fit's
         (target / VARIANCE_FILE).unlink(missing_ok=True)
     cols = training_table(res)
-    head = _header(res, created)
-    lines = ["# " + h for h in head] + [",".join(cols)]
+    lines = [",".join(cols)]
     arrays = list(cols.values())
     for i in range(len(res.training)):
         lines.append(",".join(a[i] if isinstance(a[i], str) else f"{a[i]:.9g}" for a in arrays))
     paths.append(atomic_write(target / TRAIN_CSV, "\n".join(lines) + "\n"))
-    table = pa.table(cols).replace_schema_metadata({"rigtool": "\n".join(head)})
+    paths.append(atomic_write(columns_path(target / TRAIN_CSV),
+                              columns_text(_notes(res, created), TRAIN_COLUMNS)))
+    table = pa.table(cols).replace_schema_metadata({"rigtool": "\n".join(_header(res, created))})
     paths.append(atomic_write(target / TRAIN_PARQUET, lambda p: pq.write_table(table, str(p))))
     return paths

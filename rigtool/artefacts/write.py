@@ -1,13 +1,17 @@
 """The one way rigtool writes a file (atomically) and the one JSON/CSV convention.
 
 JSON: sorted keys, floats rounded to 10 significant digits, NaN/inf as null, numpy and
-dataclasses as plain data. CSV: `# ` comment lines, a header row, floats as `%.9g`, missing
-values as `nan`. A reader never sees half a file: each is written beside its target and renamed.
+dataclasses as plain data. CSV: one header row, then the rows, floats as `%.9g`, missing values
+as `nan`, so every reader opens it as a table with its default options; what the file and its
+columns mean is in a sidecar `<name>.columns.csv` (column, unit, description). A reader never
+sees half a file: each is written beside its target and renamed.
 """
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import io
 import json
 import math
 import os
@@ -121,15 +125,32 @@ def _visible(text: str) -> str:
 _HIDDEN = {"Cc", "Cf", "Co", "Cs", "Zl", "Zp"}
 
 
-def csv_text(comments: Sequence[str], columns: Sequence[tuple[str, str, str]],
-             rows: Iterable[Sequence[object]]) -> str:
-    """CSV text: comment lines, one `# name [unit]: text` line per column, the header row,
-    then the rows. Every comment is split on every line break Python knows (so no stored text
-    can start a row), and header cells are single cells."""
-    notes = [*comments, *(f"{name}{f' [{unit}]' if unit else ''}: {text}"
-                          for name, unit, text in columns)]
-    lines = [f"# {_visible(line)}" for c in notes
-             for line in (scalar_text(str(c)).splitlines() or [""])]
-    lines.append(",".join(csv_cell(name) for name, _, _ in columns))
+def csv_text(columns: Sequence[tuple[str, str, str]], rows: Iterable[Sequence[object]]) -> str:
+    """CSV text: the header row (each name a single cell), then the rows; the columns'
+    documentation goes to the sidecar `columns_text` writes."""
+    lines = [",".join(csv_cell(name) for name, _, _ in columns)]
     lines += [",".join(csv_cell(v) for v in row) for row in rows]
     return "\n".join(lines) + "\n"
+
+
+def columns_path(path: Path) -> Path:
+    """The sidecar documenting the CSV at `path`: points.csv -> points.columns.csv."""
+    return path.with_name(f"{path.stem}.columns.csv")
+
+
+def columns_text(notes: Sequence[str], columns: Sequence[tuple[str, str, str]]) -> str:
+    """A CSV's sidecar: the header `column,unit,description`, a row with an empty column per
+    note about the whole file, then a row per column. Cells are quoted where they hold a
+    comma or a quote (RFC 4180); each is one line with every hidden character shown as a
+    \\u escape, and never starts like a spreadsheet formula."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["column", "unit", "description"])
+    writer.writerows(["", "", _one_line(note)] for note in notes)
+    writer.writerows([_one_line(name), _one_line(unit), _one_line(text)]
+                     for name, unit, text in columns)
+    return buf.getvalue()
+
+
+def _one_line(text: str) -> str:
+    return csv_safe_text(" ".join(_visible(line) for line in scalar_text(str(text)).splitlines()))

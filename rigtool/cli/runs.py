@@ -69,8 +69,8 @@ def cmd_show(args: argparse.Namespace) -> int:
         depths = {s["depth_m"] for s in steps}  # None: an import that recorded no depth
         for depth in sorted(depths, key=lambda d: (d is None, d or 0.0)):
             ds = [s for s in steps if s["depth_m"] == depth]
-            table.add_row("not recorded" if depth is None else f"{depth:g}", str(len(ds)), _span(ds, "command"), _span(ds, "thrust_n_mean"),
-                          _span(ds, "speed_rpm_mean"), _span(ds, "current_a_mean"))
+            table.add_row("not recorded" if depth is None else f"{depth:g}", str(len(ds)), _span(ds, "command"), _span(ds, "thrust_all_mean_n"),
+                          _span(ds, "speed_all_mean_rpm"), _span(ds, "current_all_mean_a"))
         out.print(table)
         counts: dict[str, int] = {}
         for ev in store.events(run_id):

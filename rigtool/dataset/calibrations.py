@@ -15,7 +15,7 @@ from rigtool.store import Store
 
 _TEXT = pa.string()
 _TYPES = {"run_id": _TEXT, "thruster_id": _TEXT, "rig": _TEXT, "created_utc": _TEXT,
-          "out_dir": _TEXT, "depth_m": pa.float64(), "supply_voltage_v": pa.float64(),
+          "out_dir": _TEXT, "depth_m": pa.float64(), "voltage_set_v": pa.float64(),
           "role": _TEXT, "main_section": pa.bool_(), "coefficient": _TEXT,
           "value": pa.float64(), "lo": pa.float64(), "hi": pa.float64(), "unit": _TEXT,
           "n": pa.int64()}

@@ -1,8 +1,10 @@
 """The dataset's two small tables beside the samples, gathered from every partition file's
 footer (so they cover runs exported from every database) and rewritten when a run changed:
-`_runs.pq`, a row per run; `_calibrations.pq`, a row per coefficient of each run's latest
-calibration. Parquet under names that keep them out of the samples table: no `.parquet`
-ending (DuckDB's glob), a leading `_` (pyarrow, Spark)."""
+`_tables/runs.pq`, a row per run; `_tables/calibrations.pq`, a row per coefficient of each
+run's latest calibration. The folder's leading `_` keeps them out of a pyarrow or Spark read of
+the dataset folder, the `.pq` ending out of DuckDB's `**/*.parquet` glob, and the files' own
+names are ones Spark opens when named (it drops a file whose name starts with `_` even then).
+Earlier datasets had them as `_runs.pq` and `_calibrations.pq`; the next export replaces those."""
 
 from __future__ import annotations
 
@@ -14,12 +16,14 @@ import pyarrow.parquet as pq
 
 from rigtool.dataset.calibrations import CALIBRATION_KEYS
 from rigtool.dataset.calibrations import SCHEMA as CALIBRATIONS_SCHEMA
-from rigtool.dataset.files import replace_atomically
+from rigtool.dataset.files import partition_dir, replace_atomically
 from rigtool.dataset.manifest import Entry
 from rigtool.errors import DataError
 
-RUNS_FILE = "_runs.pq"
-CALIBRATIONS_FILE = "_calibrations.pq"
+TABLES_DIR = "_tables"
+RUNS_FILE = f"{TABLES_DIR}/runs.pq"  # relative to the dataset folder
+CALIBRATIONS_FILE = f"{TABLES_DIR}/calibrations.pq"
+OLD_TABLE_FILES = ("_runs.pq", "_calibrations.pq")  # their names before Spark had to read them
 _TEXT = pa.string()
 RUNS_SCHEMA = pa.schema([
     ("run_id", _TEXT), ("thruster_id", _TEXT), ("rig", _TEXT), ("name", _TEXT),
@@ -48,6 +52,7 @@ def write_tables(folder: Path, runs: dict[str, tuple[Path, Entry]]) -> None:
         cal_rows += [dict(zip(CALIBRATIONS_SCHEMA.names, [run_id, entry.thruster_id, entry.rig,
                                                           *row], strict=True))
                      for row in calibration]
+    partition_dir(folder, TABLES_DIR)  # made if missing; a symlink is refused
     for name, rows, schema in ((RUNS_FILE, run_rows, RUNS_SCHEMA),
                                (CALIBRATIONS_FILE, cal_rows, CALIBRATIONS_SCHEMA)):
         try:

@@ -23,7 +23,7 @@ from rigtool.dataset.files import (
 from rigtool.dataset.hive import segment
 from rigtool.dataset.manifest import MANIFEST, Entry, read_manifest, write_manifest
 from rigtool.dataset.partition import DATA_FILE, DATASET_VERSION, SCHEMA, write_partition
-from rigtool.dataset.tables import CALIBRATIONS_FILE, RUNS_FILE, write_tables
+from rigtool.dataset.tables import CALIBRATIONS_FILE, OLD_TABLE_FILES, RUNS_FILE, write_tables
 from rigtool.errors import DataError, RigtoolError, UsageError
 from rigtool.ids import utc_now
 from rigtool.progress_hook import ProgressHook, counted, no_progress
@@ -112,13 +112,15 @@ class _Update:
 
     def write(self, todo: list[tuple[RunRecord, dict]],
               progress: ProgressHook = no_progress) -> Summary:
-        """Write the planned runs, then the calibrations table and the manifest if anything
-        changed."""
+        """Write the planned runs, then the runs and calibrations tables and the manifest if
+        anything changed; tables under their old names are removed once the new ones are in."""
         for record, fingerprint in counted(todo, "runs written", progress):
             self._write(record, fingerprint)
             if time.monotonic() - self.saved_at > CHECKPOINT_S:
                 self._save()
-        changed = (bool(todo) or self.runs != self.old
+        old_tables = [self.folder / name for name in OLD_TABLE_FILES
+                      if (self.folder / name).exists() or (self.folder / name).is_symlink()]
+        changed = (bool(todo) or self.runs != self.old or bool(old_tables)
                    or not (self.folder / CALIBRATIONS_FILE).is_file()
                    or not (self.folder / RUNS_FILE).is_file())
         if changed:
@@ -126,6 +128,8 @@ class _Update:
                 run_id: (partition_file(self.folder, run_id, e.thruster_id), e)
                 for run_id, e in self.runs.items()})
             self._save()
+        for path in old_tables:  # a dataset of the old names: its tables now have new ones
+            path.unlink()
         self.summary.runs = len(self.runs)
         self.summary.rows = sum(e.rows for e in self.runs.values())
         return self.summary

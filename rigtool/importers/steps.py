@@ -59,9 +59,9 @@ class ImportedPoints:
 
     def columns(self) -> dict[str, np.ndarray]:
         """The per-point fields by steps-table column name."""
-        names = ("command", "depth_m", "voltage_v", "repeat", "direction", "t_start_s", "t_acquire_s",
+        names = ("command", "depth_m", "repeat", "direction", "t_start_s", "t_acquire_s",
                  "t_end_s", "settle_s", "rate_hz")
-        return {n: getattr(self, n) for n in names}
+        return {**{n: getattr(self, n) for n in names}, "voltage_set_v": self.voltage_v}
 
 
 def _edges(keys: np.ndarray) -> np.ndarray:

@@ -8,19 +8,26 @@ from dataclasses import dataclass
 RUN_STATUSES = ("running", "completed", "aborted", "failed", "interrupted")
 
 STAT_FIELDS = ("thrust_n", "speed_rpm", "current_a")  # sample columns a point row has stats of
+POINT_STATS = ("mean", "std", "min", "max")
 
-# A stored point's columns under the names the API, points.csv and the exports use
-# (public name -> steps column). Statistics here are over all of a point's samples.
+
+def stat_column(field: str, stat: str) -> str:
+    """The name of a point's statistic over all of its samples, e.g. `thrust_all_mean_n`: the
+    same in the steps table, the API and the exports; `all` sets it apart from the steady
+    window's `thrust_mean_n` of a calibration's points.csv."""
+    channel, unit = field.rsplit("_", 1)
+    return f"{channel}_all_{stat}_{unit}"
+
+
+# A stored point's columns under the names the API and the exports use (public name -> steps
+# column; since schema version 9 they differ only in step_idx and n_samples).
 POINT_COLUMNS = {
-    "step_idx": "idx", "command": "command", "depth_m": "depth_m", "voltage_set_v": "voltage_v",
-    "repeat": "repeat",
+    "step_idx": "idx", "command": "command", "depth_m": "depth_m",
+    "voltage_set_v": "voltage_set_v", "repeat": "repeat",
     "direction": "direction", "status": "status", "settled": "settled",
     "t_start_s": "t_start_s", "t_acquire_s": "t_acquire_s", "t_end_s": "t_end_s",
     "settle_s": "settle_s", "rate_hz": "rate_hz", "n_samples": "n",
-    **{f"{ch}_{stat}_{u}": f"{field}_{stat}"
-       for field, ch, u in (("thrust_n", "thrust", "n"), ("speed_rpm", "speed", "rpm"),
-                            ("current_a", "current", "a"))
-       for stat in ("mean", "std", "min", "max")},
+    **{stat_column(f, s): stat_column(f, s) for f in STAT_FIELDS for s in POINT_STATS},
 }
 TEXT_POINT_COLUMNS = ("direction", "status")
 INT_POINT_COLUMNS = ("step_idx", "repeat", "settled", "n_samples")

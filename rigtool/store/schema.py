@@ -20,6 +20,7 @@ from rigtool.readback import show
 from rigtool.spool import SAMPLES_PER_CHUNK
 from rigtool.store.codec import SAMPLE_COLUMNS, block_row
 from rigtool.store.connection import Transaction
+from rigtool.store.records import POINT_STATS, STAT_FIELDS, stat_column
 
 SCHEMA_V1 = """
 CREATE TABLE runs (
@@ -175,10 +176,26 @@ def migrate_7_to_8(conn: sqlite3.Connection) -> None:
     conn.execute("DROP TABLE samples")
 
 
+# Schema v9's names of the steps columns that had others: one quantity, one name in SQLite,
+# the API and the exports (a point's statistics over all its samples carry `_all_`).
+RENAMED_STEP_COLUMNS = {
+    "voltage_v": "voltage_set_v",
+    **{f"{field}_{stat}": stat_column(field, stat)
+       for field in STAT_FIELDS for stat in POINT_STATS},
+}
+
+
+def migrate_8_to_9(conn: sqlite3.Connection) -> None:
+    """v9: the steps columns under the names the API and the exports use (thrust_n_mean ->
+    thrust_all_mean_n, voltage_v -> voltage_set_v, ...); values are not touched."""
+    for old, new in RENAMED_STEP_COLUMNS.items():
+        conn.execute(f"ALTER TABLE steps RENAME COLUMN {old} TO {new}")
+
+
 # MIGRATIONS[v] takes a store from version v to v + 1.
 MIGRATIONS: tuple[Callable[[sqlite3.Connection], None], ...] = (
     migrate_0_to_1, migrate_1_to_2, migrate_2_to_3, migrate_3_to_4, migrate_4_to_5,
-    migrate_5_to_6, migrate_6_to_7, migrate_7_to_8,
+    migrate_5_to_6, migrate_6_to_7, migrate_7_to_8, migrate_8_to_9,
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 

@@ -22,7 +22,13 @@ from rigtool.store.codec import SAMPLE_COLUMNS, block_row
 from rigtool.store.connection import Transaction
 from rigtool.store.merge import MergeReport, MergeSource
 from rigtool.store.queries import RunQueries
-from rigtool.store.records import RUN_STATUSES, STAT_FIELDS, StepRecord
+from rigtool.store.records import (
+    POINT_STATS,
+    RUN_STATUSES,
+    STAT_FIELDS,
+    StepRecord,
+    stat_column,
+)
 from rigtool.store.schema import INSERT_BLOCK
 
 # Bulk writes (imports): point rows per executemany call, and samples per transaction, so a
@@ -100,11 +106,12 @@ class RunWriter(RunQueries):
             samples, SAMPLE_COLUMNS[1:], STAT_FIELDS)
         fields = dict(step.__dict__)
         counters = fields.pop("counters")
+        fields["voltage_set_v"] = fields.pop("voltage_v")
         row: dict[str, Any] = {"run_id": run_id, **fields, "n": spool.n,
                                "counters_json": json.dumps(counters) if counters else None}
         row["settled"] = int(step.settled)
         for name in STAT_FIELDS:
-            keys = [f"{name}_{s}" for s in ("mean", "std", "min", "max")]
+            keys = [stat_column(name, s) for s in POINT_STATS]
             row.update(zip(keys, spool.stats(name) or (None,) * 4, strict=True))
         with self.transaction():
             cur = self.conn.execute(
@@ -135,7 +142,7 @@ class RunWriter(RunQueries):
         for name in STAT_FIELDS:
             stats = segment_stats(samples.get(name), bounds)
             for key, values in stats.items():
-                columns[f"{name}_{key}"] = values
+                columns[stat_column(name, key)] = values
         start = 0
         while start < n_points:
             limit = bounds[start] + IMPORT_ROWS_PER_TRANSACTION

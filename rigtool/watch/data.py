@@ -233,7 +233,7 @@ class Watcher:
             "fit": {"provisional": True, "unit": "N/(r/min)^2",
                     "label": "provisional: least squares on the stored points' mean thrust "
                              "and speed, not a calibration",
-                    **fit_cp(points["speed_mean_rpm"], points["thrust_mean_n"])},
+                    **fit_cp(points["speed_all_mean_rpm"], points["thrust_all_mean_n"])},
             "bounds": bounds,
         }
 
@@ -317,7 +317,7 @@ class Watcher:
         return {"n_stored": n, "n_sent": len(group), "truncated": n > MAX_POINTS,
                 "step_idx": points["step_idx"][keep].tolist(),
                 "command": _nums(points["command"][keep]),
-                "thrust": _nums(points["thrust_mean_n"][keep]),
+                "thrust": _nums(points["thrust_all_mean_n"][keep]),
                 "group": group, "groups": names,
                 "current_pass": _current_pass(points, keep)}
 

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 from rigtool.artefacts.calibration import FILES, lut_text
-from rigtool.artefacts.encode import scalar_text
 from rigtool.artefacts.vehicle import ExportInput
 
 FILE = FILES["inverse_lut"]
@@ -18,8 +15,5 @@ def needs(x: ExportInput) -> list[str]:
 
 
 def render(x: ExportInput) -> str:
-    """The table, with lone surrogates in the comment texts as U+FFFD."""
-    cal = x.cal
-    cal = replace(cal, run_id=scalar_text(cal.run_id), command_unit=scalar_text(cal.command_unit),
-                  tool_version=scalar_text(cal.tool_version))
-    return lut_text(cal, scalar_text(x.created))
+    """The table: a header row and the rows (no stored text reaches it)."""
+    return lut_text(x.cal)
