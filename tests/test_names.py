@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import re
+import shutil
 import sqlite3
 from pathlib import Path
 
@@ -88,6 +89,13 @@ def test_a_schema_8_database_opens_with_the_new_names(swept, tmp_path):
     stored = dst.execute("SELECT idx, thrust_n_mean, current_a_max, voltage_v FROM steps "
                          "ORDER BY idx").fetchall()
     dst.close()
+    archive = tmp_path / "archive.sqlite"  # a read-only copy: read under the new names as it is
+    shutil.copy(old, archive)
+    archive.chmod(0o444)
+    with Store(archive, read_only=True) as store:
+        kept = store.points(run_id)
+    assert sqlite3.connect(archive).execute("PRAGMA user_version").fetchone()[0] == 8
+    assert main(["show", run_id, "--db", str(archive)]) == 0
     with Store(old) as store:
         assert store.version == SCHEMA_VERSION == 9
         p = store.points(run_id)
@@ -96,6 +104,7 @@ def test_a_schema_8_database_opens_with_the_new_names(swept, tmp_path):
     got = list(zip(p["step_idx"].tolist(), p["thrust_all_mean_n"].tolist(),
                    p["current_all_max_a"].tolist(), p["voltage_set_v"].tolist(), strict=True))
     assert got == stored
+    assert all(np.array_equal(kept[k], p[k], equal_nan=True) for k in (*STATS, "voltage_set_v"))
     with Store(db, read_only=True) as store:
         assert all(np.array_equal(store.points(run_id)[k], p[k], equal_nan=True)
                    for k in (*STATS, "voltage_set_v"))

@@ -231,16 +231,30 @@ def upgrade(conn: sqlite3.Connection, path: Path) -> None:
 
 
 def check_readable(conn: sqlite3.Connection, path: Path) -> None:
-    """A read-only open cannot migrate: an older schema asks for one writing command."""
+    """A read-only open cannot migrate: a version-8 store (the steps columns under their old
+    names) is read through a view with the new names; an older one asks for one writing
+    command."""
     current = version(conn)
     if current > SCHEMA_VERSION:
         raise DataError(f"{path} has schema version {current}; this rigtool knows up "
                          f"to {SCHEMA_VERSION}: upgrade rigtool")
+    if current == 8 and SCHEMA_VERSION == 9:
+        _renamed_steps_view(conn)
+        return
     if current < SCHEMA_VERSION:
         raise StoreError(
             f"{path} has schema version {current} and needs a one-time upgrade to "
             f"{SCHEMA_VERSION}, which writes to it: run `rigtool calibrate` or `rigtool "
             "sweep` on it once, with free disk space and write access")
+
+
+def _renamed_steps_view(conn: sqlite3.Connection) -> None:
+    """A temporary view `steps` over a version-8 store's table with v9's column names: an
+    unqualified name finds the temp schema first, so every reader sees the new names and the
+    file is not written (a read-only archive opens)."""
+    columns = [row[1] for row in conn.execute("PRAGMA main.table_info(steps)")]
+    cells = ", ".join(f'"{c}" AS "{RENAMED_STEP_COLUMNS.get(c, c)}"' for c in columns)
+    conn.execute(f"CREATE TEMP VIEW steps AS SELECT {cells} FROM main.steps")
 
 
 _SCHEMA_OBJECTS = ("SELECT type, name, tbl_name FROM sqlite_master WHERE NOT (type = 'table' "
