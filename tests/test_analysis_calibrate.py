@@ -200,7 +200,7 @@ def test_artefacts_formats(can_cal, tmp_path):
     doc = json.loads(paths[0].read_text())
     assert doc["format"] == "rigtool-calibration" and doc["format_version"] == 1
     assert doc["tool_version"] == rigtool.__version__ and doc["created_utc"] == CREATED
-    assert doc["files"] == {f.key: f.name for f in written[1:]}
+    assert doc["files"] == {f.key: f.name for f in written[1:] if f.listed}
     assert doc["source"]["run_id"] == can_cal.run_id
     assert doc["source"]["command_unit"] == "percent"
     assert doc["analysis"]["settling"]["n_blocks"] == 20
