@@ -172,10 +172,10 @@ class _TaskBars:
 def stage(text: str, console: Console | None = None) -> Iterator[ProgressHook]:
     """A spinner with the elapsed time while one stage runs, and a bar (done/total, elapsed,
     ETA) for each task the stage reports through the hook it yields; on a terminal only
-    (stdout and stderr both: pipes and logs stay quiet). The stage's line stays with its
-    duration when it ends."""
+    (stdout and stderr both: pipes and logs stay quiet; a `console` given is taken at its
+    word). The stage's line stays with its duration when it ends."""
     con = console or Console(stderr=True, markup=False, highlight=False)
-    if not (con.is_terminal and sys.stdout.isatty()):
+    if not (con.is_terminal and (console is not None or sys.stdout.isatty())):
         yield no_progress
         return
     t0 = time.monotonic()

@@ -224,9 +224,13 @@ def test_missing_servo_or_wrong_node_raises_on_open(twin, channel):
         DbcCanDriver(cfg)
 
 
-def test_bad_interface_raises_device_error_naming_it():
-    cfg = DbcCanConfig(driver="dbc-can", interface="no-such-interface", channel="can7")
-    with pytest.raises(DeviceError, match=r"interface='no-such-interface' channel='can7'"):
+def test_bad_interface_is_refused_and_a_bad_channel_raises_device_error_naming_it():
+    """An unknown interface is a config error (issue 49); a known one on a missing port
+    fails at open with a DeviceError naming interface and channel."""
+    with pytest.raises(ValueError, match="unknown CAN interface 'no-such-interface'"):
+        DbcCanConfig(driver="dbc-can", interface="no-such-interface", channel="can7")
+    cfg = DbcCanConfig(driver="dbc-can", interface="slcan", channel="/dev/ttyNOPE7")
+    with pytest.raises(DeviceError, match=r"interface='slcan' channel='/dev/ttyNOPE7'"):
         DbcCanDriver(cfg)
 
 

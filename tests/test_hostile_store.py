@@ -76,7 +76,7 @@ def test_csv_comment_header_survives_a_newline_in_a_run_id(swept, tmp_path, caps
     for csv_file in folder.glob("*.csv"):
         lines = csv_file.read_text().splitlines()
         body = [ln for ln in lines if not ln.startswith("#")]
-        widths = {len(ln.split(",")) for ln in body}
+        widths = {len(row) for row in csv.reader(body)}  # RFC 4180: quoted cells
         assert len(widths) == 1, (csv_file.name, body[:3])
 
 

@@ -88,4 +88,4 @@ def test_an_attacked_watch_page_changes_nothing_the_sweep_stores(tmp_path):
     for q, a in zip(quiet, attacked, strict=True):
         assert a["t_end_s"] - a["t_acquire_s"] == pytest.approx(q["t_end_s"] - q["t_acquire_s"],
                                                                abs=0.05)
-        assert a["thrust_n_mean"] == pytest.approx(q["thrust_n_mean"], abs=0.3), (q, a)
+        assert a["thrust_all_mean_n"] == pytest.approx(q["thrust_all_mean_n"], abs=0.3), (q, a)
