@@ -41,6 +41,7 @@ CHUNK_S = 0.2  # acquisition block length: limit checks and Ctrl-C are seen this
 RAMP_DT_S = 0.05  # command update period while slewing
 CATCH_UP_SLACK = 2.0  # sample periods a settled point's newest sample may fall short by
 MAX_CATCH_UP_READS = 200  # CHUNK_S blocks read at most to catch a lagging reader up
+LAG_WARN_S = 0.1  # a reader this far behind is named in a warning event (less is clock drift)
 # After the final neutral, an actuator's speed feedback must fall within NEUTRAL_CONFIRM_S:
 # to NEUTRAL_SPEED_RPM or below, or to NEUTRAL_FALL_FRAC of its first reading; else exit 3.
 NEUTRAL_CONFIRM_S = 2.0
@@ -673,6 +674,8 @@ class Engine:
                 break
             n = min(chunk, max(1, math.ceil((until - self._newest_t) * rate)))
             self._read(n, rate, step)
+        if behind < LAG_WARN_S:
+            return
         self._event("warning", {"message": f"point {step.idx}: the sensor's samples lagged "
                                 f"the clock by {behind:.3g} s as it settled (a busy machine?); "
                                 "samples stamped before the settling time ended were "
